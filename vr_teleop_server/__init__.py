@@ -1,0 +1,1 @@
+"""The VR telepresence server: transport, sessions, bus, backends, CLI and study tools."""
