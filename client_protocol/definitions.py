@@ -1,0 +1,74 @@
+"""The ROS message and service types the project knows, in ROS's own `.msg`/`.srv` text format.
+
+Writing them as ROS does keeps one source for everything derived from a type: the pydantic model that validates
+it, the defaults ROS fills in, the `rosapi/TypeDef` that `/rosapi/message_details` returns, the JSON Schema the
+Unity team codes against, and the ROS 1 wire format that `cbor-raw` subscriptions carry. Type names are written
+in the short `pkg/Type` form; `pkg/msg/Type` and `pkg/srv/Type` name the same types.
+"""
+
+MESSAGES: dict[str, str] = {
+    # std_msgs
+    "std_msgs/Header": "uint32 seq\ntime stamp\nstring frame_id",
+    "std_msgs/String": "string data",
+    "std_msgs/Bool": "bool data",
+    "std_msgs/Float64": "float64 data",
+    "std_msgs/Float32": "float32 data",
+    "std_msgs/Int32": "int32 data",
+    "std_msgs/Empty": "",
+    "std_msgs/MultiArrayDimension": "string label\nuint32 size\nuint32 stride",
+    "std_msgs/MultiArrayLayout": "MultiArrayDimension[] dim\nuint32 data_offset",
+    "std_msgs/Float64MultiArray": "MultiArrayLayout layout\nfloat64[] data",
+    # geometry_msgs
+    "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z",
+    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z",
+    "geometry_msgs/Quaternion": "float64 x\nfloat64 y\nfloat64 z\nfloat64 w",
+    "geometry_msgs/Pose": "Point position\nQuaternion orientation",
+    "geometry_msgs/PoseStamped": "Header header\nPose pose",
+    # sensor_msgs
+    "sensor_msgs/JointState": "Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort",
+    "sensor_msgs/CompressedImage": "Header header\nstring format\nuint8[] data",
+    "sensor_msgs/Image": (
+        "Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data"
+    ),
+    "sensor_msgs/Joy": "Header header\nfloat32[] axes\nint32[] buttons",
+    # audio
+    "audio_common_msgs/AudioData": "uint8[] data",
+    # the log every ROS system has
+    "rosgraph_msgs/Log": (
+        "byte DEBUG=1\nbyte INFO=2\nbyte WARN=4\nbyte ERROR=8\nbyte FATAL=16\n"
+        "Header header\nbyte level\nstring name\nstring msg\nstring file\nstring function\nuint32 line\n"
+        "string[] topics"
+    ),
+    # rosapi's own message
+    "rosapi/TypeDef": (
+        "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
+        "string[] constnames\nstring[] constvalues"
+    ),
+}
+
+SERVICES: dict[str, str] = {
+    "std_srvs/Trigger": "---\nbool success\nstring message",
+    "std_srvs/SetBool": "bool data\n---\nbool success\nstring message",
+    "std_srvs/Empty": "---",
+    # rosapi, as client libraries (roslibpy, roslibjs, ROS#) call it
+    "rosapi/Topics": "---\nstring[] topics\nstring[] types",
+    "rosapi/TopicType": "string topic\n---\nstring type",
+    "rosapi/TopicsForType": "string type\n---\nstring[] topics",
+    "rosapi/Services": "---\nstring[] services",
+    "rosapi/ServiceType": "string service\n---\nstring type",
+    "rosapi/ServicesForType": "string type\n---\nstring[] services",
+    "rosapi/Nodes": "---\nstring[] nodes",
+    "rosapi/NodeDetails": "string node\n---\nstring[] subscribing\nstring[] publishing\nstring[] services",
+    "rosapi/GetTime": "---\ntime time",
+    "rosapi/MessageDetails": "string type\n---\nTypeDef[] typedefs",
+    "rosapi/ServiceRequestDetails": "string type\n---\nTypeDef[] typedefs",
+    "rosapi/ServiceResponseDetails": "string type\n---\nTypeDef[] typedefs",
+    "rosapi/Publishers": "string topic\n---\nstring[] publishers",
+    "rosapi/Subscribers": "string topic\n---\nstring[] subscribers",
+    "rosapi/GetParam": "string name\nstring default\n---\nstring value",
+    "rosapi/SetParam": "string name\nstring value\n---",
+    "rosapi/HasParam": "string name\n---\nbool exists",
+    "rosapi/DeleteParam": "string name\n---",
+    "rosapi/GetParamNames": "---\nstring[] names",
+    "rosapi/GetActionServers": "---\nstring[] action_servers",
+}

@@ -1,0 +1,315 @@
+"""The in-process topic, service and action bus: one per server.
+
+Clients (through their sessions) and the server's own features are equal parties here: a feature publishes,
+subscribes and provides services exactly as a client does, so nothing reaches the robot by a back door.
+Messages of known types travel as validated pydantic models; messages of types the server does not know travel
+as the JSON value the client sent, untouched.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from pydantic import BaseModel, ValidationError
+
+from client_protocol.registry import TypeRegistry, describe_validation_error, normalize_type_name
+
+log = logging.getLogger(__name__)
+
+
+class BusError(Exception):
+    """A request the bus refuses; the message is shown to the client as it is."""
+
+
+class Published:
+    """One message as published, with its wire encodings computed once and shared by every subscriber."""
+
+    __slots__ = ("topic", "type", "value", "known", "sender", "encoded")
+
+    def __init__(self, topic: str, type_name: str, value: Any, known: bool, sender: str) -> None:
+        self.topic = topic
+        self.sender = sender  # the owner that published it: a client session's name, or a feature's
+        self.type = type_name
+        self.value = value  # a pydantic model for known types, the JSON value as sent for the others
+        self.known = known
+        self.encoded: dict[str, Any] = {}
+
+
+Subscriber = Callable[[Published], None]
+
+
+@dataclass
+class Topic:
+    name: str
+    type: str
+    known: bool
+    latched: bool = False
+    last: Published | None = None
+    subscribers: dict[int, tuple[str, Subscriber]] = field(default_factory=dict)  # token -> (owner, callback)
+    publishers: dict[str, int] = field(default_factory=dict)  # owner -> advertise count
+    persistent: bool = False  # created by the server itself: kept when no client uses it
+
+
+@dataclass
+class Service:
+    name: str
+    type: str
+    known: bool
+    owner: str
+    provider: Callable[[Any, float], Awaitable[Any]]
+
+
+class GoalHandle:
+    """One action goal on its way from a caller to a provider; feedback and the result flow back through it."""
+
+    def __init__(self, action: str, goal_id: str, args: Any, on_feedback: Callable[[Any], None],
+                 on_result: Callable[[int, Any, bool], None]) -> None:
+        self.action = action
+        self.goal_id = goal_id  # the bus's own id, unique across clients
+        self.args = args
+        self._on_feedback = on_feedback
+        self._on_result = on_result
+        self.done = False
+        self.cancel_requested = False
+
+    def feedback(self, values: Any) -> None:
+        if not self.done:
+            self._on_feedback(values)
+
+    def finish(self, status: int, values: Any, result: bool) -> None:
+        if not self.done:
+            self.done = True
+            self._on_result(status, values, result)
+
+
+class ActionProvider(Protocol):
+    def start_goal(self, goal: GoalHandle) -> None: ...
+    def cancel_goal(self, goal: GoalHandle) -> None: ...
+
+
+@dataclass
+class Action:
+    name: str
+    type: str
+    owner: str
+    provider: ActionProvider
+    goals: dict[str, GoalHandle] = field(default_factory=dict)
+
+
+SERVER_NODE = "/vr_teleop_server"  # the owner name of the server's own topics and services
+GOAL_STATUS_CANCELED = 5
+GOAL_STATUS_ABORTED = 6
+
+
+class Bus:
+    def __init__(self, registry: TypeRegistry) -> None:
+        self.registry = registry
+        self.topics: dict[str, Topic] = {}
+        self.services: dict[str, Service] = {}
+        self.actions: dict[str, Action] = {}
+        self._tokens = itertools.count(1)
+        self._goal_ids = itertools.count(1)
+
+    # ---- topics -------------------------------------------------------------------------------------------------
+    def declare_topic(self, name: str, type_name: str, *, latched: bool = False, persistent: bool = False) -> Topic:
+        """Creates `name` with `type_name`, or checks that it already has that type."""
+        type_name = normalize_type_name(type_name)
+        topic = self.topics.get(name)
+        if topic is None:
+            topic = Topic(name, type_name, self.registry.is_known_message(type_name), latched, persistent=persistent)
+            self.topics[name] = topic
+        elif topic.type != type_name:
+            raise BusError(f"topic {name} has type {topic.type}, not {type_name}")
+        topic.latched = topic.latched or latched
+        topic.persistent = topic.persistent or persistent
+        return topic
+
+    def advertise(self, owner: str, name: str, type_name: str, *, latched: bool = False) -> Topic:
+        topic = self.declare_topic(name, type_name, latched=latched)
+        topic.publishers[owner] = topic.publishers.get(owner, 0) + 1
+        return topic
+
+    def unadvertise(self, owner: str, name: str) -> None:
+        topic = self.topics.get(name)
+        if topic is None or owner not in topic.publishers:
+            raise BusError(f"topic {name} is not advertised by this client")
+        del topic.publishers[owner]
+        self._forget_if_unused(topic)
+
+    def subscribe(self, owner: str, name: str, type_name: str | None, callback: Subscriber) -> int:
+        """Returns a token for `unsubscribe`. A latched topic's last message is delivered at once."""
+        if type_name:
+            topic = self.declare_topic(name, type_name)
+        else:
+            topic = self.topics.get(name)
+            if topic is None:
+                raise BusError(f"topic {name} does not exist yet, so its type is unknown: give 'type' when "
+                               f"subscribing, or wait until it is advertised")
+        token = next(self._tokens)
+        topic.subscribers[token] = (owner, callback)
+        if topic.latched and topic.last is not None:
+            callback(topic.last)
+        return token
+
+    def unsubscribe(self, name: str, token: int) -> None:
+        topic = self.topics.get(name)
+        if topic is not None and topic.subscribers.pop(token, None) is not None:
+            self._forget_if_unused(topic)
+
+    def _forget_if_unused(self, topic: Topic) -> None:
+        if not topic.persistent and not topic.publishers and not topic.subscribers and topic.last is None:
+            self.topics.pop(topic.name, None)
+
+    def validate_message(self, topic: Topic, msg: Any) -> Any:
+        if not topic.known:
+            return msg
+        try:
+            return self.registry.validate(topic.type, msg)
+        except ValidationError as exc:
+            raise BusError(f"message does not fit {topic.type} on {topic.name}: "
+                           f"{describe_validation_error(exc, 'msg')}") from None
+
+    def publish(self, name: str, msg: Any, *, latch: bool = False, sender: str = SERVER_NODE) -> Published:
+        """Validates `msg` against the topic's type and hands it to every subscriber. Never blocks."""
+        topic = self.topics.get(name)
+        if topic is None:
+            raise BusError(f"topic {name} does not exist: advertise it with a type before publishing")
+        value = msg if isinstance(msg, BaseModel) else self.validate_message(topic, msg)
+        published = Published(name, topic.type, value, topic.known, sender)
+        if topic.latched or latch:
+            topic.latched = True
+            topic.last = published
+        for _owner, callback in list(topic.subscribers.values()):
+            try:
+                callback(published)
+            except Exception:  # one faulty in-process subscriber must not starve the others
+                log.exception("subscriber of %s failed", name)
+        return published
+
+    # ---- services -----------------------------------------------------------------------------------------------
+    def advertise_service(self, owner: str, name: str, type_name: str,
+                          provider: Callable[[Any, float], Awaitable[Any]]) -> Service:
+        type_name = normalize_type_name(type_name)
+        existing = self.services.get(name)
+        if existing is not None and existing.owner != owner:
+            raise BusError(f"service {name} is already provided by {existing.owner}")
+        service = Service(name, type_name, self.registry.is_known_service(type_name), owner, provider)
+        self.services[name] = service
+        return service
+
+    def unadvertise_service(self, owner: str, name: str) -> None:
+        service = self.services.get(name)
+        if service is None or service.owner != owner:
+            raise BusError(f"service {name} is not advertised by this client")
+        del self.services[name]
+
+    def _service_request(self, service: Service, args: Any) -> Any:
+        if not service.known:
+            return args
+        request_type, _ = self.registry.service_parts(service.type)
+        if isinstance(args, list):
+            names = [f.name for f in self.registry.spec(request_type).fields]
+            if len(args) > len(names):
+                raise BusError(f"{service.name} takes {len(names)} argument(s) ({', '.join(names) or 'none'}), "
+                               f"{len(args)} were given")
+            args = dict(zip(names, args))
+        try:
+            return self.registry.validate(request_type, args)
+        except ValidationError as exc:
+            raise BusError(f"arguments do not fit {service.type}: {describe_validation_error(exc, 'args')}") \
+                from None
+
+    def validate_response(self, service: Service, values: Any) -> Any:
+        if not service.known:
+            return values
+        _, response_type = self.registry.service_parts(service.type)
+        try:
+            return self.registry.validate(response_type, values)
+        except ValidationError as exc:
+            raise BusError(f"the provider's response does not fit {service.type}: "
+                           f"{describe_validation_error(exc, 'values')}") from None
+
+    async def call_service(self, name: str, args: Any, timeout: float) -> Any:
+        """Calls a service; returns its response (a model for known types). Raises BusError with the reason."""
+        service = self.services.get(name)
+        if service is None:
+            raise BusError(f"service {name} does not exist")
+        request = self._service_request(service, args)
+        try:
+            response = await asyncio.wait_for(service.provider(request, timeout), timeout)
+        except asyncio.TimeoutError:
+            raise BusError(f"service {name} did not answer within {timeout:g} s") from None
+        except BusError:
+            raise
+        except Exception as exc:
+            log.exception("service %s failed", name)
+            raise BusError(f"service {name} failed: {exc}") from None
+        return response if isinstance(response, BaseModel) else self.validate_response(service, response)
+
+    def provide(self, name: str, type_name: str, handler: Callable[[Any], Awaitable[Any]]) -> Service:
+        """Registers one of the server's own services; `handler(request)` returns the response values."""
+        async def provider(request: Any, _timeout: float) -> Any:
+            return await handler(request)
+        return self.advertise_service(SERVER_NODE, name, type_name, provider)
+
+    # ---- actions ------------------------------------------------------------------------------------------------
+    def advertise_action(self, owner: str, name: str, type_name: str, provider: ActionProvider) -> Action:
+        existing = self.actions.get(name)
+        if existing is not None and existing.owner != owner:
+            raise BusError(f"action {name} is already provided by {existing.owner}")
+        action = Action(name, normalize_type_name(type_name), owner, provider)
+        self.actions[name] = action
+        return action
+
+    def unadvertise_action(self, owner: str, name: str) -> None:
+        action = self.actions.get(name)
+        if action is None or action.owner != owner:
+            raise BusError(f"action {name} is not advertised by this client")
+        del self.actions[name]
+        for goal in list(action.goals.values()):
+            goal.finish(GOAL_STATUS_ABORTED, f"action {name} was withdrawn by its provider", False)
+
+    def send_goal(self, name: str, type_name: str, args: Any, on_feedback: Callable[[Any], None],
+                  on_result: Callable[[int, Any, bool], None]) -> GoalHandle:
+        action = self.actions.get(name)
+        if action is None:
+            raise BusError(f"action {name} does not exist")
+        if normalize_type_name(type_name) != action.type:
+            raise BusError(f"action {name} has type {action.type}, not {normalize_type_name(type_name)}")
+
+        def finished(status: int, values: Any, result: bool) -> None:
+            action.goals.pop(goal.goal_id, None)
+            on_result(status, values, result)
+
+        goal = GoalHandle(name, f"goal_{next(self._goal_ids)}", args, on_feedback, finished)
+        action.goals[goal.goal_id] = goal
+        action.provider.start_goal(goal)
+        return goal
+
+    def cancel_goal(self, goal: GoalHandle) -> None:
+        action = self.actions.get(goal.action)
+        if action is None or goal.done:
+            return
+        goal.cancel_requested = True
+        action.provider.cancel_goal(goal)
+
+    # ---- introspection (rosapi) ---------------------------------------------------------------------------------
+    def drop_owner(self, owner: str) -> None:
+        """Removes everything a disconnected client advertised or provided."""
+        for topic in list(self.topics.values()):
+            topic.publishers.pop(owner, None)
+            for token, (sub_owner, _) in list(topic.subscribers.items()):
+                if sub_owner == owner:
+                    del topic.subscribers[token]
+            self._forget_if_unused(topic)
+        for name, service in list(self.services.items()):
+            if service.owner == owner:
+                del self.services[name]
+        for name, action in list(self.actions.items()):
+            if action.owner == owner:
+                self.unadvertise_action(owner, name)

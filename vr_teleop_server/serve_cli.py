@@ -1,0 +1,53 @@
+"""`vr-teleop serve`: runs the server until Ctrl-C or SIGTERM."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+
+from .app import TeleopServer
+from .settings import ServerSettings
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("serve", help="run the rosbridge v2 server",
+                              description="Run the VR telepresence server (rosbridge v2 over WebSocket).")
+    defaults = ServerSettings()
+    p.add_argument("--host", default=defaults.host, help="address to listen on (default %(default)s)")
+    p.add_argument("--port", type=int, default=defaults.port, help="port to listen on (default %(default)s)")
+    p.add_argument("--time-style", choices=["ros1", "ros2"], default=defaults.time_style,
+                   help="send time as {secs, nsecs} (ros1) or {sec, nanosec} (ros2); both are accepted")
+    p.add_argument("--max-message-size", type=int, default=defaults.max_message_size, metavar="BYTES",
+                   help="larger frames get a status error (default %(default)s)")
+    p.add_argument("--service-timeout", type=float, default=defaults.service_timeout, metavar="S",
+                   help="seconds a service call waits when the caller gives no timeout (default %(default)s)")
+    p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("websockets").setLevel(max(logging.WARNING, logging.getLogger().level))  # we log our own
+    settings = ServerSettings(host=args.host, port=args.port, time_style=args.time_style,
+                              max_message_size=args.max_message_size, service_timeout=args.service_timeout)
+    return asyncio.run(_serve(settings))
+
+
+async def _serve(settings: ServerSettings) -> int:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    server = TeleopServer(settings)
+    try:
+        await server.start()
+    except OSError as exc:
+        logging.getLogger("vr_teleop_server").error("cannot listen on %s:%s: %s", settings.host, settings.port, exc)
+        return 1
+    print(f"vr-teleop: listening on {server.url}", flush=True)
+    await stop.wait()
+    await server.stop()
+    print("vr-teleop: stopped", flush=True)
+    return 0

@@ -1,0 +1,138 @@
+"""Frames in and out: JSON and CBOR decoding, and the outgoing encodings rosbridge defines (none, png, cbor,
+cbor-raw, fragments)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+from typing import Any
+
+import cbor2
+import cv2
+import numpy as np
+
+from client_protocol.registry import TypeRegistry
+
+from .bus import Published
+
+
+class FrameError(ValueError):
+    """A frame that cannot be read as a rosbridge message; the text says why."""
+
+
+def decode_frame(frame: str | bytes) -> dict[str, Any]:
+    """TEXT frames carry JSON. BINARY frames carry UTF-8 JSON (as ROS# sends it) or CBOR."""
+    if isinstance(frame, str):
+        return _check_envelope(_loads_json(frame))
+    stripped = frame.lstrip()
+    if stripped[:1] in (b"{", b"["):
+        try:
+            text = frame.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise FrameError(f"binary frame looks like JSON but is not valid UTF-8 ({exc.reason} at byte "
+                             f"{exc.start})") from None
+        return _check_envelope(_loads_json(text))
+    try:
+        value = cbor2.loads(frame)
+    except Exception as exc:  # cbor2 raises several types for corrupt input
+        raise FrameError(f"binary frame is neither JSON nor valid CBOR ({exc})") from None
+    return _check_envelope(value)
+
+
+def _loads_json(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FrameError(f"invalid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except RecursionError:
+        raise FrameError("invalid JSON: nested too deeply") from None
+
+
+def _check_envelope(value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise FrameError(f"a rosbridge message must be a JSON object with an 'op' field, not {type(value).__name__}")
+    op = value.get("op")
+    if not isinstance(op, str):
+        raise FrameError("the message has no 'op' field (a string such as \"publish\")" if op is None
+                         else f"'op' must be a string, not {type(op).__name__}")
+    return value
+
+
+def dumps(value: Any) -> str:
+    return json.dumps(value, separators=(",", ":"))
+
+
+def message_json(published: Published) -> str:
+    """The message's JSON text, made once per message."""
+    text = published.encoded.get("msg_json")
+    if text is None:
+        value = published.value
+        text = value.model_dump_json(by_alias=True) if published.known else dumps(value)
+        published.encoded["msg_json"] = text
+    return text
+
+
+def publish_text(published: Published) -> str:
+    text = published.encoded.get("none")
+    if text is None:
+        text = f'{{"op":"publish","topic":{dumps(published.topic)},"msg":{message_json(published)}}}'
+        published.encoded["none"] = text
+    return text
+
+
+def publish_cbor(published: Published, registry: TypeRegistry, raw: bool) -> bytes:
+    key = "cbor-raw" if raw else "cbor"
+    frame = published.encoded.get(key)
+    if frame is None:
+        if raw:
+            stamp = registry.now()
+            msg: Any = {"secs": stamp.secs, "nsecs": stamp.nsecs,
+                        "bytes": registry.serialize_ros1(published.type, published.value)}
+        elif published.known:
+            msg = registry.to_cbor_value(published.type, published.value)
+        else:
+            msg = published.value
+        frame = cbor2.dumps({"op": "publish", "topic": published.topic, "msg": msg})
+        published.encoded[key] = frame
+    return frame
+
+
+def png_pack(text: str) -> str:
+    """rosbridge's png encoding: the JSON text's bytes as the RGB pixels of a square image, padded with
+    newlines (which JSON ignores), PNG-encoded, then base64."""
+    data = text.encode("utf-8")
+    side = max(1, math.ceil(math.sqrt(len(data) / 3)))
+    padded = data + b"\n" * (side * side * 3 - len(data))
+    rgb = np.frombuffer(padded, dtype=np.uint8).reshape(side, side, 3)
+    ok, png = cv2.imencode(".png", rgb[:, :, ::-1])  # OpenCV writes BGR
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return base64.b64encode(png.tobytes()).decode("ascii")
+
+
+def png_unpack(data: str) -> str:
+    """The inverse of png_pack (clients do this; tests use it)."""
+    png = np.frombuffer(base64.b64decode(data), dtype=np.uint8)
+    bgr = cv2.imdecode(png, cv2.IMREAD_COLOR)
+    return bgr[:, :, ::-1].tobytes().decode("utf-8").rstrip("\n")
+
+
+def split_fragments(op: str, text: str, size: int, frag_id: str) -> list[str]:
+    """Splits `text` into rosbridge `fragment` (or `png`) frames of at most `size` characters of data."""
+    pieces = [text[i:i + size] for i in range(0, len(text), size)] or [""]
+    total = len(pieces)
+    return [dumps({"op": op, "id": frag_id, "data": piece, "num": num, "total": total})
+            for num, piece in enumerate(pieces)]
+
+
+def encode_for_client(text: str, compression: str, fragment_size: int | None, frag_id: str) -> list[str]:
+    """A JSON reply (service response, action result...) as the client asked: plain, png, and/or fragmented."""
+    if compression == "png":
+        packed = png_pack(text)
+        if fragment_size and len(packed) > fragment_size:
+            return split_fragments("png", packed, fragment_size, frag_id)
+        return [dumps({"op": "png", "data": packed})]
+    if fragment_size and len(text) > fragment_size:
+        return split_fragments("fragment", text, fragment_size, frag_id)
+    return [text]
