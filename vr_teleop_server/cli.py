@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 # Each module here exposes `register(subparsers)`, which adds its subcommands and sets `func` on them.
@@ -11,6 +12,7 @@ import sys
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "vr_teleop_server.serve_cli",
     "vr_teleop_server.schema_cli",
+    "vr_teleop_server.questionnaires.cli",
 )
 
 
@@ -27,7 +29,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except BrokenPipeError:  # output piped into `head` and the like: not an error of ours
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":
