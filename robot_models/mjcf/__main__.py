@@ -1,0 +1,5 @@
+"""Regenerate robot_models/mjcf/qtrobot.xml from data/qtrobot.yaml."""
+
+from . import main
+
+main()

@@ -1,0 +1,578 @@
+"""The stand-in robot: MuJoCo physics in real time, rate-limited position servos, a rendered head camera.
+
+Three kinds of thread touch it:
+- the physics thread steps MuJoCo at real-time factor 1 and moves each servo's setpoint toward its goal by at
+  most max_velocity * dt per step, so no joint outruns its cap whatever the caller sends;
+- the render thread owns the OpenGL context: it draws the face texture, renders the head camera into JPEG
+  (only while someone watches) and serves snapshots; it renders from its own MjData, copied from the physics
+  state under a lock held only for the copy;
+- callers (the asyncio loop, tests) only take short locks: every public method returns in microseconds,
+  except snapshot() and the wait_* helpers, which block by design and say so.
+"""
+
+from __future__ import annotations
+
+import collections
+import enum
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import Future
+from dataclasses import dataclass
+
+import cv2
+import mujoco
+import numpy as np
+
+from robot_models import RobotModel, load_qtrobot
+from robot_models.mjcf import FACE_TEXTURE, HEAD_CAMERA
+
+from .face import draw_face, normalise_emotion
+from .scene import ClassroomScene, build_classroom
+
+log = logging.getLogger(__name__)
+
+
+class MotorMode(enum.IntEnum):
+    """LuxAI's /qt_robot/motors/setControlMode values."""
+
+    ON = 0  # M_ON: the servo follows commands
+    OFF = 1  # M_OFF: no torque, the link hangs under gravity
+    BRAKE = 2  # M_BREAK: hold the current position, ignore commands
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One encoded head-camera frame; only the newest is kept."""
+
+    jpeg: bytes
+    width: int
+    height: int
+    seq: int
+    stamp_monotonic: float  # time.monotonic() when the state was sampled
+    stamp_wall: float  # time.time() at the same moment, for message headers
+    sim_time: float
+    render_ms: float
+    encode_ms: float
+
+
+@dataclass(frozen=True)
+class JointSnapshot:
+    """Joint state in canonical order, degrees and deg/s."""
+
+    names: tuple[str, ...]
+    positions: tuple[float, ...]
+    velocities: tuple[float, ...]
+    targets: tuple[float, ...]  # the goals the caller set (after clamping)
+    setpoints: tuple[float, ...]  # the rate-limited servo setpoints on their way to the goals
+    efforts: tuple[float, ...]  # actuator torque, N m
+    modes: tuple[MotorMode, ...]
+    stamp_monotonic: float
+    stamp_wall: float
+    sim_time: float
+
+    def position(self, name: str) -> float:
+        return self.positions[self.names.index(name)]
+
+
+@dataclass(frozen=True)
+class PhysicsStats:
+    realtime_factor: float  # simulated seconds per wall second over the last ~1 s
+    sim_time: float
+    steps: int
+    lag_s: float  # how far simulation time trails wall time right now
+    resyncs: int  # times the loop gave up catching up and dropped the backlog
+    step_us: float  # mean cost of one mj_step plus servo update, microseconds
+
+
+class StandIn:
+    """QTrobot in a MuJoCo classroom, running in real time in background threads.
+
+    Use as a context manager or call close(). Joint names, limits and caps come from `robot`.
+    antialias defaults to 0 (no MSAA): without a GPU, 4x MSAA triples the render time (bench/standin.py:
+    about 27 ms against 9 ms a 640x480 frame on 2 loaded cores) and costs the 30 fps target.
+    """
+
+    FACE_ANIMATION_HZ = 12.0
+    STEPS_PER_LOCK = 10  # bounds how long a caller can wait for the state lock (about 10 steps' cost)
+    THERMAL_GAIN = 0.02  # K above ambient per (N m)^2 of steady torque
+    THERMAL_TAU_S = 120.0
+    MAX_LAG_S = 0.25  # beyond this the physics loop drops its backlog instead of sprinting to catch up
+    WARN_LAG_S = 0.05
+
+    def __init__(
+        self,
+        robot: RobotModel | None = None,
+        *,
+        scene: ClassroomScene | None = None,
+        camera_width: int | None = None,
+        camera_height: int | None = None,
+        camera_fps: float = 30.0,
+        jpeg_quality: int = 80,
+        antialias: int = 0,
+        shadows: bool = False,
+        initial_emotion: str = "neutral",
+        ambient_temperature_c: float = 30.0,
+    ) -> None:
+        self.robot = robot or load_qtrobot()
+        cam = self.robot.camera
+        self.camera_width = int(camera_width or (cam.width if cam else 640))
+        self.camera_height = int(camera_height or (cam.height if cam else 480))
+        if not 0 < camera_fps <= 120:
+            raise ValueError(f"camera_fps must be in (0, 120], got {camera_fps}")
+        if not 1 <= jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality must be in 1..100, got {jpeg_quality}")
+        self.camera_fps = float(camera_fps)
+        self.jpeg_quality = int(jpeg_quality)
+        self.scene = scene or build_classroom(
+            self.robot, shadows=shadows, antialias=antialias,
+            offscreen_size=(max(1280, self.camera_width), max(720, self.camera_height)))
+        self.model = self.scene.model
+        m = self.model
+        if m.vis.global_.offwidth < self.camera_width or m.vis.global_.offheight < self.camera_height:
+            raise ValueError(f"camera size {self.camera_width}x{self.camera_height} exceeds the scene's offscreen "
+                             f"buffer {m.vis.global_.offwidth}x{m.vis.global_.offheight}; build the scene with a "
+                             "larger offscreen_size")
+        self.data = mujoco.MjData(m)
+        self.dt = float(m.opt.timestep)
+        self.names = self.robot.names
+        jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in self.names]
+        self._qadr = np.array([m.jnt_qposadr[j] for j in jids])
+        self._dadr = np.array([m.jnt_dofadr[j] for j in jids])
+        self._act = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in self.names])
+        if (self._act < 0).any() or (np.array(jids) < 0).any():
+            raise ValueError("the scene's model lacks a joint or actuator named as in the robot description")
+        self._lower = np.array([j.lower for j in self.robot.joints])
+        self._upper = np.array([j.upper for j in self.robot.joints])
+        self._caps = np.array([j.max_velocity for j in self.robot.joints])
+        self._step_limit = self._caps * self.dt
+        self._gain = m.actuator_gainprm[self._act, 0].copy()
+        self._bias = m.actuator_biasprm[self._act, :3].copy()
+        self._body_of = np.array([m.jnt_bodyid[j] for j in jids])
+        self._gravcomp = m.body_gravcomp.copy()
+
+        home = np.array([j.home for j in self.robot.joints])
+        self.data.qpos[self._qadr] = np.radians(home)
+        self._goal = home.copy()
+        self._setpoint = home.copy()
+        self.data.ctrl[self._act] = np.radians(home)
+        self._modes = [MotorMode.ON] * len(self.names)
+        mujoco.mj_forward(m, self.data)
+
+        # Thermal model for motor status (a stand-in has no sensors): each motor warms with the square of its
+        # torque and cools toward ambient (THERMAL_GAIN, THERMAL_TAU_S). Modelled, not measured.
+        self._ambient = float(ambient_temperature_c)
+        self._temperature = np.full(len(self.names), self._ambient)
+
+        self._lock = threading.Lock()  # guards data, goals, setpoints, modes, stats
+        self._stop = threading.Event()
+        self._steps = 0
+        self._resyncs = 0
+        self._lag = 0.0
+        self._step_cost = 0.0
+        self._rtf_window: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
+        self._last_warn = -math.inf
+
+        # Render-side state, guarded by _render_cond's lock.
+        self._render_cond = threading.Condition()
+        self._camera_subscribers = 0
+        self._emotion = normalise_emotion(initial_emotion)
+        self._talking_until = 0.0
+        self._face_version = 0  # bumped on every request that changes the face
+        self._face_applied = -1
+        self._face_image: np.ndarray | None = None
+        self._snapshots: collections.deque[tuple[str, int, int, Future]] = collections.deque()
+        self._frame: CameraFrame | None = None
+        self._frame_cond = threading.Condition()
+        self._frame_listeners: list[Callable[[CameraFrame], None]] = []
+        self._seq = 0
+        self._render_error: BaseException | None = None
+        self._render_ready = threading.Event()
+
+        self._physics_thread = threading.Thread(target=self._physics_loop, name="standin-physics", daemon=True)
+        self._render_thread = threading.Thread(target=self._render_loop, name="standin-render", daemon=True)
+        # The renderer starts first: creating a GL context costs a second of CPU that would otherwise make the
+        # physics loop start behind real time.
+        self._render_thread.start()
+        if not self._render_ready.wait(30.0) or self._render_error is not None:
+            self.close()
+            raise RuntimeError(f"the stand-in's renderer did not start ({self._render_error!r}); MuJoCo needs "
+                               "MUJOCO_GL=egl (or osmesa) and a working libEGL on a headless machine")
+        self._physics_thread.start()
+
+    # ----------------------------------------------------------------------------------------------- joints
+    def set_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
+        """Set joint goals in degrees; returns the goals applied after clamping to the joint limits.
+        Joints whose motor is not ON ignore the command and are left out of the result."""
+        idx, values = [], []
+        for name, deg in targets.items():
+            self.robot.joint(name)  # KeyError naming the valid joints
+            value = float(deg)
+            if not math.isfinite(value):
+                raise ValueError(f"joint {name}: target must be a finite number of degrees, got {deg!r}")
+            idx.append(self.names.index(name))
+            values.append(value)
+        applied = np.clip(np.array(values), self._lower[idx], self._upper[idx]) if idx else np.array([])
+        out = {}
+        with self._lock:
+            for i, v in zip(idx, applied):
+                if self._modes[i] is MotorMode.ON:
+                    self._goal[i] = v
+                    out[self.names[i]] = float(v)
+        return out
+
+    def set_velocity_caps(self, caps: Mapping[str, float]) -> None:
+        """Change velocity caps (deg/s) at run time; validated by RobotModel.with_velocity_caps."""
+        robot = self.robot.with_velocity_caps(caps)
+        with self._lock:
+            self.robot = robot
+            self._caps = np.array([j.max_velocity for j in robot.joints])
+            self._step_limit = self._caps * self.dt
+
+    def set_motor_mode(self, joints: Iterable[str], mode: MotorMode | int) -> None:
+        """Switch joints between ON, OFF (limp) and BRAKE (hold here). Going ON holds the current position,
+        so a stale goal cannot make the joint jump."""
+        mode = MotorMode(mode)
+        idx = [self.names.index(self.robot.joint(n).name) for n in joints]
+        with self._lock:
+            m = self.model
+            for i in idx:
+                a, b = self._act[i], self._body_of[i]
+                here = math.degrees(self.data.qpos[self._qadr[i]])
+                here = min(max(here, self._lower[i]), self._upper[i])
+                self._goal[i] = self._setpoint[i] = here
+                self.data.ctrl[a] = math.radians(here)
+                if mode is MotorMode.OFF:
+                    m.actuator_gainprm[a, 0] = 0.0
+                    m.actuator_biasprm[a, :3] = 0.0
+                    m.body_gravcomp[b] = 0.0
+                else:
+                    m.actuator_gainprm[a, 0] = self._gain[i]
+                    m.actuator_biasprm[a, :3] = self._bias[i]
+                    m.body_gravcomp[b] = self._gravcomp[b]
+                self._modes[i] = mode
+
+    def joint_state(self) -> JointSnapshot:
+        with self._lock:
+            q = np.degrees(self.data.qpos[self._qadr])
+            v = np.degrees(self.data.qvel[self._dadr])
+            f = self.data.actuator_force[self._act].copy()
+            goal, sp, modes, t = self._goal.copy(), self._setpoint.copy(), tuple(self._modes), self.data.time
+        return JointSnapshot(self.names, tuple(map(float, q)), tuple(map(float, v)), tuple(map(float, goal)),
+                             tuple(map(float, sp)), tuple(map(float, f)), modes, time.monotonic(), time.time(), t)
+
+    def joint_positions(self) -> dict[str, float]:
+        s = self.joint_state()
+        return dict(zip(s.names, s.positions))
+
+    def joint_velocities(self) -> dict[str, float]:
+        s = self.joint_state()
+        return dict(zip(s.names, s.velocities))
+
+    def targets(self) -> dict[str, float]:
+        with self._lock:
+            return dict(zip(self.names, map(float, self._goal)))
+
+    def motor_temperatures(self) -> dict[str, float]:
+        """Modelled motor temperatures, degrees Celsius (see the thermal model in __init__)."""
+        with self._lock:
+            return dict(zip(self.names, map(float, self._temperature)))
+
+    def physics_stats(self) -> PhysicsStats:
+        with self._lock:
+            window = list(self._rtf_window)
+            sim_time, steps, lag, resyncs, cost = self.data.time, self._steps, self._lag, self._resyncs, self._step_cost
+        rtf = float("nan")
+        if len(window) >= 2 and window[-1][0] > window[0][0]:
+            rtf = (window[-1][1] - window[0][1]) / (window[-1][0] - window[0][0])
+        return PhysicsStats(rtf, sim_time, steps, lag, resyncs, cost * 1e6)
+
+    # ------------------------------------------------------------------------------------------------- face
+    def set_emotion(self, name: str) -> None:
+        """Show an emotion ("happy" or "QT/happy"); the render thread redraws the face texture."""
+        emotion = normalise_emotion(name)
+        with self._render_cond:
+            self._emotion = emotion
+            self._face_version += 1
+            self._render_cond.notify_all()
+
+    @property
+    def emotion(self) -> str:
+        return self._emotion
+
+    def speak(self, duration_s: float) -> None:
+        """Animate the talking mouth for duration_s seconds from now (returns at once)."""
+        if not (math.isfinite(duration_s) and duration_s >= 0):
+            raise ValueError(f"speech duration must be a finite number of seconds >= 0, got {duration_s!r}")
+        with self._render_cond:
+            self._talking_until = time.monotonic() + duration_s
+            self._face_version += 1
+            self._render_cond.notify_all()
+
+    def is_talking(self) -> bool:
+        return time.monotonic() < self._talking_until
+
+    def face_image(self) -> np.ndarray | None:
+        """A copy of the face texture as last uploaded (RGB), or None before the first upload."""
+        with self._render_cond:
+            return None if self._face_image is None else self._face_image.copy()
+
+    def wait_face(self, timeout: float = 2.0) -> bool:
+        """Block until the render thread has applied every face change requested so far."""
+        deadline = time.monotonic() + timeout
+        with self._render_cond:
+            target = self._face_version
+            while self._face_applied < target:
+                left = deadline - time.monotonic()
+                if left <= 0 or self._stop.is_set():
+                    return False
+                self._render_cond.wait(left)
+            return True
+
+    # ----------------------------------------------------------------------------------------------- camera
+    def start_camera(self) -> None:
+        """Count one more viewer; frames are rendered while at least one is counted."""
+        with self._render_cond:
+            self._camera_subscribers += 1
+            self._render_cond.notify_all()
+
+    def stop_camera(self) -> None:
+        with self._render_cond:
+            self._camera_subscribers = max(0, self._camera_subscribers - 1)
+            self._render_cond.notify_all()
+
+    @property
+    def camera_subscribers(self) -> int:
+        return self._camera_subscribers
+
+    def add_frame_listener(self, callback: Callable[[CameraFrame], None]) -> None:
+        """Call `callback(frame)` from the render thread for every new frame; it must be quick and thread-safe
+        (an asyncio user hands off with loop.call_soon_threadsafe)."""
+        with self._frame_cond:
+            self._frame_listeners = [*self._frame_listeners, callback]
+
+    def remove_frame_listener(self, callback: Callable[[CameraFrame], None]) -> None:
+        with self._frame_cond:
+            self._frame_listeners = [c for c in self._frame_listeners if c is not callback]
+
+    def latest_frame(self) -> CameraFrame | None:
+        return self._frame
+
+    def wait_frame(self, after_seq: int = 0, timeout: float = 2.0) -> CameraFrame | None:
+        """Block until a frame newer than after_seq exists (for tests and tools; not for the event loop)."""
+        deadline = time.monotonic() + timeout
+        with self._frame_cond:
+            while self._frame is None or self._frame.seq <= after_seq:
+                left = deadline - time.monotonic()
+                if left <= 0 or self._stop.is_set():
+                    return None
+                self._frame_cond.wait(left)
+            return self._frame
+
+    def snapshot(self, camera: str = HEAD_CAMERA, width: int | None = None, height: int | None = None,
+                 timeout: float = 5.0) -> np.ndarray:
+        """Render one RGB image from a named camera of the scene. Blocks up to `timeout` (run it in a thread
+        when called from asyncio)."""
+        if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+            names = [mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_CAMERA, i) for i in range(self.model.ncam)]
+            raise KeyError(f"no camera {camera!r} in the scene; cameras: {names}")
+        fut: Future = Future()
+        with self._render_cond:
+            if self._stop.is_set():
+                raise RuntimeError("the stand-in is closed")
+            self._snapshots.append((camera, int(width or self.camera_width), int(height or self.camera_height), fut))
+            self._render_cond.notify_all()
+        return fut.result(timeout)
+
+    # -------------------------------------------------------------------------------------------- lifecycle
+    def close(self) -> None:
+        """Stop both threads (promptly: they wake on the stop event) and release the GL context."""
+        self._stop.set()
+        with self._render_cond:
+            self._render_cond.notify_all()
+        with self._frame_cond:
+            self._frame_cond.notify_all()
+        for t in (self._physics_thread, self._render_thread):
+            if t.is_alive() and t is not threading.current_thread():
+                t.join(timeout=5.0)
+                if t.is_alive():
+                    log.error("stand-in thread %s did not stop within 5 s", t.name)
+
+    @property
+    def closed(self) -> bool:
+        return self._stop.is_set()
+
+    def __enter__(self) -> StandIn:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -------------------------------------------------------------------------------------------- internals
+    def _physics_loop(self) -> None:
+        m, d = self.model, self.data
+        t0 = time.monotonic()
+        sim0 = d.time
+        done = 0
+        cost_avg = 0.0
+        last_sample = -math.inf
+        thermal_every = 50  # steps between thermal-model updates (0.1 s at 2 ms)
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                due = int((now - t0) / self.dt) - done
+                if due * self.dt > self.MAX_LAG_S:
+                    self._warn_behind(due * self.dt, resync=True)
+                    t0 = now - done * self.dt  # drop the backlog: real time goes on without us
+                    with self._lock:
+                        self._resyncs += 1
+                    due = 1
+                if due <= 0:
+                    self._stop.wait(max(0.0, t0 + (done + 1) * self.dt - now))
+                    continue
+                if due * self.dt > self.WARN_LAG_S:
+                    self._warn_behind(due * self.dt, resync=False)
+                c0 = time.perf_counter()
+                batch = min(due, self.STEPS_PER_LOCK)
+                with self._lock:
+                    for _ in range(batch):
+                        # Rate limit: the setpoint moves toward the goal by at most cap * dt. Joints not ON
+                        # have goal == setpoint (see set_motor_mode), so they stay put here.
+                        delta = np.clip(self._goal - self._setpoint, -self._step_limit, self._step_limit)
+                        self._setpoint += delta
+                        d.ctrl[self._act] = np.radians(self._setpoint)
+                        mujoco.mj_step(m, d)
+                        done += 1
+                        if done % thermal_every == 0:
+                            f = d.actuator_force[self._act]
+                            self._temperature += (self._ambient + self.THERMAL_GAIN * f * f - self._temperature) * (
+                                thermal_every * self.dt / self.THERMAL_TAU_S)
+                    self._steps = done
+                    after = time.monotonic()
+                    self._lag = max(0.0, (after - t0) - done * self.dt)
+                    if after - last_sample >= 0.05:
+                        self._rtf_window.append((after, d.time - sim0))
+                        last_sample = after
+                cost = (time.perf_counter() - c0) / batch
+                cost_avg = cost if cost_avg == 0.0 else 0.98 * cost_avg + 0.02 * cost
+                self._step_cost = cost_avg
+        except Exception:  # pragma: no cover - logged so a dead physics thread is visible
+            log.exception("stand-in physics thread died")
+
+    def _warn_behind(self, lag: float, *, resync: bool) -> None:
+        now = time.monotonic()
+        if now - self._last_warn >= 5.0:
+            self._last_warn = now
+            log.warning("stand-in physics is %.0f ms behind real time%s (the machine is overloaded)",
+                        lag * 1e3, "; dropping the backlog" if resync else "")
+
+    def _render_loop(self) -> None:
+        m = self.model
+        renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        tex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXTURE, FACE_TEXTURE)
+        tw, th = int(m.tex_width[tex_id]), int(m.tex_height[tex_id])
+        tex_slice = slice(int(m.tex_adr[tex_id]), int(m.tex_adr[tex_id]) + tw * th * int(m.tex_nchannel[tex_id]))
+        rdata = mujoco.MjData(m)
+        period = 1.0 / self.camera_fps
+        next_frame = 0.0
+        next_face_tick = 0.0
+        drawn_talking = False
+
+        def renderer(w: int, h: int) -> mujoco.Renderer:
+            r = renderers.get((w, h))
+            if r is None:
+                r = renderers[(w, h)] = mujoco.Renderer(m, h, w)
+                mujoco.mjr_uploadTexture(m, r._mjr_context, tex_id)
+            return r
+
+        def sync_state() -> tuple[float, float, float]:
+            with self._lock:
+                rdata.qpos[:] = self.data.qpos
+                rdata.qvel[:] = self.data.qvel
+                rdata.time = self.data.time
+                stamps = (time.monotonic(), time.time(), self.data.time)
+            mujoco.mj_forward(m, rdata)
+            return stamps
+
+        try:
+            renderer(self.camera_width, self.camera_height)
+            self._render_ready.set()
+            while not self._stop.is_set():
+                with self._render_cond:
+                    now = time.monotonic()
+                    talking = now < self._talking_until or self._emotion == "talking"
+                    face_due = (self._face_applied < self._face_version or (talking and now >= next_face_tick)
+                                or (drawn_talking and not talking))  # speech ended: back to the still face
+                    camera_due = self._camera_subscribers > 0 and now >= next_frame
+                    if not (face_due or camera_due or self._snapshots):
+                        waits = [next_face_tick - now if talking else 1.0]
+                        if self._camera_subscribers > 0:
+                            waits.append(next_frame - now)
+                        if now < self._talking_until:
+                            waits.append(self._talking_until - now)
+                        self._render_cond.wait(max(0.0005, min(waits)))
+                        continue
+                    emotion, version = self._emotion, self._face_version
+                    snapshots = list(self._snapshots)
+                    self._snapshots.clear()
+                if face_due:
+                    phase = now if talking else None
+                    face = draw_face(emotion, tw, th, talking_phase=phase)
+                    drawn_talking = talking
+                    m.tex_data[tex_slice] = face.reshape(-1)
+                    for r in renderers.values():
+                        mujoco.mjr_uploadTexture(m, r._mjr_context, tex_id)
+                    next_face_tick = now + 1.0 / self.FACE_ANIMATION_HZ
+                    with self._render_cond:
+                        self._face_image = face
+                        self._face_applied = max(self._face_applied, version)
+                        self._render_cond.notify_all()
+                for camera, w, h, fut in snapshots:
+                    try:
+                        sync_state()
+                        r = renderer(w, h)
+                        r.update_scene(rdata, camera=camera)
+                        fut.set_result(r.render().copy())
+                    except Exception as exc:  # the caller gets the error, the thread lives on
+                        fut.set_exception(exc)
+                if camera_due:
+                    next_frame = max(next_frame + period, now) if next_frame else now + period
+                    self._render_frame(renderer(self.camera_width, self.camera_height), rdata, sync_state)
+        except BaseException as exc:
+            self._render_error = exc
+            log.exception("stand-in render thread died")
+        finally:
+            self._render_ready.set()
+            with self._render_cond:
+                for *_, fut in self._snapshots:
+                    fut.set_exception(RuntimeError("the stand-in is closed"))
+                self._snapshots.clear()
+            for r in renderers.values():
+                r.close()
+
+    def _render_frame(self, r: mujoco.Renderer, rdata: mujoco.MjData, sync_state) -> None:
+        t_mono, t_wall, sim_time = sync_state()
+        c0 = time.perf_counter()
+        r.update_scene(rdata, camera=HEAD_CAMERA)
+        rgb = r.render()
+        c1 = time.perf_counter()
+        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        c2 = time.perf_counter()
+        if not ok:
+            log.error("JPEG encoding of a camera frame failed")
+            return
+        self._seq += 1
+        frame = CameraFrame(buf.tobytes(), rgb.shape[1], rgb.shape[0], self._seq, t_mono, t_wall, sim_time,
+                            (c1 - c0) * 1e3, (c2 - c1) * 1e3)
+        with self._frame_cond:
+            self._frame = frame
+            self._frame_cond.notify_all()
+            listeners = self._frame_listeners
+        for callback in listeners:
+            try:
+                callback(frame)
+            except Exception:
+                log.exception("a camera frame listener failed")

@@ -1,0 +1,246 @@
+"""The MuJoCo stand-in, really stepping and really rendering (EGL, software GL on CI)."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from robot_models import forward_kinematics, load_qtrobot
+from sim import MotorMode, StandIn
+from sim.face import draw_face
+from sim.scene import OVERVIEW_CAMERA
+
+ROBOT = load_qtrobot()
+ARTIFACTS = os.environ.get("VR_TELEOP_TEST_ARTIFACTS")  # set it to keep the rendered PNGs for a look
+
+
+@pytest.fixture(scope="module")
+def standin():
+    s = StandIn(ROBOT)
+    yield s
+    s.close()
+
+
+def wait_until(predicate, timeout: float, poll: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll)
+    return predicate()
+
+
+def settle_home(s: StandIn) -> None:
+    s.set_targets(ROBOT.home_pose())
+    assert wait_until(lambda: all(abs(s.joint_positions()[n] - ROBOT.joint(n).home) < 0.5 for n in ROBOT.names), 5.0)
+
+
+def test_head_reaches_target_no_faster_than_its_cap(standin):
+    settle_home(standin)
+    cap = ROBOT.joint("HeadYaw").max_velocity
+    target = 45.0
+    samples = []
+    t0 = time.monotonic()
+    standin.set_targets({"HeadYaw": target})
+    while time.monotonic() - t0 < 2.0:
+        snap = standin.joint_state()
+        samples.append((snap.sim_time, snap.position("HeadYaw"), snap.velocities[0]))
+        time.sleep(0.005)
+    times = np.array([s[0] for s in samples])
+    pos = np.array([s[1] for s in samples])
+    vel = np.array([s[2] for s in samples])
+    assert abs(pos[-1] - target) < 0.5, pos[-1]
+    # Never faster than the cap (a little slack for the servo's transient), and so not there before target/cap.
+    assert np.max(np.abs(vel)) <= cap * 1.05, np.max(np.abs(vel))
+    reached = times[np.argmax(pos >= target - 1.0)] - times[0]
+    assert reached >= (target - 1.0) / cap * 0.98, reached
+    assert reached <= target / cap + 0.5  # and it does not dawdle either
+
+
+def test_velocity_caps_are_configurable_at_run_time(standin):
+    settle_home(standin)
+    standin.set_velocity_caps({"HeadPitch": 20.0})
+    try:
+        t0 = standin.joint_state().sim_time
+        standin.set_targets({"HeadPitch": 20.0})
+        time.sleep(0.5)
+        snap = standin.joint_state()
+        # After 0.5 s at 20 deg/s the setpoint can have travelled at most 10 degrees.
+        assert snap.setpoints[1] <= 20.0 * (snap.sim_time - t0) + 0.1
+        assert snap.position("HeadPitch") < 12.0
+    finally:
+        standin.set_velocity_caps({"HeadPitch": ROBOT.joint("HeadPitch").max_velocity})
+    settle_home(standin)
+
+
+def test_out_of_range_targets_are_clamped(standin):
+    settle_home(standin)
+    applied = standin.set_targets({"HeadYaw": 100.0, "LeftElbowRoll": 20.0})
+    assert applied == {"HeadYaw": 60.0, "LeftElbowRoll": -7.0}
+    assert standin.targets()["HeadYaw"] == 60.0
+    assert wait_until(lambda: abs(standin.joint_positions()["HeadYaw"] - 60.0) < 0.5, 3.0)
+    time.sleep(0.2)
+    assert standin.joint_positions()["HeadYaw"] <= 60.5
+    with pytest.raises(KeyError, match="HeadYaw"):
+        standin.set_targets({"Neck": 1.0})
+    with pytest.raises(ValueError, match="HeadPitch"):
+        standin.set_targets({"HeadPitch": float("nan")})
+    settle_home(standin)
+
+
+def decode(frame) -> np.ndarray:
+    return cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
+
+
+def test_camera_streams_only_while_watched_and_changes_when_the_head_turns(standin):
+    settle_home(standin)
+    before = standin.latest_frame()
+    time.sleep(0.15)
+    assert standin.latest_frame() is before  # nobody watches: nothing is rendered
+    standin.start_camera()
+    try:
+        first = standin.wait_frame(before.seq if before else 0, timeout=3.0)
+        assert first is not None
+        image = decode(first)
+        assert image.shape == (480, 640, 3)
+        assert first.width == 640 and first.height == 480
+        standin.set_targets({"HeadYaw": 30.0})
+        assert wait_until(lambda: abs(standin.joint_positions()["HeadYaw"] - 30.0) < 0.5, 3.0)
+        turned = standin.wait_frame(standin.latest_frame().seq, timeout=3.0)
+        assert turned.seq > first.seq and turned.stamp_monotonic > first.stamp_monotonic
+        diff = np.abs(decode(turned).astype(int) - image.astype(int)).mean()
+        assert diff > 10, diff
+    finally:
+        standin.stop_camera()
+    time.sleep(0.15)  # a frame in flight may still land
+    last = standin.latest_frame().seq
+    time.sleep(0.3)
+    assert standin.latest_frame().seq == last
+    settle_home(standin)
+
+
+def face_region(img: np.ndarray) -> np.ndarray:
+    h, w, _ = img.shape
+    return img[h // 5: h // 2, w // 3: 2 * w // 3].astype(int)
+
+
+def test_face_texture_follows_emotion_and_speech(standin):
+    standin.set_emotion("neutral")
+    assert standin.wait_face()
+    neutral = standin.face_image()
+    np.testing.assert_array_equal(neutral, draw_face("neutral", neutral.shape[1], neutral.shape[0]))
+    neutral_view = standin.snapshot(OVERVIEW_CAMERA)
+    standin.set_emotion("QT/surprise")
+    assert standin.emotion == "surprise"
+    assert standin.wait_face()
+    surprise = standin.face_image()
+    assert np.abs(surprise.astype(int) - neutral.astype(int)).mean() > 5
+    surprise_view = standin.snapshot(OVERVIEW_CAMERA)
+    # The rendered screen shows it too (the overview camera looks at the robot's face).
+    assert np.abs(face_region(surprise_view) - face_region(neutral_view)).mean() > 2
+    with pytest.raises(ValueError, match="happy"):
+        standin.set_emotion("ecstatic")
+
+    standin.set_emotion("neutral")
+    standin.speak(0.6)
+    assert standin.is_talking()
+    frames = []
+    for _ in range(5):
+        time.sleep(0.09)
+        frames.append(standin.face_image())
+    assert any(np.abs(a.astype(int) - b.astype(int)).sum() > 0 for a, b in zip(frames, frames[1:])), \
+        "the mouth does not move while talking"
+    assert wait_until(lambda: not standin.is_talking(), 1.0)
+    assert wait_until(lambda: np.array_equal(standin.face_image(), neutral), 1.0), "face did not settle after speech"
+
+
+def test_head_camera_view_is_the_classroom_with_markers_at_their_true_poses(standin, tmp_path):
+    settle_home(standin)
+    standin.set_targets({"HeadPitch": 18.0})
+    assert wait_until(lambda: abs(standin.joint_positions()["HeadPitch"] - 18.0) < 0.3, 3.0)
+    time.sleep(0.2)
+    angles = standin.joint_positions()
+    rgb = standin.snapshot()
+    out = tmp_path / "head_camera.png"
+    cv2.imwrite(str(out), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if ARTIFACTS:
+        os.makedirs(ARTIFACTS, exist_ok=True)
+        cv2.imwrite(os.path.join(ARTIFACTS, "head_camera.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        overview = cv2.cvtColor(standin.snapshot(OVERVIEW_CAMERA), cv2.COLOR_RGB2BGR)
+        cv2.imwrite(os.path.join(ARTIFACTS, "overview.png"), overview)
+    assert cv2.imread(str(out)).shape == (480, 640, 3)
+
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50),
+                                       cv2.aruco.DetectorParameters())
+    corners, ids, _ = detector.detectMarkers(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+    assert ids is not None and len(ids) >= 3, ids
+    cam = ROBOT.camera
+    k = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+    camera_world = standin.scene.robot_base_world @ forward_kinematics(ROBOT, angles)["camera"]
+    for c, marker_id in zip(corners, ids.ravel()):
+        truth = standin.scene.marker(int(marker_id))
+        half = truth.size_m / 2
+        obj = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0], [-half, -half, 0]], float)
+        ok, _, tvec = cv2.solvePnP(obj, c.reshape(4, 2), k, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        assert ok
+        expected = (np.linalg.inv(camera_world) @ truth.pose_world)[:3, 3]
+        # Within 2 cm at 0.5-1.2 m: the camera intrinsics, the marker record and the render agree.
+        assert np.linalg.norm(tvec.ravel() - expected) < 0.02, (marker_id, tvec.ravel(), expected)
+    settle_home(standin)
+
+
+def test_motor_modes_off_brake_on(standin):
+    settle_home(standin)
+    arm = ROBOT.parts["left_arm"]
+    standin.set_motor_mode(arm, MotorMode.OFF)
+    # Limp: the raised-out upper arm falls toward its lower roll limit under gravity.
+    assert wait_until(lambda: standin.joint_positions()["LeftShoulderRoll"] < -65.0, 2.0)
+    assert standin.joint_state().modes[ROBOT.names.index("LeftShoulderRoll")] is MotorMode.OFF
+    standin.set_motor_mode(arm, MotorMode.BRAKE)
+    held = standin.joint_positions()["LeftShoulderRoll"]
+    standin.set_targets({"LeftShoulderRoll": -20.0})  # ignored while braked
+    time.sleep(0.4)
+    assert abs(standin.joint_positions()["LeftShoulderRoll"] - held) < 1.0
+    standin.set_motor_mode(arm, MotorMode.ON)
+    time.sleep(0.2)
+    assert abs(standin.joint_positions()["LeftShoulderRoll"] - held) < 1.0  # going ON does not jump
+    settle_home(standin)
+    temps = standin.motor_temperatures()
+    assert set(temps) == set(ROBOT.names) and all(20.0 < t < 120.0 for t in temps.values())
+
+
+def test_physics_runs_in_real_time(standin):
+    time.sleep(1.2)
+    stats = standin.physics_stats()
+    assert 0.9 <= stats.realtime_factor <= 1.05, stats
+    assert stats.lag_s < 0.1, stats
+
+
+def test_close_stops_threads_promptly():
+    s = StandIn(ROBOT)
+    s.start_camera()
+    assert s.wait_frame(0, 3.0) is not None
+    t0 = time.monotonic()
+    s.close()
+    assert time.monotonic() - t0 < 1.0
+    assert not s._physics_thread.is_alive() and not s._render_thread.is_alive()
+    with pytest.raises(RuntimeError, match="closed"):
+        s.snapshot()
+
+
+def test_every_luxai_emotion_has_a_distinct_face():
+    from sim.face import EMOTIONS
+
+    assert set(EMOTIONS) == set(ROBOT.emotions)
+    faces = {e: draw_face(e, 160, 96) for e in ROBOT.emotions}
+    names = sorted(faces)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert not np.array_equal(faces[a], faces[b]), f"{a} and {b} draw the same face"

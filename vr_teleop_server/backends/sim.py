@@ -1,0 +1,272 @@
+"""SimRobot: the Robot interface over the MuJoCo stand-in (sim.StandIn).
+
+The stand-in's threads do the physics and rendering; this class adds the Robot contract on top: clamp
+reports, LuxAI part arrays, motor modes, speech timing, gesture streaming and asyncio-friendly camera waits.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from robot_models import RobotModel, load_qtrobot
+from sim import MotorMode as SimMotorMode
+from sim import StandIn
+from sim.standin import CameraFrame as SimFrame
+
+from ..robot import (
+    CameraFrame,
+    ClampReport,
+    Gesture,
+    GestureResult,
+    JointClamp,
+    JointState,
+    MotorMode,
+    MotorStatus,
+    Robot,
+    SpeechResult,
+    clamp_command,
+)
+
+SETTLE_TOLERANCE_DEG = 1.0  # a gesture counts as finished when every joint is this close to its last waypoint
+
+
+def _frame(f: SimFrame) -> CameraFrame:
+    return CameraFrame(f.jpeg, f.width, f.height, f.seq, f.stamp_monotonic, f.stamp_wall)
+
+
+def _resolve(fut: asyncio.Future, value: Any) -> None:
+    if not fut.done():
+        fut.set_result(value)
+
+
+class SimRobot(Robot):
+    """QTrobot played by the MuJoCo stand-in.
+
+    Speech is timed from the text at `words_per_minute` and shown as a talking face; the stand-in makes no
+    sound (SpeechResult.audible is False). Construction starts MuJoCo and a GL context and takes a moment:
+    from asyncio, use `await SimRobot.create(...)`.
+    """
+
+    def __init__(self, model: RobotModel | None = None, *, standin: StandIn | None = None,
+                 words_per_minute: float = 150.0, **standin_options: Any) -> None:
+        if not (math.isfinite(words_per_minute) and words_per_minute > 0):
+            raise ValueError(f"words_per_minute must be a positive number, got {words_per_minute!r}")
+        self._model = model or (standin.robot if standin else load_qtrobot())
+        self._standin = standin or StandIn(self._model, **standin_options)
+        self._owns_standin = standin is None
+        self._wpm = float(words_per_minute)
+        self._waiters_lock = threading.Lock()
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, int]] = []
+        self._speech_stop: asyncio.Event | None = None
+        self._gesture_stop: asyncio.Event | None = None
+        self._gesture_joints: tuple[str, ...] = ()
+        self._closed = False
+        self._standin.add_frame_listener(self._on_frame)
+
+    @classmethod
+    async def create(cls, model: RobotModel | None = None, **options: Any) -> SimRobot:
+        """Build one off the event loop (MuJoCo and EGL start-up block for a fraction of a second)."""
+        return await asyncio.to_thread(cls, model, **options)
+
+    @property
+    def model(self) -> RobotModel:
+        return self._model
+
+    @property
+    def standin(self) -> StandIn:
+        """The underlying simulation (for tests, tools and the scene's ground truth)."""
+        return self._standin
+
+    # ------------------------------------------------------------------------------------------------ motion
+    def set_joint_targets(self, targets: Mapping[str, float]) -> ClampReport:
+        clamped, report = clamp_command(self._model, targets)
+        applied = self._standin.set_targets(clamped)
+        ignored = tuple(n for n in clamped if n not in applied)
+        if ignored:
+            report = ClampReport(report.names, report.requested, report.applied, report.clamped, ignored)
+        return report
+
+    def joint_state(self) -> JointState:
+        s = self._standin.joint_state()
+        return JointState(s.names, s.positions, s.velocities, s.efforts, s.stamp_monotonic, s.stamp_wall)
+
+    def set_control_mode(self, parts: Sequence[str], mode: MotorMode) -> None:
+        mode = MotorMode(mode)
+        joints = [n for part in parts for n in self._model.part_joints(part)]
+        self._standin.set_motor_mode(joints, SimMotorMode(int(mode)))
+
+    def motor_status(self) -> tuple[MotorStatus, ...]:
+        s = self._standin.joint_state()
+        temps = self._standin.motor_temperatures()
+        return tuple(
+            MotorStatus(name=n, part=self._model.joint(n).part, position=p, temperature_c=temps[n], voltage_v=None,
+                        mode=MotorMode(int(m)), source="modelled")
+            for n, p, m in zip(s.names, s.positions, s.modes)
+        )
+
+    # ---------------------------------------------------------------------------------- face, speech, gestures
+    def show_emotion(self, name: str) -> None:
+        short = name[3:] if name.startswith("QT/") else name
+        if short not in self._model.emotions:
+            raise ValueError(f"unknown emotion {name!r}; valid emotions: {', '.join(self._model.emotions)} "
+                             "(optionally as QT/<name>)")
+        self._standin.set_emotion(short)
+
+    def speech_duration(self, text: str) -> float:
+        """Seconds the stand-in takes to 'say' text: words at the configured rate, at least 0.3 s if any."""
+        words = len(text.split())
+        return 0.0 if words == 0 else max(0.3, 60.0 * words / self._wpm)
+
+    async def say(self, text: str) -> SpeechResult:
+        self.stop_speech()
+        duration = self.speech_duration(text)
+        stop = self._speech_stop = asyncio.Event()
+        self._standin.speak(duration)
+        t0 = time.monotonic()
+        completed = False
+        try:
+            await asyncio.wait_for(stop.wait(), duration)
+        except TimeoutError:
+            completed = True
+        finally:
+            if self._speech_stop is stop:  # not superseded by a newer say(), whose face must keep talking
+                self._speech_stop = None
+                if not completed:  # stopped or cancelled
+                    self._standin.speak(0.0)
+        return SpeechResult(text, completed, time.monotonic() - t0, audible=False)
+
+    def stop_speech(self) -> None:
+        if self._speech_stop is not None:
+            self._speech_stop.set()
+            self._standin.speak(0.0)
+
+    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
+        gesture.validate(self._model)
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
+        self.stop_gesture()
+        stop = self._gesture_stop = asyncio.Event()
+        joints = tuple(dict.fromkeys(n for wp in gesture.waypoints for n in wp.targets))
+        self._gesture_joints = joints
+        clamps: list[JointClamp] = []
+        ignored: dict[str, None] = {}
+        sent = 0
+        last: dict[str, float] = {}
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        try:
+            for wp in gesture.waypoints:
+                wait = start + wp.time_s / speed - loop.time()
+                if wait > 0 and await _stopped_within(stop, wait):
+                    break
+                if stop.is_set():
+                    break
+                report = self.set_joint_targets(wp.targets)
+                clamps.extend(report.clamped)
+                ignored.update(dict.fromkeys(report.ignored))
+                last.update(zip(report.names, report.applied))
+                sent += 1
+            final_error = None
+            if not stop.is_set() and sent == len(gesture.waypoints):
+                final_error = await self._settle(last, stop)
+        finally:
+            if self._gesture_stop is stop:
+                self._gesture_stop = None
+                self._gesture_joints = ()
+        stopped = stop.is_set()
+        completed = (not stopped and sent == len(gesture.waypoints) and not ignored
+                     and final_error is not None and final_error <= SETTLE_TOLERANCE_DEG)
+        return GestureResult(gesture.name, completed, stopped, sent, tuple(clamps), tuple(ignored), final_error)
+
+    async def _settle(self, targets: Mapping[str, float], stop: asyncio.Event) -> float | None:
+        """Wait until the joints reach the last waypoint (or could have, at their caps); the largest error."""
+        here = self._standin.joint_positions()
+        slowest = max(abs(here[n] - v) / self._model.joint(n).max_velocity for n, v in targets.items())
+        deadline = time.monotonic() + slowest + 1.0
+        while True:
+            here = self._standin.joint_positions()
+            error = max(abs(here[n] - v) for n, v in targets.items())
+            if error <= SETTLE_TOLERANCE_DEG or time.monotonic() >= deadline:
+                return error
+            if await _stopped_within(stop, 0.02):
+                return None
+
+    def stop_gesture(self) -> None:
+        if self._gesture_stop is not None:
+            self._gesture_stop.set()
+            here = self._standin.joint_positions()
+            self._standin.set_targets({n: here[n] for n in self._gesture_joints})
+
+    # ------------------------------------------------------------------------------------------------ camera
+    def add_camera_subscriber(self) -> None:
+        self._standin.start_camera()
+
+    def remove_camera_subscriber(self) -> None:
+        self._standin.stop_camera()
+
+    def latest_frame(self) -> CameraFrame | None:
+        f = self._standin.latest_frame()
+        return None if f is None else _frame(f)
+
+    async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future = loop.create_future()
+        entry = (loop, fut, after_seq)
+        with self._waiters_lock:
+            self._waiters.append(entry)
+        try:
+            latest = self._standin.latest_frame()  # checked after registering, so no frame slips between
+            if latest is not None and latest.seq > after_seq:
+                return _frame(latest)
+            if self._closed:
+                return None
+            return await asyncio.wait_for(fut, timeout)
+        except TimeoutError:
+            return None
+        finally:
+            with self._waiters_lock:
+                if entry in self._waiters:
+                    self._waiters.remove(entry)
+
+    def _on_frame(self, frame: SimFrame) -> None:
+        """Render thread: hand the frame to every asyncio waiter on its own loop."""
+        with self._waiters_lock:
+            ready = [(loop, fut) for loop, fut, after in self._waiters if frame.seq > after]
+        if not ready:
+            return
+        converted = _frame(frame)
+        for loop, fut in ready:
+            try:
+                loop.call_soon_threadsafe(_resolve, fut, converted)
+            except RuntimeError:  # that loop is closed; its waiter is gone
+                pass
+
+    # ------------------------------------------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._standin.remove_frame_listener(self._on_frame)
+        with self._waiters_lock:
+            waiters, self._waiters = self._waiters, []
+        for loop, fut, _ in waiters:
+            try:
+                loop.call_soon_threadsafe(_resolve, fut, None)
+            except RuntimeError:
+                pass
+        if self._owns_standin:
+            self._standin.close()
+
+
+async def _stopped_within(stop: asyncio.Event, seconds: float) -> bool:
+    """True if `stop` is set within `seconds`, False when the time passes first."""
+    try:
+        await asyncio.wait_for(stop.wait(), seconds)
+        return True
+    except TimeoutError:
+        return stop.is_set()

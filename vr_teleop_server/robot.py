@@ -1,0 +1,275 @@
+"""The Robot interface: the only way anything in the server moves, reads or shows things on the robot.
+
+Units are degrees and the robot's base frame (REP 103: x forward, y left, z up), as LuxAI's standard-mode API
+uses them. Joint names, order, parts and limits come from robot_models (the `model` attribute), never from
+literals elsewhere.
+
+Rules every backend keeps:
+- Commands are always clamped to the joint limits, and every clamp is reported back in a ClampReport.
+  A command for a joint whose motor is not ON is not applied, and is reported as ignored.
+- Methods without `async` return in well under a millisecond and may be called from the event loop; the
+  work they start runs in the backend's own threads. The `async` methods await real completion (speech
+  finished, gesture finished) without blocking the loop. close() may block briefly: from asyncio, await aclose().
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import enum
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from robot_models import RobotModel
+
+
+class MotorMode(enum.IntEnum):
+    """LuxAI's /qt_robot/motors/setControlMode values."""
+
+    ON = 0  # M_ON: the motor follows commands
+    OFF = 1  # M_OFF: no torque; the link can be moved by hand (and falls under gravity)
+    BRAKE = 2  # M_BREAK: hold the current position and ignore commands
+
+
+@dataclass(frozen=True)
+class JointClamp:
+    """One joint whose requested target was outside its limits."""
+
+    name: str
+    requested: float
+    applied: float
+
+
+@dataclass(frozen=True)
+class ClampReport:
+    """What happened to one command: the targets applied (joint order of the command) and what was changed."""
+
+    names: tuple[str, ...]
+    requested: tuple[float, ...]
+    applied: tuple[float, ...]  # after clamping; for ignored joints, the clamped value that was NOT applied
+    clamped: tuple[JointClamp, ...] = ()
+    ignored: tuple[str, ...] = ()  # joints whose motor is OFF or BRAKE: the command did not move them
+
+    @property
+    def ok(self) -> bool:
+        """True when every joint got exactly what was asked."""
+        return not self.clamped and not self.ignored
+
+    def describe(self) -> str:
+        """A one-line account for logs and client status messages."""
+        parts = [f"{c.name} {c.requested:.1f} -> {c.applied:.1f} deg (limit)" for c in self.clamped]
+        if self.ignored:
+            parts.append(f"ignored (motor not ON): {', '.join(self.ignored)}")
+        return "; ".join(parts) or "applied as requested"
+
+
+def clamp_command(model: RobotModel, targets: Mapping[str, float]) -> tuple[dict[str, float], ClampReport]:
+    """Validate and clamp joint targets against the model; the shared first step of every backend."""
+    names, requested, applied, clamped = [], [], [], []
+    for name, value in targets.items():
+        joint = model.joint(name)  # KeyError naming the valid joints
+        try:
+            deg = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"joint {name}: target must be a number of degrees, got {value!r}") from None
+        if not math.isfinite(deg):
+            raise ValueError(f"joint {name}: target must be a finite number of degrees in "
+                             f"[{joint.lower}, {joint.upper}], got {value!r}")
+        out = model.clamp(name, deg)
+        names.append(name)
+        requested.append(deg)
+        applied.append(out)
+        if out != deg:
+            clamped.append(JointClamp(name, deg, out))
+    report = ClampReport(tuple(names), tuple(requested), tuple(applied), tuple(clamped))
+    return dict(zip(names, applied)), report
+
+
+def part_command(model: RobotModel, part: str, degrees: Sequence[float]) -> dict[str, float]:
+    """Map a LuxAI part array ([HeadYaw, HeadPitch], [ShoulderPitch, ShoulderRoll, ElbowRoll]) onto joint names."""
+    joints = model.part_joints(part)  # KeyError naming the valid parts
+    values = list(degrees)
+    if len(values) != len(joints):
+        raise ValueError(f"part {part} takes {len(joints)} values ({', '.join(joints)}), got {len(values)}")
+    return dict(zip(joints, values))
+
+
+@dataclass(frozen=True)
+class JointState:
+    """Joint state in the model's canonical order (degrees, deg/s, N m)."""
+
+    names: tuple[str, ...]
+    positions: tuple[float, ...]
+    velocities: tuple[float, ...]
+    efforts: tuple[float, ...]
+    stamp_monotonic: float  # for intervals
+    stamp_wall: float  # for message headers
+
+    def as_dict(self) -> dict[str, float]:
+        return dict(zip(self.names, self.positions))
+
+    def reordered(self, names: Sequence[str]) -> JointState:
+        """The same state in another order, e.g. model.alphabetical_names for /qt_robot/joints/state."""
+        idx = [self.names.index(n) for n in names]
+        return JointState(tuple(names), tuple(self.positions[i] for i in idx), tuple(self.velocities[i] for i in idx),
+                          tuple(self.efforts[i] for i in idx), self.stamp_monotonic, self.stamp_wall)
+
+
+@dataclass(frozen=True)
+class MotorStatus:
+    name: str
+    part: str
+    position: float  # degrees
+    temperature_c: float | None  # None: this backend cannot tell
+    voltage_v: float | None
+    mode: MotorMode
+    source: str  # "measured" (a real robot) or "modelled" (the stand-in's thermal model)
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One JPEG frame from the head camera; backends keep only the newest."""
+
+    jpeg: bytes
+    width: int
+    height: int
+    seq: int
+    stamp_monotonic: float
+    stamp_wall: float
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    time_s: float  # from the gesture's start, at speed 1
+    targets: Mapping[str, float]  # joint name -> degrees
+
+
+@dataclass(frozen=True)
+class Gesture:
+    """A timed joint trajectory (LuxAI's gesture files hold about 20 waypoints a second)."""
+
+    name: str
+    waypoints: tuple[Waypoint, ...]
+
+    def validate(self, model: RobotModel) -> None:
+        if not self.waypoints:
+            raise ValueError(f"gesture {self.name!r} has no waypoints")
+        last = -math.inf
+        for i, wp in enumerate(self.waypoints):
+            if not (math.isfinite(wp.time_s) and wp.time_s >= 0):
+                raise ValueError(f"gesture {self.name!r} waypoint {i}: time must be a finite number of seconds >= 0")
+            if wp.time_s < last:
+                raise ValueError(f"gesture {self.name!r} waypoint {i}: times must not go backwards "
+                                 f"({wp.time_s} after {last})")
+            last = wp.time_s
+            for name in wp.targets:
+                model.joint(name)
+
+    @property
+    def duration_s(self) -> float:
+        return self.waypoints[-1].time_s if self.waypoints else 0.0
+
+
+@dataclass(frozen=True)
+class GestureResult:
+    name: str
+    completed: bool  # every waypoint was sent and the robot settled on the last one
+    stopped: bool  # stop_gesture() or a newer gesture cut it short
+    waypoints_sent: int
+    clamps: tuple[JointClamp, ...]  # every clamp along the way
+    ignored: tuple[str, ...]  # joints that could not follow (motor not ON)
+    final_error_deg: float | None  # largest |position - last waypoint| at the end; None if not reached there
+
+
+@dataclass(frozen=True)
+class SpeechResult:
+    text: str
+    completed: bool  # False when stopped early
+    duration_s: float
+    audible: bool  # False: this backend only animates the face (no sound is produced)
+
+
+class Robot(abc.ABC):
+    """What the server needs from a robot (the stand-in or the real QTrobot)."""
+
+    @property
+    @abc.abstractmethod
+    def model(self) -> RobotModel:
+        """Joint names, order, parts, limits and velocity caps of this robot."""
+
+    # ------------------------------------------------------------------------------------------------ motion
+    @abc.abstractmethod
+    def set_joint_targets(self, targets: Mapping[str, float]) -> ClampReport:
+        """Command joints by name (degrees). Clamped to limits; the report says what was clamped or ignored."""
+
+    def set_part_targets(self, part: str, degrees: Sequence[float]) -> ClampReport:
+        """Command one part with LuxAI's array layout ("head": [yaw, pitch]; arms: [pitch, roll, elbow])."""
+        return self.set_joint_targets(part_command(self.model, part, degrees))
+
+    @abc.abstractmethod
+    def joint_state(self) -> JointState:
+        """The newest joint state (canonical order)."""
+
+    @abc.abstractmethod
+    def set_control_mode(self, parts: Sequence[str], mode: MotorMode) -> None:
+        """Switch the motors of whole parts ON, OFF or BRAKE. Going ON holds the current position."""
+
+    def home(self, parts: Sequence[str] | None = None) -> dict[str, ClampReport]:
+        """Send parts (default: all) to the home pose at their velocity caps."""
+        model = self.model
+        reports = {}
+        for part in parts or tuple(model.parts):
+            joints = model.part_joints(part)
+            reports[part] = self.set_joint_targets({n: model.joint(n).home for n in joints})
+        return reports
+
+    @abc.abstractmethod
+    def motor_status(self) -> tuple[MotorStatus, ...]:
+        """Per motor position, temperature, voltage and mode (canonical order)."""
+
+    # ---------------------------------------------------------------------------------- face, speech, gestures
+    @abc.abstractmethod
+    def show_emotion(self, name: str) -> None:
+        """Show an emotion ("happy" or "QT/happy"); ValueError names the valid ones."""
+
+    @abc.abstractmethod
+    async def say(self, text: str) -> SpeechResult:
+        """Speak `text`; returns when speaking has finished (as LuxAI's speech/say service does)."""
+
+    @abc.abstractmethod
+    def stop_speech(self) -> None:
+        """Cut the current speech short; its say() returns completed=False."""
+
+    @abc.abstractmethod
+    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
+        """Play a timed trajectory; returns when it has finished or was stopped. A new gesture stops the old."""
+
+    @abc.abstractmethod
+    def stop_gesture(self) -> None:
+        """Stop the playing gesture where it is."""
+
+    # ------------------------------------------------------------------------------------------------ camera
+    @abc.abstractmethod
+    def add_camera_subscriber(self) -> None:
+        """Count one more viewer; frames are produced only while the count is above zero."""
+
+    @abc.abstractmethod
+    def remove_camera_subscriber(self) -> None:
+        """Undo one add_camera_subscriber()."""
+
+    @abc.abstractmethod
+    def latest_frame(self) -> CameraFrame | None:
+        """The newest frame, or None if none was produced yet (check its stamps for age)."""
+
+    @abc.abstractmethod
+    async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
+        """Wait (without blocking the loop) for a frame newer than after_seq; None on timeout."""
+
+    # ------------------------------------------------------------------------------------------------ lifecycle
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Stop the backend's threads and connections. May block briefly."""
+
+    async def aclose(self) -> None:
+        await asyncio.to_thread(self.close)
