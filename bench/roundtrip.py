@@ -43,7 +43,8 @@ def pose(seq: int) -> str:
 class Server:
     def __init__(self, kind: str) -> None:
         self.port = free_port()
-        cmd = ([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(self.port), "--log-level", "warning"]
+        cmd = ([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(self.port), "--log-level", "warning",
+                "--backend", "none"]
                if kind == "ours" else [sys.executable, str(ROOT / "bench" / "relay.py"), "--port", str(self.port)])
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT)
         self.proc.stdout.readline()  # "listening on ..."

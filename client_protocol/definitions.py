@@ -39,6 +39,11 @@ MESSAGES: dict[str, str] = {
         "Header header\nbyte level\nstring name\nstring msg\nstring file\nstring function\nuint32 line\n"
         "string[] topics"
     ),
+    # this server's own events
+    "vr_teleop_msgs/Clamp": (
+        "# A joint command that did not apply as sent: clamped to limits, or ignored (motor not ON)\n"
+        "Header header\nstring source\nstring[] joints\nfloat64[] requested\nfloat64[] applied\nstring[] ignored"
+    ),
     # rosapi's own message
     "rosapi/TypeDef": (
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
@@ -50,6 +55,15 @@ SERVICES: dict[str, str] = {
     "std_srvs/Trigger": "---\nbool success\nstring message",
     "std_srvs/SetBool": "bool data\n---\nbool success\nstring message",
     "std_srvs/Empty": "---",
+    # LuxAI's QTrobot API (each service answers `bool status`)
+    "qt_robot_interface/emotion_show": "string name\n---\nbool status",
+    "qt_robot_interface/speech_say": "string message\n---\nbool status",
+    "qt_robot_interface/speech_stop": "---\nbool status",
+    "qt_gesture_controller/gesture_play": "string name\nfloat32 speed\n---\nbool status",
+    "qt_gesture_controller/gesture_list": "---\nstring[] gestures",
+    "qt_gesture_controller/gesture_stop": "---\nbool status",
+    "qt_motors_controller/home": "string[] parts\n---\nbool status",
+    "qt_motors_controller/set_control_mode": "string[] parts\nuint8 mode\n---\nbool status",
     # rosapi, as client libraries (roslibpy, roslibjs, ROS#) call it
     "rosapi/Topics": "---\nstring[] topics\nstring[] types",
     "rosapi/TopicType": "string topic\n---\nstring type",

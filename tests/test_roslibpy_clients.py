@@ -8,6 +8,8 @@ import time
 import pytest
 import roslibpy
 
+from support import wait_for
+
 
 @pytest.fixture
 def ros_factory(server):
@@ -23,15 +25,6 @@ def ros_factory(server):
     yield make
     for ros in clients:
         ros.close()  # not terminate(): the Twisted reactor is shared by every test in the process
-
-
-def wait_for(predicate, timeout: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def test_topic_publish_subscribe_between_two_clients(ros_factory):

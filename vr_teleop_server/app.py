@@ -5,8 +5,12 @@ from __future__ import annotations
 import logging
 
 from client_protocol.registry import TypeRegistry
+from robot_models import load_qtrobot
 
 from .bus import Bus
+from .gestures import GestureLibrary, packaged_gesture_dir
+from .luxai_api import LuxaiApi
+from .robot import Robot
 from .rosapi import RosApi
 from .session import Session
 from .settings import ServerSettings
@@ -20,8 +24,12 @@ class TeleopServer:
         self.settings = settings
         self.registry = TypeRegistry(time_style=settings.time_style)
         self.bus = Bus(self.registry)
+        self.bus.reporter = self._report
+        self.model = load_qtrobot()
         self.sessions: dict[str, Session] = {}
         self.rosapi = RosApi(self.bus)
+        self.robot: Robot | None = None
+        self.luxai: LuxaiApi | None = None
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session)
 
     def _open_session(self, name: str, peer: str) -> Session:
@@ -33,14 +41,45 @@ class TeleopServer:
         session.close()
         self.sessions.pop(session.name, None)
 
+    def _report(self, owner: str, level: str, text: str) -> None:
+        session = self.sessions.get(owner)
+        if session is not None:
+            session.status(level, text)
+        else:
+            log.log(logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text)
+
+    async def _start_robot(self) -> None:
+        s = self.settings
+        if s.backend == "none":
+            return
+        from .backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
+
+        self.robot = await SimRobot.create(self.model, camera_width=s.camera_width, camera_height=s.camera_height,
+                                           camera_fps=s.camera_fps)
+        gestures = GestureLibrary([packaged_gesture_dir()], self.model, user_dir=s.gesture_dir)
+        self.luxai = LuxaiApi(self.bus, self.robot, gestures)
+        self.luxai.start()
+
     async def start(self) -> None:
         self.rosapi.start()
-        await self.transport.start()
+        await self._start_robot()
+        try:
+            await self.transport.start()
+        except BaseException:
+            await self._stop_robot()
+            raise
 
     async def stop(self) -> None:
         await self.transport.stop()
         for session in list(self.sessions.values()):
             self._close_session(session)
+        await self._stop_robot()
+
+    async def _stop_robot(self) -> None:
+        if self.luxai is not None:
+            await self.luxai.stop()
+        if self.robot is not None:
+            await self.robot.aclose()
 
     @property
     def url(self) -> str:

@@ -53,6 +53,8 @@ class Topic:
     subscribers: dict[int, tuple[str, Subscriber]] = field(default_factory=dict)  # token -> (owner, callback)
     publishers: dict[str, int] = field(default_factory=dict)  # owner -> advertise count
     persistent: bool = False  # created by the server itself: kept when no client uses it
+    queue_bound: int | None = None  # per-subscriber queue when the subscriber asks for none (1: newest only)
+    on_subscriber_count: Callable[[int], None] | None = None  # a feature that works only while watched
 
 
 @dataclass
@@ -114,14 +116,23 @@ class Bus:
         self.actions: dict[str, Action] = {}
         self._tokens = itertools.count(1)
         self._goal_ids = itertools.count(1)
+        # How features tell the client that sent a message about a problem with it; set by the server.
+        self.reporter: Callable[[str, str, str], None] = lambda owner, level, text: log.log(
+            logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text)
+
+    def report(self, owner: str, level: str, text: str) -> None:
+        """Tells `owner` (the sender of a message) about a problem the message caused: a rosbridge status."""
+        self.reporter(owner, level, text)
 
     # ---- topics -------------------------------------------------------------------------------------------------
-    def declare_topic(self, name: str, type_name: str, *, latched: bool = False, persistent: bool = False) -> Topic:
+    def declare_topic(self, name: str, type_name: str, *, latched: bool = False, persistent: bool = False,
+                      queue_bound: int | None = None) -> Topic:
         """Creates `name` with `type_name`, or checks that it already has that type."""
         type_name = normalize_type_name(type_name)
         topic = self.topics.get(name)
         if topic is None:
-            topic = Topic(name, type_name, self.registry.is_known_message(type_name), latched, persistent=persistent)
+            topic = Topic(name, type_name, self.registry.is_known_message(type_name), latched, persistent=persistent,
+                          queue_bound=queue_bound)
             self.topics[name] = topic
         elif topic.type != type_name:
             raise BusError(f"topic {name} has type {topic.type}, not {type_name}")
@@ -152,6 +163,7 @@ class Bus:
                                f"subscribing, or wait until it is advertised")
         token = next(self._tokens)
         topic.subscribers[token] = (owner, callback)
+        self._count_changed(topic)
         if topic.latched and topic.last is not None:
             callback(topic.last)
         return token
@@ -159,7 +171,13 @@ class Bus:
     def unsubscribe(self, name: str, token: int) -> None:
         topic = self.topics.get(name)
         if topic is not None and topic.subscribers.pop(token, None) is not None:
+            self._count_changed(topic)
             self._forget_if_unused(topic)
+
+    @staticmethod
+    def _count_changed(topic: Topic) -> None:
+        if topic.on_subscriber_count is not None:
+            topic.on_subscriber_count(len(topic.subscribers))
 
     def _forget_if_unused(self, topic: Topic) -> None:
         if not topic.persistent and not topic.publishers and not topic.subscribers and topic.last is None:
@@ -303,9 +321,11 @@ class Bus:
         """Removes everything a disconnected client advertised or provided."""
         for topic in list(self.topics.values()):
             topic.publishers.pop(owner, None)
-            for token, (sub_owner, _) in list(topic.subscribers.items()):
-                if sub_owner == owner:
-                    del topic.subscribers[token]
+            tokens = [token for token, (sub_owner, _) in topic.subscribers.items() if sub_owner == owner]
+            for token in tokens:
+                del topic.subscribers[token]
+            if tokens:
+                self._count_changed(topic)
             self._forget_if_unused(topic)
         for name, service in list(self.services.items()):
             if service.owner == owner:

@@ -6,6 +6,12 @@ import argparse
 import asyncio
 import logging
 import signal
+import sys
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from client_protocol.registry import describe_validation_error
 
 from .app import TeleopServer
 from .settings import ServerSettings
@@ -23,6 +29,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="larger frames get a status error (default %(default)s)")
     p.add_argument("--service-timeout", type=float, default=defaults.service_timeout, metavar="S",
                    help="seconds a service call waits when the caller gives no timeout (default %(default)s)")
+    p.add_argument("--backend", choices=["sim", "none"], default=defaults.backend,
+                   help="the robot: the embedded MuJoCo stand-in (sim) or none (default %(default)s)")
+    p.add_argument("--camera-size", default=f"{defaults.camera_width}x{defaults.camera_height}", metavar="WxH",
+                   help="head-camera image size (default %(default)s)")
+    p.add_argument("--camera-fps", type=float, default=defaults.camera_fps,
+                   help="head-camera frames a second while someone watches (default %(default)s)")
+    p.add_argument("--gesture-dir", type=Path, default=None,
+                   help="directory for recorded gestures and extra LuxAI gesture files")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     p.set_defaults(func=run)
 
@@ -30,8 +44,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("websockets").setLevel(max(logging.WARNING, logging.getLogger().level))  # we log our own
-    settings = ServerSettings(host=args.host, port=args.port, time_style=args.time_style,
-                              max_message_size=args.max_message_size, service_timeout=args.service_timeout)
+    try:
+        width, height = (int(v) for v in args.camera_size.lower().split("x"))
+    except ValueError:
+        print(f"vr-teleop serve: --camera-size must look like 640x480, not {args.camera_size!r}", file=sys.stderr)
+        return 2
+    try:
+        settings = ServerSettings(host=args.host, port=args.port, time_style=args.time_style,
+                                  max_message_size=args.max_message_size, service_timeout=args.service_timeout,
+                                  backend=args.backend, camera_width=width, camera_height=height,
+                                  camera_fps=args.camera_fps, gesture_dir=args.gesture_dir)
+    except ValidationError as exc:
+        print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)
+        return 2
     return asyncio.run(_serve(settings))
 
 

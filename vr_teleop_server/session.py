@@ -183,7 +183,7 @@ class Session:
                                f"subscribing, or subscribe after it is advertised")
             if op.compression == "cbor-raw" and not topic.known:
                 raise ProtocolError(f"cbor-raw needs a type this server knows; {topic.type} is carried as JSON only")
-            sub = TopicSubscription(op.topic, self.settings.queue_bound)
+            sub = TopicSubscription(op.topic, topic.queue_bound or self.settings.queue_bound)
             sub.requests[op.id] = SubscriptionRequest(op.throttle_rate, op.queue_length, op.fragment_size,
                                                       op.compression)
             sub.update()

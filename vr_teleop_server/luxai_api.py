@@ -1,0 +1,237 @@
+"""LuxAI's QTrobot API on the bus: the topics and services a real QTrobot's rosbridge exposes, served by a Robot.
+
+An existing QTrobot script (roslibpy, roslibjs) written against `/qt_robot/*` works against the stand-in
+unchanged. Every command goes through the Robot interface, which clamps; a clamp or an ignored joint is published
+on `/vr_teleop/clamps` and reported to the sender as a status warning, never hidden.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from typing import Any, Protocol
+
+from .bus import SERVER_NODE, Bus, BusError, Published
+from .robot import ClampReport, Gesture, MotorMode, Robot
+
+log = logging.getLogger(__name__)
+
+PART_TOPICS = {
+    "/qt_robot/head_position/command": "head",
+    "/qt_robot/right_arm_position/command": "right_arm",
+    "/qt_robot/left_arm_position/command": "left_arm",
+}
+JOINT_STATE_TOPIC = "/qt_robot/joints/state"
+CAMERA_TOPIC = "/camera/color/image_raw/compressed"
+CLAMP_TOPIC = "/vr_teleop/clamps"
+CAMERA_FRAME_ID = "camera_color_optical_frame"
+
+
+class GestureSource(Protocol):
+    def names(self) -> list[str]: ...
+    def get(self, name: str) -> Gesture: ...
+
+
+class LuxaiApi:
+    def __init__(self, bus: Bus, robot: Robot, gestures: GestureSource, joint_state_hz: float = 30.0) -> None:
+        self.bus = bus
+        self.robot = robot
+        self.gestures = gestures
+        self.joint_state_period = 1.0 / joint_state_hz
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._joint_task: asyncio.Task[None] | None = None
+        self._camera_task: asyncio.Task[None] | None = None
+        self._camera_watchers = 0
+
+    # ---- lifetime -----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        bus = self.bus
+        for topic, part in PART_TOPICS.items():
+            bus.declare_topic(topic, "std_msgs/Float64MultiArray", persistent=True)
+            bus.subscribe(SERVER_NODE, topic, None, lambda p, part=part: self._on_part_command(part, p))
+        bus.declare_topic(JOINT_STATE_TOPIC, "sensor_msgs/JointState", persistent=True)
+        bus.declare_topic(CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
+        camera = bus.declare_topic(CAMERA_TOPIC, "sensor_msgs/CompressedImage", persistent=True, queue_bound=1)
+        camera.on_subscriber_count = self._on_camera_watchers
+
+        for name, handler in (("/qt_robot/emotion/show", self._on_emotion_topic),
+                              ("/qt_robot/speech/say", self._on_speech_topic),
+                              ("/qt_robot/gesture/play", self._on_gesture_topic)):
+            bus.declare_topic(name, "std_msgs/String", persistent=True)
+            bus.subscribe(SERVER_NODE, name, None, handler)
+
+        bus.provide("/qt_robot/emotion/show", "qt_robot_interface/emotion_show", self._emotion_show)
+        bus.provide("/qt_robot/speech/say", "qt_robot_interface/speech_say", self._speech_say)
+        bus.provide("/qt_robot/speech/stop", "qt_robot_interface/speech_stop", self._speech_stop)
+        bus.provide("/qt_robot/gesture/play", "qt_gesture_controller/gesture_play", self._gesture_play)
+        bus.provide("/qt_robot/gesture/list", "qt_gesture_controller/gesture_list", self._gesture_list)
+        bus.provide("/qt_robot/gesture/stop", "qt_gesture_controller/gesture_stop", self._gesture_stop)
+        bus.provide("/qt_robot/motors/home", "qt_motors_controller/home", self._home)
+        bus.provide("/qt_robot/motors/setControlMode", "qt_motors_controller/set_control_mode", self._control_mode)
+        self._joint_task = asyncio.ensure_future(self._publish_joint_states())
+
+    async def stop(self) -> None:
+        tasks = [t for t in (self._joint_task, self._camera_task, *self._tasks) if t is not None]
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        if self._camera_watchers:
+            self.robot.remove_camera_subscriber()
+            self._camera_watchers = 0
+
+    def _spawn(self, coro: Any) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    # ---- joint commands -----------------------------------------------------------------------------------------
+    def _on_part_command(self, part: str, published: Published) -> None:
+        try:
+            report = self.robot.set_part_targets(part, published.value.data)
+        except (ValueError, KeyError) as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
+            return
+        self.publish_clamp(published.topic, report, published.sender)
+
+    def publish_clamp(self, source: str, report: ClampReport, sender: str | None = None) -> None:
+        """Makes a clamped or ignored command visible: on /vr_teleop/clamps, and to the sender as a warning."""
+        if report.ok:
+            return
+        self.bus.publish(CLAMP_TOPIC, {
+            "header": {"stamp": self.bus.registry.now()}, "source": source,
+            "joints": [c.name for c in report.clamped], "requested": [c.requested for c in report.clamped],
+            "applied": [c.applied for c in report.clamped], "ignored": list(report.ignored)})
+        if sender is not None:
+            self.bus.report(sender, "warning", f"{source}: {report.describe()}")
+
+    async def _home(self, request: Any) -> dict[str, Any]:
+        parts = self._parts(request.parts)
+        for part, report in self.robot.home(parts).items():
+            self.publish_clamp(f"/qt_robot/motors/home {part}", report)
+        return {"status": True}
+
+    async def _control_mode(self, request: Any) -> dict[str, Any]:
+        try:
+            mode = MotorMode(request.mode)
+        except ValueError:
+            raise BusError(f"mode {request.mode} is not one of M_ON=0, M_OFF=1, M_BREAK=2") from None
+        self.robot.set_control_mode(self._parts(request.parts), mode)
+        return {"status": True}
+
+    def _parts(self, parts: list[str]) -> list[str]:
+        known = tuple(self.robot.model.parts)
+        unknown = [p for p in parts if p not in known]
+        if unknown:
+            raise BusError(f"unknown part(s) {', '.join(unknown)}; parts are {', '.join(known)}")
+        return list(parts) or list(known)
+
+    # ---- joint states -------------------------------------------------------------------------------------------
+    async def _publish_joint_states(self) -> None:
+        order = self.robot.model.alphabetical_names
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        while True:
+            state = self.robot.joint_state().reordered(order)
+            secs = int(state.stamp_wall)
+            self.bus.publish(JOINT_STATE_TOPIC, {
+                "header": {"stamp": {"secs": secs, "nsecs": int((state.stamp_wall - secs) * 1e9)}},
+                "name": list(state.names), "position": list(state.positions), "velocity": list(state.velocities),
+                "effort": list(state.efforts)})
+            next_at += self.joint_state_period
+            delay = next_at - loop.time()
+            if delay < -self.joint_state_period:  # fell behind (a stalled loop): do not burst to catch up
+                next_at = loop.time()
+            await asyncio.sleep(max(0.0, delay))
+
+    # ---- camera -------------------------------------------------------------------------------------------------
+    def _on_camera_watchers(self, count: int) -> None:
+        """Frames are rendered only while someone watches."""
+        if count > 0 and self._camera_task is None:
+            self.robot.add_camera_subscriber()
+            self._camera_watchers = 1
+            self._camera_task = asyncio.ensure_future(self._pump_camera())
+        elif count == 0 and self._camera_task is not None:
+            self._camera_task.cancel()
+            self._camera_task = None
+            self.robot.remove_camera_subscriber()
+            self._camera_watchers = 0
+
+    async def _pump_camera(self) -> None:
+        seq = 0
+        while True:
+            frame = await self.robot.next_frame(after_seq=seq, timeout=1.0)
+            if frame is None:
+                continue
+            seq = frame.seq
+            secs = int(frame.stamp_wall)
+            self.bus.publish(CAMERA_TOPIC, {
+                "header": {"seq": frame.seq % 2**32, "frame_id": CAMERA_FRAME_ID,
+                           "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
+                "format": "jpeg", "data": frame.jpeg})
+
+    # ---- face, speech, gestures ---------------------------------------------------------------------------------
+    def _show(self, name: str) -> None:
+        try:
+            self.robot.show_emotion(name)
+        except ValueError as exc:
+            raise BusError(str(exc)) from None
+
+    def _on_emotion_topic(self, published: Published) -> None:
+        try:
+            self._show(published.value.data)
+        except BusError as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
+
+    async def _emotion_show(self, request: Any) -> dict[str, Any]:
+        self._show(request.name)
+        return {"status": True}
+
+    def _on_speech_topic(self, published: Published) -> None:
+        self._spawn(self.robot.say(published.value.data))
+
+    async def _speech_say(self, request: Any) -> dict[str, Any]:
+        result = await self.robot.say(request.message)
+        return {"status": result.completed}
+
+    async def _speech_stop(self, _request: Any) -> dict[str, Any]:
+        self.robot.stop_speech()
+        return {"status": True}
+
+    def _gesture(self, name: str) -> Gesture:
+        try:
+            return self.gestures.get(name)
+        except KeyError as exc:
+            raise BusError(str(exc.args[0]) if exc.args else f"unknown gesture {name!r}") from None
+
+    def _on_gesture_topic(self, published: Published) -> None:
+        try:
+            gesture = self._gesture(published.value.data)
+        except BusError as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
+            return
+        self._spawn(self._play(gesture, 1.0, published.sender))
+
+    async def _play(self, gesture: Gesture, speed: float, sender: str | None) -> bool:
+        result = await self.robot.play_gesture(gesture, speed)
+        if result.clamps or result.ignored:
+            self.publish_clamp(
+                f"/qt_robot/gesture/play {gesture.name}",
+                ClampReport(tuple(c.name for c in result.clamps), tuple(c.requested for c in result.clamps),
+                            tuple(c.applied for c in result.clamps), result.clamps, result.ignored), sender)
+        return result.completed
+
+    async def _gesture_play(self, request: Any) -> dict[str, Any]:
+        speed = request.speed or 1.0  # LuxAI scripts often leave speed out (0)
+        if not 0.1 <= speed <= 10:
+            raise BusError(f"speed {request.speed:g} is outside 0.1..10 (1 plays as recorded)")
+        return {"status": await self._play(self._gesture(request.name), speed, None)}
+
+    async def _gesture_list(self, _request: Any) -> dict[str, Any]:
+        return {"gestures": self.gestures.names()}
+
+    async def _gesture_stop(self, _request: Any) -> dict[str, Any]:
+        self.robot.stop_gesture()
+        return {"status": True}
