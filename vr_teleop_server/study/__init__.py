@@ -1,0 +1,1 @@
+"""HRI user-study framework: perception, decision, action and metrics modules."""

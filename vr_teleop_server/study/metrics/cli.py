@@ -1,0 +1,109 @@
+"""`vr-teleop metrics INPUT`: fluency and team metrics of one trial, as a summary, JSON and a Gantt chart."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .fluency import compute_metrics
+from .model import FDEL_DIRECTIONS, FluencyResult
+from .readers import MetricsInputError, read_interventions, read_trial
+
+_EPILOG = """\
+input formats:
+  CSV   header agent,action,start,stop; agent is human or robot; times in seconds since the study start;
+        an empty stop marks an action still running at the end (clipped to T1, reported as unfinished).
+  JSON  a list of {"agent", "action", "start", "stop"} objects (stop may be null), or an object
+        {"updates": [...], "interventions": [...], "planned_subtasks": N}.
+  MCAP  session recordings: reading arrives with session recording.
+
+T0 defaults to the earliest start, T1 to the latest stop (or an unfinished action's start, if later).
+Effectiveness is computed only when interventions are known (--interventions, or "interventions" in a JSON
+object): 1 - intervened robot subtasks / planned robot subtasks (default: the robot actions in [T0, T1]).
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "metrics", help="fluency metrics (H-IDLE, R-IDLE, C-ACT, F-DEL) of one trial",
+        description="Compute Hoffman's fluency metrics and team efficiency/effectiveness from a trial's "
+                    "state updates; print a summary, and optionally write JSON and a Gantt chart.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("input", type=Path, metavar="INPUT", help="trial file: .csv or .json (see below)")
+    p.add_argument("--json", type=Path, metavar="OUT", help="write the metrics as JSON here ('-' for stdout)")
+    p.add_argument("--plot", type=Path, metavar="PNG", help="write a Gantt chart of the trial here")
+    p.add_argument("--t0", type=float, metavar="S", help="task start T0 in seconds (default: earliest start)")
+    p.add_argument("--t1", type=float, metavar="S", help="task end T1 in seconds (default: latest stop)")
+    p.add_argument("--fdel", choices=FDEL_DIRECTIONS, default="both",
+                   help="which hand-overs F-DEL sums: both (default), human_to_robot (the wait the human "
+                        "experiences) or robot_to_human")
+    p.add_argument("--interventions", type=Path, metavar="FILE",
+                   help="interventions as CSV (start,stop,subtask,note) or JSON list; enables effectiveness")
+    p.add_argument("--planned-subtasks", type=int, metavar="N",
+                   help="planned robot subtasks for effectiveness (default: robot actions in the window)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        trial = read_trial(args.input)
+        interventions = trial.interventions
+        if args.interventions is not None:
+            if interventions is not None:
+                raise MetricsInputError(args.input, "interventions are given both in this file and by --interventions",
+                                        "keep one of the two")
+            interventions = read_interventions(args.interventions)
+        if not trial.updates:
+            raise MetricsInputError(args.input, "no state updates", "add rows agent,action,start,stop")
+        planned = args.planned_subtasks if args.planned_subtasks is not None else trial.planned_subtasks
+        result = compute_metrics(trial.updates, t0=args.t0, t1=args.t1, fdel_direction=args.fdel,
+                                 interventions=interventions, planned_subtasks=planned)
+    except ValueError as exc:  # MetricsInputError included
+        print(f"vr-teleop metrics: error: {exc}", file=sys.stderr)
+        return 2
+
+    print(summary(args.input.name, result))
+    if args.json is not None:
+        text = json.dumps(result.to_json_dict(), indent=2)
+        if str(args.json) == "-":
+            print(text)
+        else:
+            args.json.write_text(text + "\n", encoding="utf-8")
+            print(f"wrote {args.json}")
+    if args.plot is not None:
+        from .gantt import plot_gantt  # matplotlib only when a chart is asked for
+
+        plot_gantt(trial.updates, args.plot, result=result, title=args.input.name)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def summary(name: str, r: FluencyResult) -> str:
+    def f(x: float | None) -> str:
+        return "  n/a" if x is None else f"{x:5.2f}"
+
+    c = r.counts
+    lines = [
+        f"{name}: {c.human_actions} human and {c.robot_actions} robot actions, {c.unfinished} unfinished",
+        f"T0 {r.t0:.2f} s   T1 {r.t1:.2f} s   efficiency {r.efficiency_s:.2f} s",
+        f"  H-IDLE     {f(r.h_idle)}   human active {r.human_active_s:.2f} s",
+        f"  R-IDLE     {f(r.r_idle)}   robot active {r.robot_active_s:.2f} s",
+        f"  C-ACT      {f(r.c_act)}   both active {r.concurrent_s:.2f} s",
+        f"  BOTH-IDLE  {f(r.both_idle)}   neither active {r.both_idle_s:.2f} s",
+        f"  F-DEL      {f(r.f_del)}   {r.fdel_direction.replace('_', ' ')}; {c.handovers} hand-overs "
+        f"({c.handovers_human_to_robot} human to robot, {c.handovers_robot_to_human} robot to human)",
+    ]
+    if r.interventions_known:
+        lines.append(f"  effectiveness {f(r.effectiveness)}   {c.intervened_subtasks} of {c.planned_subtasks} "
+                     f"planned robot subtasks intervened ({c.interventions} intervention"
+                     f"{'' if c.interventions == 1 else 's'}, "
+                     f"{r.intervention_s:.2f} s)")
+    else:
+        lines.append("  effectiveness  n/a   no interventions given (--interventions FILE)")
+    for u in r.unfinished:
+        lines.append(f"  unfinished: {u.agent} {u.action!r} from {u.start:.2f} s, clipped to T1")
+    if r.undefined_reason:
+        lines.append(f"  note: {r.undefined_reason}")
+    return "\n".join(lines)
