@@ -1,7 +1,9 @@
 """Stand-in figures: physics real-time factor and step cost, camera render and JPEG times, achieved fps.
 
-Runs the stand-in with the camera streaming while the head sweeps, then prints one line per figure.
-`--quick` runs 3 s instead of 10.
+Runs the stand-in with the camera streaming while the head sweeps, then prints one line per figure. Then it
+does the same through the server: `vr-teleop serve` in its own process, one rosbridge client subscribed to the
+camera, reporting the fps that subscriber actually receives, the frames' age on arrival, and the server
+process's CPU time per frame delivered. `--quick` runs 3 s instead of 10.
 """
 
 from __future__ import annotations
@@ -78,6 +80,68 @@ def main(argv: list[str] | None = None) -> int:
           f"median size {statistics.median(kb):.0f} KiB")
     print(f"achieved camera fps: {fps:.1f}")
     print(f"process CPU: {100 * cpu / wall:.0f}% of one core")
+    return served(seconds, args.width, args.height, args.fps)
+
+
+def served(seconds: float, width: int, height: int, fps: float) -> int:
+    """The camera as one rosbridge subscriber of a real server sees it."""
+    import asyncio
+    import json
+    import socket
+    import subprocess
+
+    import psutil
+    from websockets.asyncio.client import connect
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port),
+                             "--log-level", "warning", "--camera-size", f"{width}x{height}", "--camera-fps", str(fps)],
+                            stdout=subprocess.PIPE, text=True)
+    proc.stdout.readline()
+    server = psutil.Process(proc.pid)
+
+    async def run() -> tuple[list[float], list[float], float]:
+        arrivals, ages = [], []
+        async with connect(f"ws://127.0.0.1:{port}", max_size=None, compression=None) as ws:
+            await ws.send(json.dumps({"op": "subscribe", "topic": "/camera/color/image_raw/compressed",
+                                      "type": "sensor_msgs/CompressedImage"}))
+            await ws.send(json.dumps({"op": "advertise", "topic": "/qt_robot/head_position/command",
+                                      "type": "std_msgs/Float64MultiArray"}))
+            await asyncio.wait_for(ws.recv(), 10)  # the first frame pays for warm-up
+            cpu0 = sum(server.cpu_times()[:2])
+            t0 = time.monotonic()
+            next_command = t0
+            while time.monotonic() - t0 < seconds:
+                if time.monotonic() >= next_command:
+                    yaw = 40.0 if (time.monotonic() - t0) % 4.0 < 2.0 else -40.0
+                    await ws.send(json.dumps({"op": "publish", "topic": "/qt_robot/head_position/command",
+                                              "msg": {"data": [yaw, 5.0]}}))
+                    next_command += 0.05
+                try:
+                    frame = json.loads(await asyncio.wait_for(ws.recv(), 0.05))
+                except TimeoutError:
+                    continue
+                if frame.get("topic") == "/camera/color/image_raw/compressed":
+                    stamp = frame["msg"]["header"]["stamp"]
+                    arrivals.append(time.monotonic())
+                    ages.append((time.time() - (stamp["secs"] + stamp["nsecs"] * 1e-9)) * 1000)
+            return arrivals, ages, sum(server.cpu_times()[:2]) - cpu0
+
+    try:
+        arrivals, ages, cpu = asyncio.run(run())
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    if len(arrivals) < 2:
+        print("through the server: no camera frames arrived", file=sys.stderr)
+        return 1
+    received_fps = (len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
+    print(f"through the server, one subscriber: {received_fps:.1f} fps received, frame age on arrival median "
+          f"{statistics.median(ages):.1f} ms, p95 {_p95(ages):.1f} ms")
+    print(f"server CPU per frame delivered: {1000 * cpu / len(arrivals):.1f} ms "
+          f"({100 * cpu / seconds:.0f}% of one core over {seconds:g} s, physics and rendering included)")
     return 0
 
 
