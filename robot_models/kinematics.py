@@ -215,13 +215,17 @@ def arm_ik(
     else:
         best = None
     if best is None:
+        # Search from the two clipped branches landing nearest the target, and from the preferred pose: enough
+        # to find the nearest reachable point in practice, and bounded in cost at the headset's 90 Hz.
+        clipped = sorted((np.clip(q, lo, hi) for q in candidates),
+                         key=lambda q: float(np.linalg.norm(_arm_hand_local(g, q) - p)))
         starts: list[np.ndarray] = []
-        for x0 in [np.clip(q, lo, hi) for q in candidates] + [np.clip(np.radians(pref_deg), lo, hi)]:
+        for x0 in clipped[:2] + [np.clip(np.radians(pref_deg), lo, hi)]:
             if not any(np.allclose(x0, s0, atol=1e-6) for s0 in starts):
                 starts.append(x0)
         fits = [
             least_squares(lambda q: _arm_hand_local(g, q) - p, x0, jac=lambda q: _arm_jacobian(g, q),
-                          bounds=(lo, hi), xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                          bounds=(lo, hi), xtol=1e-10, ftol=1e-10, gtol=1e-10)
             for x0 in starts
         ]
         best = np.clip(min(fits, key=lambda f: f.cost).x, lo, hi)
