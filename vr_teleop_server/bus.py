@@ -9,6 +9,7 @@ as the JSON value the client sent, untouched.
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import itertools
 import logging
 from collections.abc import Awaitable, Callable
@@ -104,6 +105,9 @@ class Action:
 
 
 SERVER_NODE = "/vr_teleop_server"  # the owner name of the server's own topics and services
+# Who made the service call being served: a session name, or SERVER_NODE. Providers that care (who holds
+# control, what a role may do) read it with Bus.caller(); it is set for the duration of each call.
+_CALLER: contextvars.ContextVar[str] = contextvars.ContextVar("caller", default=SERVER_NODE)
 GOAL_STATUS_CANCELED = 5
 GOAL_STATUS_ABORTED = 6
 
@@ -119,6 +123,13 @@ class Bus:
         # How features tell the client that sent a message about a problem with it; set by the server.
         self.reporter: Callable[[str, str, str], None] = lambda owner, level, text: log.log(
             logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text)
+        # Called with the owner's name after a client has gone and everything it held was dropped.
+        self.owner_dropped: list[Callable[[str], None]] = []
+
+    @staticmethod
+    def caller() -> str:
+        """The session (or SERVER_NODE) whose service call is being served right now."""
+        return _CALLER.get()
 
     def report(self, owner: str, level: str, text: str) -> None:
         """Tells `owner` (the sender of a message) about a problem the message caused: a rosbridge status."""
@@ -252,12 +263,13 @@ class Bus:
             raise BusError(f"the provider's response does not fit {service.type}: "
                            f"{describe_validation_error(exc, 'values')}") from None
 
-    async def call_service(self, name: str, args: Any, timeout: float) -> Any:
+    async def call_service(self, name: str, args: Any, timeout: float, *, caller: str = SERVER_NODE) -> Any:
         """Calls a service; returns its response (a model for known types). Raises BusError with the reason."""
         service = self.services.get(name)
         if service is None:
             raise BusError(f"service {name} does not exist")
         request = self._service_request(service, args)
+        token = _CALLER.set(caller)
         try:
             response = await asyncio.wait_for(service.provider(request, timeout), timeout)
         except asyncio.TimeoutError:
@@ -267,6 +279,8 @@ class Bus:
         except Exception as exc:
             log.exception("service %s failed", name)
             raise BusError(f"service {name} failed: {exc}") from None
+        finally:
+            _CALLER.reset(token)
         return response if isinstance(response, BaseModel) else self.validate_response(service, response)
 
     def provide(self, name: str, type_name: str, handler: Callable[[Any], Awaitable[Any]]) -> Service:
@@ -333,3 +347,8 @@ class Bus:
         for name, action in list(self.actions.items()):
             if action.owner == owner:
                 self.unadvertise_action(owner, name)
+        for listener in list(self.owner_dropped):
+            try:
+                listener(owner)
+            except Exception:  # a faulty feature must not keep the others from cleaning up
+                log.exception("owner_dropped listener failed for %s", owner)

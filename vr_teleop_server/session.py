@@ -229,7 +229,7 @@ class Session:
     async def _call_service(self, op: ops.CallService) -> None:
         timeout = op.timeout or self.settings.service_timeout
         try:
-            response = await self.bus.call_service(op.service, op.args, timeout)
+            response = await self.bus.call_service(op.service, op.args, timeout, caller=self.name)
         except BusError as exc:
             self.status("error", f"call_service: {exc}", op.id)
             self._reply(self._with_id({"op": "service_response", "service": op.service, "values": str(exc),
