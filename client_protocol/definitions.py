@@ -44,6 +44,22 @@ MESSAGES: dict[str, str] = {
         "# A joint command that did not apply as sent: clamped to limits, or ignored (motor not ON)\n"
         "Header header\nstring source\nstring[] joints\nfloat64[] requested\nfloat64[] applied\nstring[] ignored"
     ),
+    "vr_teleop_msgs/Event": (
+        "# Something the server did or noticed that a supervisor, a recording or a study log should know:\n"
+        "# engage and release, watchdog, e-stop, menu commands, backend connection, motivation limits.\n"
+        "# level is info, warning or danger; detail is free text (JSON where a feature documents it).\n"
+        "Header header\nstring source\nstring kind\nstring level\nstring detail"
+    ),
+    "vr_teleop_msgs/TeleopState": (
+        "# Explicit control as the server sees it, on /vr_teleop/teleop_state (30 Hz and on every change).\n"
+        "# state: idle (never engaged), active, stalled (head poses stopped: holding), released, disconnected\n"
+        "# (the holder's connection dropped: holding), estopped, robot_lost (backend gone: holding).\n"
+        "# holder: the session holding control, empty when none. pose_age: seconds since the newest valid head\n"
+        "# pose, -1 before any. clamped: joints whose last target hit a limit.\n"
+        "Header header\nbool engaged\nstring state\nstring holder\nbool head_following\n"
+        "bool left_arm_following\nbool right_arm_following\nstring[] clamped\nstring[] velocity_limited\n"
+        "float64 pose_age\nfloat64 left_pose_age\nfloat64 right_pose_age\nbool robot_connected"
+    ),
     # rosapi's own message
     "rosapi/TypeDef": (
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
