@@ -1,6 +1,7 @@
-"""A bare websockets relay: every frame one client sends goes, unparsed, to every other client.
+"""A bare websockets relay: every frame one client sends goes, unparsed, to every other client (or, with
+--echo, straight back to its sender).
 
-The baseline for bench/roundtrip.py: what the WebSocket layer alone costs on this machine.
+The baseline for bench/roundtrip.py and bench/teleop.py: what the WebSocket layer alone costs on this machine.
 """
 
 from __future__ import annotations
@@ -11,14 +12,17 @@ import asyncio
 from websockets.asyncio.server import ServerConnection, broadcast, serve
 
 
-async def main(host: str, port: int) -> None:
+async def main(host: str, port: int, echo: bool = False) -> None:
     clients: set[ServerConnection] = set()
 
     async def relay(ws: ServerConnection) -> None:
         clients.add(ws)
         try:
             async for frame in ws:
-                broadcast([c for c in clients if c is not ws], frame)
+                if echo:
+                    await ws.send(frame)
+                else:
+                    broadcast([c for c in clients if c is not ws], frame)
         finally:
             clients.discard(ws)
 
@@ -31,8 +35,9 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("--host", default="127.0.0.1")
     parser.add_argument("--port", type=int, required=True)
+    parser.add_argument("--echo", action="store_true", help="send each frame back to its sender")
     args = parser.parse_args()
     try:
-        asyncio.run(main(args.host, args.port))
+        asyncio.run(main(args.host, args.port, args.echo))
     except KeyboardInterrupt:
         pass

@@ -8,6 +8,7 @@ from client_protocol.registry import TypeRegistry
 from robot_models import load_qtrobot
 
 from .bus import Bus
+from .explicit_control import ExplicitControl
 from .gestures import GestureLibrary, packaged_gesture_dir
 from .luxai_api import LuxaiApi
 from .robot import Robot
@@ -30,6 +31,7 @@ class TeleopServer:
         self.rosapi = RosApi(self.bus)
         self.robot: Robot | None = None
         self.luxai: LuxaiApi | None = None
+        self.control: ExplicitControl | None = None
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session)
 
     def _open_session(self, name: str, peer: str) -> Session:
@@ -59,6 +61,8 @@ class TeleopServer:
         gestures = GestureLibrary([packaged_gesture_dir()], self.model, user_dir=s.gesture_dir)
         self.luxai = LuxaiApi(self.bus, self.robot, gestures)
         self.luxai.start()
+        self.control = ExplicitControl(self.bus, self.robot, s.teleop)
+        self.control.start()
 
     async def start(self) -> None:
         self.rosapi.start()
@@ -76,6 +80,8 @@ class TeleopServer:
         await self._stop_robot()
 
     async def _stop_robot(self) -> None:
+        if self.control is not None:
+            await self.control.stop()
         if self.luxai is not None:
             await self.luxai.stop()
         if self.robot is not None:

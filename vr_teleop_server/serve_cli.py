@@ -9,12 +9,14 @@ import signal
 import sys
 from pathlib import Path
 
+import yaml
 from pydantic import ValidationError
 
 from client_protocol.registry import describe_validation_error
 
 from .app import TeleopServer
 from .settings import ServerSettings
+from .teleop import TeleopSettings
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -37,6 +39,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="head-camera frames a second while someone watches (default %(default)s)")
     p.add_argument("--gesture-dir", type=Path, default=None,
                    help="directory for recorded gestures and extra LuxAI gesture files")
+    p.add_argument("--teleop-config", type=Path, default=None, metavar="FILE",
+                   help="explicit-control parameters (YAML or JSON; keys as in vr_teleop_server/teleop/settings.py)")
+    p.add_argument("--watchdog-timeout", type=float, default=None, metavar="S",
+                   help="hold the robot when head poses stop for this long (default 0.2)")
+    p.add_argument("--deadman-mode", choices=["hold", "toggle"], default=None,
+                   help="arms follow while the grip is held (hold), or each grip press toggles following")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     p.set_defaults(func=run)
 
@@ -50,7 +58,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"vr-teleop serve: --camera-size must look like 640x480, not {args.camera_size!r}", file=sys.stderr)
         return 2
     try:
-        settings = ServerSettings(host=args.host, port=args.port, time_style=args.time_style,
+        teleop = _teleop_settings(args)
+    except (OSError, ValueError) as exc:
+        print(f"vr-teleop serve: {exc}", file=sys.stderr)
+        return 2
+    try:
+        settings = ServerSettings(teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
                                   backend=args.backend, camera_width=width, camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir)
@@ -58,6 +71,25 @@ def run(args: argparse.Namespace) -> int:
         print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)
         return 2
     return asyncio.run(_serve(settings))
+
+
+def _teleop_settings(args: argparse.Namespace) -> TeleopSettings:
+    """The --teleop-config file, then the flags on top; errors name the file and the key."""
+    values: dict = {}
+    if args.teleop_config is not None:
+        loaded = yaml.safe_load(args.teleop_config.read_text(encoding="utf-8"))  # JSON is YAML too
+        if not isinstance(loaded, dict):
+            raise ValueError(f"{args.teleop_config}: expected a mapping of teleop settings")
+        values.update(loaded)
+    if args.watchdog_timeout is not None:
+        values["watchdog_timeout_s"] = args.watchdog_timeout
+    if args.deadman_mode is not None:
+        values["deadman_mode"] = args.deadman_mode
+    try:
+        return TeleopSettings(**values)
+    except ValidationError as exc:
+        where = args.teleop_config or "teleop settings"
+        raise ValueError(f"{where}: {describe_validation_error(exc)}") from None
 
 
 async def _serve(settings: ServerSettings) -> int:

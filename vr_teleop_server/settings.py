@@ -7,6 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from .teleop.settings import TeleopSettings
+
 MIB = 1024 * 1024
 
 
@@ -34,6 +36,7 @@ class ServerSettings(BaseModel):
     camera_fps: float = Field(30.0, gt=0, le=120, description="head-camera frames a second while someone watches")
     gesture_dir: Path | None = Field(
         None, description="where recorded gestures are saved and extra gesture files are loaded from")
+    teleop: TeleopSettings = Field(default_factory=TeleopSettings, description="explicit control (teleop/settings.py)")
 
     @property
     def max_frame_size(self) -> int:

@@ -194,6 +194,14 @@ class TeleopMapper:
     def body(self) -> BodyModel:
         return self._body
 
+    def pose_age(self, stream: str, now: float) -> float | None:
+        """Seconds since the newest valid pose of "head", "left" or "right"; None before any."""
+        stamped = self._head_pose if stream == "head" else self._controllers[_check_side(stream)]
+        return self._age(stamped, now)
+
+    def head_pose_age(self, now: float) -> float | None:
+        return self.pose_age("head", now)
+
     @property
     def last_command(self) -> dict[str, float]:
         return dict(self._command)
@@ -226,6 +234,10 @@ class TeleopMapper:
     def release(self) -> None:
         """Stop explicit control; the robot keeps its last target."""
         self._stop(WatchdogState.RELEASED)
+
+    def estop(self) -> None:
+        """Emergency stop from outside (dashboard, service): hold until a new engage()."""
+        self._stop(WatchdogState.ESTOPPED)
 
     def disconnect(self) -> None:
         """The operator's client went away: hold, and forget its streams; a new engage is needed."""

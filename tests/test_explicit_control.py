@@ -1,0 +1,345 @@
+"""Explicit control end to end: a headset streaming over the protocol moves the MuJoCo stand-in's joints.
+
+The headset is roslibpy (as ROS# would be, Unity frame), the robot is the stand-in, and every assertion reads what
+a client can see: joint states, /vr_teleop/teleop_state, /vr_teleop/events and status replies.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+import roslibpy
+
+from robot_models import load_qtrobot
+from support import RawClient, RunningServer, wait_for
+from vr_teleop_server.settings import ServerSettings
+from vr_teleop_server.teleop import TeleopMapper
+
+MODEL = load_qtrobot()
+EYE_HEIGHT = 1.6
+
+
+def unity_yaw_pitch(yaw_left_deg: float, pitch_up_deg: float = 0.0) -> dict[str, float]:
+    """Unity quaternion for a head turned left and tilted up (Unity: y up, left-handed, so left is -y)."""
+    from scipy.spatial.transform import Rotation
+
+    # Unity applies yaw about y, then pitch about x; looking up is a negative rotation about Unity's x.
+    q = Rotation.from_euler("YX", [-yaw_left_deg, -pitch_up_deg], degrees=True).as_quat()
+    return {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}
+
+
+def pose_msg(position: tuple[float, float, float], orientation: dict[str, float]) -> dict[str, Any]:
+    x, y, z = position
+    return {"header": {"frame_id": "unity"},
+            "pose": {"position": {"x": x, "y": y, "z": z}, "orientation": orientation}}
+
+
+IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+
+
+class Headset:
+    """Streams head and controller poses at 90 Hz (and Joy at 30 Hz) from a thread, like a Quest would."""
+
+    def __init__(self, ros: roslibpy.Ros) -> None:
+        self.ros = ros
+        self.head = roslibpy.Topic(ros, "/vr/head/pose", "geometry_msgs/PoseStamped")
+        self.hands = {s: roslibpy.Topic(ros, f"/vr/{s}_controller/pose", "geometry_msgs/PoseStamped")
+                      for s in ("left", "right")}
+        self.joys = {s: roslibpy.Topic(ros, f"/vr/{s}_controller/joy", "sensor_msgs/Joy") for s in ("left", "right")}
+        self.head_orientation = IDENTITY
+        self.hand_positions = {"left": (-0.19, 1.0, 0.1), "right": (0.19, 1.0, 0.1)}  # hanging down
+        self.grips = {"left": 0.0, "right": 0.0}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> Headset:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2)
+
+    def _run(self) -> None:
+        n = 0
+        while not self._stop.is_set():
+            self.head.publish(roslibpy.Message(pose_msg((0.0, EYE_HEIGHT, 0.0), self.head_orientation)))
+            for side, topic in self.hands.items():
+                topic.publish(roslibpy.Message(pose_msg(self.hand_positions[side], IDENTITY)))
+            if n % 3 == 0:
+                for side, topic in self.joys.items():
+                    topic.publish(roslibpy.Message({"axes": [0.0, 0.0, 0.0, self.grips[side]],
+                                                    "buttons": [0, 0, 0, 0]}))
+            n += 1
+            time.sleep(1 / 90)
+
+
+class Watch:
+    """The latest message of a topic, and every message, as a client receives them."""
+
+    def __init__(self, ros: roslibpy.Ros, topic: str, type_name: str) -> None:
+        self.messages: list[dict[str, Any]] = []
+        self.lock = threading.Lock()
+        self.topic = roslibpy.Topic(ros, topic, type_name)
+        self.topic.subscribe(self._on)
+
+    def _on(self, msg: dict[str, Any]) -> None:
+        with self.lock:
+            self.messages.append(msg)
+
+    @property
+    def latest(self) -> dict[str, Any]:
+        with self.lock:
+            return self.messages[-1] if self.messages else {}
+
+    def any(self, predicate) -> bool:
+        with self.lock:
+            return any(predicate(m) for m in self.messages)
+
+    def close(self) -> None:
+        self.topic.unsubscribe()
+
+
+def joints(watch: Watch) -> dict[str, float]:
+    msg = watch.latest
+    return dict(zip(msg.get("name", []), msg.get("position", [])))
+
+
+def call(ros: roslibpy.Ros, name: str, type_name: str, args: dict[str, Any] | None = None) -> dict[str, Any]:
+    return roslibpy.Service(ros, name, type_name).call(roslibpy.ServiceRequest(args or {}), timeout=10)
+
+
+@pytest.fixture(scope="module")
+def sim_server():
+    server = RunningServer(ServerSettings(port=0, backend="sim"))
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def ros(sim_server):
+    client = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
+    client.run(timeout=10)
+    yield client
+    client.close()
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 5)
+
+
+@pytest.fixture
+def headset(ros):
+    h = Headset(ros).start()
+    yield h
+    h.stop()
+
+
+@pytest.fixture
+def state(ros):
+    w = Watch(ros, "/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState")
+    yield w
+    w.close()
+
+
+@pytest.fixture
+def joint_states(ros):
+    w = Watch(ros, "/qt_robot/joints/state", "sensor_msgs/JointState")
+    yield w
+    w.close()
+
+
+def engage(ros: roslibpy.Ros) -> None:
+    deadline = time.monotonic() + 5
+    while True:  # the first head pose may still be on its way
+        try:
+            reply = call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
+            assert reply["success"], reply
+            return
+        except roslibpy.core.ServiceException:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def test_looking_left_turns_the_head_and_beyond_the_limit_clamps(ros, headset, state, joint_states):
+    engage(ros)
+    assert wait_for(lambda: state.latest.get("engaged") and state.latest.get("state") == "active"
+                    and state.latest["head_following"], 5), state.latest
+    assert state.latest["holder"]
+    headset.head_orientation = unity_yaw_pitch(30.0)
+    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 30.0) < 2.0, 10), joints(joint_states)
+    headset.head_orientation = unity_yaw_pitch(80.0)
+    assert wait_for(lambda: "HeadYaw" in state.latest.get("clamped", []), 10), state.latest
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] - 60.0) < 2.0, 10), joints(joint_states)
+    headset.head_orientation = unity_yaw_pitch(0.0, 10.0)  # looking up: QTrobot's pitch is positive down
+    assert wait_for(lambda: abs(joints(joint_states)["HeadPitch"] + 10.0) < 2.0, 10), joints(joint_states)
+    headset.head_orientation = unity_yaw_pitch(0.0, 30.0)  # beyond the -15 limit
+    assert wait_for(lambda: abs(joints(joint_states)["HeadPitch"] - MODEL.joint("HeadPitch").lower) < 2.0, 10)
+    call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
+    assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 5)
+
+
+def expected_arm(hand_unity: tuple[float, float, float]) -> dict[str, float]:
+    """What the mapping gives for this hand position once settled, computed offline by the same mapper."""
+    from vr_teleop_server.teleop import make_pose
+    from vr_teleop_server.teleop.frames import unity_to_ros_position  # noqa: F401  (documents the frame)
+
+    mapper = TeleopMapper(MODEL)
+    head = make_pose((0.0, EYE_HEIGHT, 0.0), [0, 0, 0, 1], "unity")
+    t = 0.0
+    mapper.on_head_pose(head, t)
+    mapper.engage(t)
+    for _ in range(2000):
+        t += 1 / 90
+        mapper.on_head_pose(head, t)
+        mapper.on_controller_pose("right", make_pose(hand_unity, [0, 0, 0, 1], "unity"), t)
+        mapper.on_joy("right", [0, 0, 0, 1.0], [0, 0, 0, 0], t)
+        mapper.step(t)
+    return {n: mapper.last_command[n] for n in MODEL.part_joints("right_arm")}
+
+
+def test_right_controller_moves_the_right_arm_only_while_the_grip_is_held(ros, headset, state, joint_states):
+    engage(ros)
+    forward = (0.19, EYE_HEIGHT - 0.2, 0.55)  # in front of the right shoulder
+    headset.hand_positions["right"] = forward
+    time.sleep(0.5)
+    before = joints(joint_states)
+    assert not state.latest["right_arm_following"]  # no grip yet: the arm holds
+    headset.grips["right"] = 1.0
+    assert wait_for(lambda: state.latest.get("right_arm_following"), 5)
+    want = expected_arm(forward)
+    right = MODEL.part_joints("right_arm")
+    assert max(abs(want[n] - before[n]) for n in right) > 20  # the pose is far from where the arm hung
+    assert wait_for(lambda: all(abs(joints(joint_states)[n] - want[n]) < 3.0 for n in right), 15), \
+        (joints(joint_states), want)
+    assert not state.latest["left_arm_following"]
+    # Release the grip: the arm holds where it is even as the hand moves away.
+    headset.grips["right"] = 0.0
+    assert wait_for(lambda: not state.latest.get("right_arm_following"), 5)
+    held = joints(joint_states)
+    headset.hand_positions["right"] = (0.5, EYE_HEIGHT - 0.2, 0.0)
+    time.sleep(1.0)
+    assert all(abs(joints(joint_states)[n] - held[n]) < 1.5 for n in right)
+
+
+def test_watchdog_holds_on_a_stalled_stream_and_fresh_poses_resume(ros, headset, state, joint_states):
+    events = Watch(ros, "/vr_teleop/events", "vr_teleop_msgs/Event")
+    engage(ros)
+    headset.head_orientation = unity_yaw_pitch(20.0)
+    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 20.0) < 2.0, 10)
+    headset.stop()
+    assert wait_for(lambda: state.latest.get("state") == "stalled", 3), state.latest
+    assert state.latest["pose_age"] > 0.2 and not state.latest["head_following"]
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "watchdog_stalled"), 3)
+    held = joints(joint_states)["HeadYaw"]
+    time.sleep(0.5)
+    assert abs(joints(joint_states)["HeadYaw"] - held) < 0.5
+    headset.head_orientation = unity_yaw_pitch(-20.0)
+    headset.start()
+    assert wait_for(lambda: state.latest.get("state") == "active", 3)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] + 20.0) < 2.0, 10)
+    events.close()
+
+
+def test_dropped_operator_holds_the_robot_and_frees_control(sim_server, ros):
+    watcher = Watch(ros, "/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState")
+    operator = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
+    operator.run(timeout=10)
+    h = Headset(operator).start()
+    h.head_orientation = unity_yaw_pitch(-25.0)
+    engage(operator)
+    assert wait_for(lambda: watcher.latest.get("state") == "active", 5)
+    h.stop()
+    operator.close()  # the connection drops mid-motion
+    assert wait_for(lambda: watcher.latest.get("state") == "disconnected" and watcher.latest["holder"] == "", 3)
+    assert not watcher.latest["engaged"]
+    watcher.close()
+
+
+def test_second_client_cannot_steal_control(sim_server, ros, headset, state):
+    engage(ros)
+    intruder = RawClient(sim_server.url)
+    try:
+        intruder.send({"op": "publish", "topic": "/vr/head/pose",
+                       "msg": pose_msg((0, EYE_HEIGHT, 0), unity_yaw_pitch(45))})
+        status = intruder.expect("status", level="error")
+        assert "/vr/head/pose" in status["msg"] and "held by another client" in status["msg"]
+        intruder.send({"op": "call_service", "id": "steal", "service": "/vr_teleop/control/engage",
+                       "args": {"data": True}})
+        replies = [intruder.recv(), intruder.recv()]
+        response = next(r for r in replies if r["op"] == "service_response")
+        assert response["result"] is False and "held by another client" in response["values"]
+        assert state.latest["holder"] != "" and abs(state.latest.get("pose_age", 1)) < 0.5
+        # Once the holder releases, the other client may take control.
+        call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
+        for _ in range(10):
+            intruder.send({"op": "publish", "topic": "/vr/head/pose",
+                           "msg": pose_msg((0, EYE_HEIGHT, 0), IDENTITY)})
+        headset.stop()
+        time.sleep(0.2)
+        intruder.send({"op": "publish", "topic": "/vr/head/pose", "msg": pose_msg((0, EYE_HEIGHT, 0), IDENTITY)})
+        intruder.send({"op": "call_service", "id": "take", "service": "/vr_teleop/control/engage",
+                       "args": {"data": True}})
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            reply = intruder.recv()
+            if reply.get("op") == "service_response" and reply.get("id") == "take":
+                assert reply["result"] and reply["values"]["success"], reply
+                break
+        else:
+            raise AssertionError("no answer to engage")
+    finally:
+        intruder.close()
+
+
+@pytest.mark.parametrize("orientation, problem", [
+    ({"x": float("nan"), "y": 0.0, "z": 0.0, "w": 1.0}, "NaN"),
+    ({"x": 0.0, "y": 0.0, "z": 0.0, "w": 0.5}, "norm"),
+    ({"x": 0.0, "y": 0.0, "z": 0.0, "w": 0.0}, "zero quaternion"),
+])
+def test_bad_poses_get_a_status_error_and_never_reach_the_robot(sim_server, orientation, problem):
+    client = RawClient(sim_server.url)
+    try:
+        client.send({"op": "subscribe", "topic": "/qt_robot/head_position/command",
+                     "type": "std_msgs/Float64MultiArray"})
+        frame = ('{"op": "publish", "topic": "/vr/head/pose", "msg": {"header": {"frame_id": "unity"}, "pose": '
+                 '{"position": {"x": 0, "y": 1.6, "z": 0}, "orientation": {"x": %s, "y": 0, "z": 0, "w": %s}}}}'
+                 % (("NaN" if math.isnan(orientation["x"]) else orientation["x"]), orientation["w"]))
+        client.send_raw(frame)
+        status = client.expect("status", level="error")
+        assert "/vr/head/pose" in status["msg"] and problem in status["msg"], status
+        assert client.silent(0.3)  # no command went out
+        client.alive()
+    finally:
+        client.close()
+
+
+def test_estop_holds_and_releases_control(ros, headset, state, joint_states):
+    engage(ros)
+    headset.head_orientation = unity_yaw_pitch(40.0)
+    assert wait_for(lambda: joints(joint_states).get("HeadYaw", 0) > 10, 10)
+    reply = call(ros, "/vr_teleop/control/estop", "std_srvs/Trigger")
+    assert reply["success"]
+    assert wait_for(lambda: state.latest.get("state") == "estopped" and state.latest["holder"] == "", 3)
+    time.sleep(0.3)
+    held = joints(joint_states)["HeadYaw"]
+    time.sleep(0.7)
+    assert abs(joints(joint_states)["HeadYaw"] - held) < 1.0  # the robot holds although the head still turns
+
+
+def test_calibration_measures_the_operator_in_a_t_pose(ros, headset):
+    headset.hand_positions = {"left": (-0.80, EYE_HEIGHT - 0.22, -0.05), "right": (0.80, EYE_HEIGHT - 0.22, -0.05)}
+    time.sleep(0.3)
+    reply = call(ros, "/vr_teleop/control/calibrate", "std_srvs/Trigger")
+    assert reply["success"], reply
+    import json
+
+    body = json.loads(reply["message"])
+    assert 0.55 < body["arm_length_m"] + body["shoulder_half_width_m"] < 0.95
+    assert np.isfinite(list(body.values())).all()

@@ -1,0 +1,330 @@
+"""Explicit control on the bus: the operator's headset and controller streams drive QTrobot through TeleopMapper.
+
+One mechanism end to end: poses and Joy arrive as ordinary topic messages, the mapper turns them into joint
+targets, and the targets leave as ordinary messages on LuxAI's command topics (`/qt_robot/*_position/command`),
+where the robot API clamps and reports them like anyone's. Nothing reaches the robot by a back door, and a
+recording of the bus shows every command teleop made.
+
+Rules the client can rely on (README "Explicit control"):
+- One holder. `/vr_teleop/control/engage` (std_srvs/SetBool, data true) makes the caller the holder; it needs a
+  fresh head pose from the caller (the current head orientation becomes the robot's head zero). Another client's
+  poses and Joy are refused with a status error (at most one a second per client) until the holder releases
+  (engage false), is e-stopped, or disconnects.
+- The mapper steps on each of the holder's head poses, so a pose turns into commands at once. A 30 Hz tick
+  publishes `/vr_teleop/teleop_state` and lets the watchdog see a silent stream.
+- Stalled head poses: the robot holds; fresh poses resume by themselves (ramped). A dropped holder, an e-stop
+  or a lost robot backend: the robot holds until a fresh engage.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from .bus import SERVER_NODE, Bus, BusError, Published
+from .luxai_api import PART_TOPICS
+from .robot import Robot
+from .teleop import TeleopError, TeleopMapper, TeleopOutput, TeleopSettings, WatchdogState
+
+log = logging.getLogger(__name__)
+
+HEAD_POSE_TOPIC = "/vr/head/pose"
+CONTROLLER_POSE_TOPICS = {"left": "/vr/left_controller/pose", "right": "/vr/right_controller/pose"}
+JOY_TOPICS = {"left": "/vr/left_controller/joy", "right": "/vr/right_controller/joy"}
+STATE_TOPIC = "/vr_teleop/teleop_state"
+EVENT_TOPIC = "/vr_teleop/events"
+ENGAGE_SERVICE = "/vr_teleop/control/engage"
+CALIBRATE_SERVICE = "/vr_teleop/control/calibrate"
+HEAD_SERVICE = "/vr_teleop/control/head"
+ARMS_SERVICE = "/vr_teleop/control/arms"
+ESTOP_SERVICE = "/vr_teleop/control/estop"
+COMMAND_TOPICS = {part: topic for topic, part in PART_TOPICS.items()}
+STATE_RATE_HZ = 30.0
+REFUSAL_INTERVAL_S = 1.0  # a refused client hears about it at most this often, not 90 times a second
+
+
+def declare_event_topic(bus: Bus) -> None:
+    bus.declare_topic(EVENT_TOPIC, "vr_teleop_msgs/Event", persistent=True)
+
+
+def publish_event(bus: Bus, source: str, kind: str, level: str = "info", detail: Any = "") -> None:
+    """Puts a server event on /vr_teleop/events (recordings, the dashboard and logs all read it there)."""
+    text = detail if isinstance(detail, str) else json.dumps(detail, sort_keys=True)
+    bus.publish(EVENT_TOPIC, {"header": {"stamp": bus.registry.now()}, "source": source, "kind": kind,
+                              "level": level, "detail": text})
+
+
+class ExplicitControl:
+    def __init__(self, bus: Bus, robot: Robot, settings: TeleopSettings | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.bus = bus
+        self.robot = robot
+        self.mapper = TeleopMapper(robot.model, settings)
+        self.clock = clock
+        self.holder: str | None = None
+        self._ever_engaged = False
+        self._head_sender: str | None = None  # who sent the newest head pose the mapper holds
+        self._last_output: TeleopOutput | None = None
+        self._last_summary: tuple[Any, ...] | None = None
+        self._last_refusal: dict[str, float] = {}
+        self._robot_connected = True
+        self._tick_task: asyncio.Task[None] | None = None
+
+    # ---- lifetime -----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        bus = self.bus
+        declare_event_topic(bus)
+        bus.declare_topic(STATE_TOPIC, "vr_teleop_msgs/TeleopState", persistent=True)
+        bus.declare_topic(HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped", persistent=True)
+        bus.subscribe(SERVER_NODE, HEAD_POSE_TOPIC, None, self._on_head_pose)
+        for side in ("left", "right"):
+            bus.declare_topic(CONTROLLER_POSE_TOPICS[side], "geometry_msgs/PoseStamped", persistent=True)
+            bus.subscribe(SERVER_NODE, CONTROLLER_POSE_TOPICS[side], None,
+                          lambda p, side=side: self._on_controller_pose(side, p))
+            bus.declare_topic(JOY_TOPICS[side], "sensor_msgs/Joy", persistent=True)
+            bus.subscribe(SERVER_NODE, JOY_TOPICS[side], None, lambda p, side=side: self._on_joy(side, p))
+        bus.provide(ENGAGE_SERVICE, "std_srvs/SetBool", self._engage_service)
+        bus.provide(CALIBRATE_SERVICE, "std_srvs/Trigger", self._calibrate_service)
+        bus.provide(HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("head",), r))
+        bus.provide(ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("left_arm", "right_arm"), r))
+        bus.provide(ESTOP_SERVICE, "std_srvs/Trigger", self._estop_service)
+        bus.owner_dropped.append(self._on_owner_dropped)
+        self._tick_task = asyncio.ensure_future(self._tick())
+
+    async def stop(self) -> None:
+        if self._on_owner_dropped in self.bus.owner_dropped:
+            self.bus.owner_dropped.remove(self._on_owner_dropped)
+        if self._tick_task is not None:
+            self._tick_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._tick_task
+            self._tick_task = None
+
+    # ---- inputs -------------------------------------------------------------------------------------------------
+    def _admit(self, published: Published) -> bool:
+        """Only the holder's streams count while someone holds control; others hear why, now and then."""
+        sender = published.sender
+        if self.holder is None or sender == self.holder:
+            return True
+        now = self.clock()
+        if now - self._last_refusal.get(sender, -1e9) >= REFUSAL_INTERVAL_S:
+            self._last_refusal[sender] = now
+            self.bus.report(sender, "error", f"{published.topic}: refused: control is held by another client "
+                            f"({self.holder}); it must release control or disconnect first")
+        return False
+
+    def _on_head_pose(self, published: Published) -> None:
+        if not self._admit(published):
+            return
+        now = self.clock()
+        try:
+            self.mapper.on_head_pose(published.value, now)
+        except ValueError as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
+            return
+        self._head_sender = published.sender
+        if self.holder is not None and self._robot_connected:
+            self._step(now)
+
+    def _on_controller_pose(self, side: str, published: Published) -> None:
+        if not self._admit(published):
+            return
+        try:
+            self.mapper.on_controller_pose(side, published.value, self.clock())
+        except ValueError as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
+
+    def _on_joy(self, side: str, published: Published) -> None:
+        if not self._admit(published):
+            return
+        was = self.mapper.state
+        try:
+            self.mapper.on_joy(side, published.value.axes, published.value.buttons, self.clock())
+        except ValueError as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
+            return
+        if was is not WatchdogState.ESTOPPED and self.mapper.state is WatchdogState.ESTOPPED:
+            self._event("estop", "warning", {"by": published.sender, "how": "both thumbsticks"})
+            self._publish_state()
+
+    # ---- the control step ---------------------------------------------------------------------------------------
+    def _step(self, now: float) -> None:
+        before = self.mapper.state
+        out = self.mapper.step(now)
+        self._last_output = out
+        for part, values in out.commands.items():
+            self.bus.publish(COMMAND_TOPICS[part], {"data": list(values)})
+        if out.state is not before:
+            level = "info" if out.state is WatchdogState.ACTIVE else "warning"
+            self._event(f"watchdog_{out.state.value}", level, {"holder": self.holder})
+        self._publish_state_if_changed()
+
+    async def _tick(self) -> None:
+        period = 1.0 / STATE_RATE_HZ
+        while True:
+            await asyncio.sleep(period)
+            try:
+                self._check_robot()
+                now = self.clock()
+                age = self.mapper.head_pose_age(now)
+                if self.mapper.state is WatchdogState.ACTIVE and (
+                        age is None or age > self.mapper.settings.watchdog_timeout_s):
+                    self._step(now)  # between head poses only the watchdog acts: a silent stream becomes a hold
+                self._publish_state()
+            except Exception:  # the tick must survive anything one step does
+                log.exception("teleop tick failed")
+
+    def _check_robot(self) -> None:
+        connected = bool(getattr(self.robot, "connected", True))
+        if connected == self._robot_connected:
+            return
+        self._robot_connected = connected
+        if not connected and self.holder is not None:
+            self.mapper.release()
+            self._event("robot_lost", "danger", {"holder": self.holder})
+            self.bus.report(self.holder, "error", "the robot backend is disconnected: the robot holds; "
+                            "engage again once it is back")
+        elif connected:
+            self._event("robot_back", "info", {"holder": self.holder})
+        self._publish_state()
+
+    # ---- services -----------------------------------------------------------------------------------------------
+    async def _engage_service(self, request: Any) -> dict[str, Any]:
+        caller = self.bus.caller()
+        if request.data:
+            return self.engage(caller)
+        return self.release(caller)
+
+    def engage(self, caller: str) -> dict[str, Any]:
+        if self.holder is not None and self.holder != caller:
+            raise BusError(f"control is held by another client ({self.holder}); it must release control or "
+                           "disconnect first")
+        if not self._robot_connected:
+            raise BusError("the robot backend is disconnected; engage once it is back")
+        if self._head_sender != caller:
+            raise BusError("cannot engage: no head pose from this client yet; stream /vr/head/pose, then engage")
+        now = self.clock()
+        try:
+            self.mapper.engage(now, self.robot.joint_state().as_dict())
+        except TeleopError as exc:
+            raise BusError(str(exc)) from None
+        self.holder = caller
+        self._ever_engaged = True
+        self._event("engage", "info", {"holder": caller})
+        self._publish_state()
+        return {"success": True, "message": "engaged: your head orientation is the robot's head zero; hold a "
+                                            "grip to move that arm"}
+
+    def release(self, caller: str = SERVER_NODE, reason: str = "release") -> dict[str, Any]:
+        """Ends control; the robot keeps its pose. Only the holder (or the server itself) may release."""
+        if self.holder is None:
+            return {"success": True, "message": "nobody held control"}
+        if caller not in (self.holder, SERVER_NODE):
+            raise BusError(f"control is held by another client ({self.holder}); only it can release control")
+        holder, self.holder = self.holder, None
+        self.mapper.release()
+        self._event(reason, "info", {"holder": holder, "by": caller})
+        self._publish_state()
+        return {"success": True, "message": "released: the robot holds its pose"}
+
+    def estop(self, caller: str = SERVER_NODE) -> dict[str, Any]:
+        """Holds the robot and takes control away from whoever holds it; anyone may stop the robot."""
+        holder, self.holder = self.holder, None
+        self.mapper.estop()
+        state = self.robot.joint_state().as_dict()
+        for part, names in self.robot.model.parts.items():
+            self.bus.publish(COMMAND_TOPICS[part], {"data": [state[n] for n in names]})
+        self._event("estop", "danger", {"holder": holder, "by": caller})
+        self._publish_state()
+        return {"success": True, "message": "stopped: the robot holds where it is and control is released"}
+
+    async def _estop_service(self, _request: Any) -> dict[str, Any]:
+        return self.estop(self.bus.caller())
+
+    async def _calibrate_service(self, _request: Any) -> dict[str, Any]:
+        caller = self.bus.caller()
+        if self.holder is not None and caller not in (self.holder, SERVER_NODE):
+            raise BusError(f"control is held by another client ({self.holder}); only it can calibrate")
+        try:
+            body = self.mapper.calibrate(self.clock())
+        except TeleopError as exc:
+            raise BusError(str(exc)) from None
+        detail = {"shoulder_half_width_m": round(body.shoulder_half_width_m, 3),
+                  "arm_length_m": round(body.arm_length_m, 3),
+                  "eye_to_shoulder_drop_m": round(body.eye_to_shoulder_drop_m, 3)}
+        self._event("calibrate", "info", {"by": caller, **detail})
+        return {"success": True, "message": json.dumps(detail, sort_keys=True)}
+
+    async def _part_service(self, parts: tuple[str, ...], request: Any) -> dict[str, Any]:
+        for part in parts:
+            self.mapper.set_part_enabled(part, request.data)
+        what = "head" if parts == ("head",) else "arms"
+        self._event(f"{what}_{'on' if request.data else 'off'}", "info", {"by": self.bus.caller()})
+        self._publish_state()
+        return {"success": True, "message": f"{what} {'follow' if request.data else 'hold'}"}
+
+    def _on_owner_dropped(self, owner: str) -> None:
+        self._last_refusal.pop(owner, None)
+        if self._head_sender == owner:
+            self._head_sender = None
+        if owner != self.holder:
+            return
+        self.holder = None
+        self.mapper.disconnect()
+        self._event("watchdog_disconnected", "warning", {"holder": owner})
+        self._publish_state()
+
+    # ---- telemetry ----------------------------------------------------------------------------------------------
+    def _event(self, kind: str, level: str, detail: Any) -> None:
+        log.info("teleop %s %s", kind, detail)
+        publish_event(self.bus, "teleop", kind, level, detail)
+
+    def state_name(self) -> str:
+        if not self._robot_connected:
+            return "robot_lost"
+        if not self._ever_engaged:
+            return "idle"
+        return self.mapper.state.value
+
+    def _state_message(self) -> dict[str, Any]:
+        out = self._last_output
+        now = self.clock()
+        following = out is not None and out.state is WatchdogState.ACTIVE and self.holder is not None
+
+        def age(key: str) -> float:
+            value = self.mapper.pose_age(key, now)
+            return -1.0 if value is None else value
+
+        return {
+            "header": {"stamp": self.bus.registry.now()},
+            "engaged": self.mapper.engaged and self.holder is not None, "state": self.state_name(),
+            "holder": self.holder or "",
+            "head_following": following and out.head_following,
+            "left_arm_following": following and out.arms_following["left"],
+            "right_arm_following": following and out.arms_following["right"],
+            "clamped": list(out.clamped) if following else [],
+            "velocity_limited": list(out.velocity_limited) if following else [],
+            "pose_age": age("head"), "left_pose_age": age("left"), "right_pose_age": age("right"),
+            "robot_connected": self._robot_connected,
+        }
+
+    def _publish_state(self) -> None:
+        msg = self._state_message()
+        self._last_summary = self._summary(msg)
+        self.bus.publish(STATE_TOPIC, msg)
+
+    def _publish_state_if_changed(self) -> None:
+        msg = self._state_message()
+        if self._summary(msg) != self._last_summary:
+            self._last_summary = self._summary(msg)
+            self.bus.publish(STATE_TOPIC, msg)
+
+    @staticmethod
+    def _summary(msg: dict[str, Any]) -> tuple[Any, ...]:
+        return (msg["engaged"], msg["state"], msg["holder"], msg["head_following"], msg["left_arm_following"],
+                msg["right_arm_following"], tuple(msg["clamped"]), msg["robot_connected"])
