@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from .interface import endpoints
 from .ops import CLIENT_OPS, SERVER_OPS, op_name
 from .registry import TypeRegistry
 
@@ -34,6 +35,12 @@ def all_schemas() -> dict[str, dict[str, Any]]:
         schemas[f"srv.{service.replace('/', '.')}.Request.json"] = _type_schema(registry, request, f"{service} request")
         schemas[f"srv.{service.replace('/', '.')}.Response.json"] = _type_schema(registry, response,
                                                                                   f"{service} response")
+    schemas["interface.json"] = {
+        "title": "the server's topics and services",
+        "description": "Every topic and service a client uses: type, direction (client's side), rate, and one "
+                       "example frame each. Types are described by the msg.* and srv.* schemas beside this file.",
+        "endpoints": endpoints(),
+    }
     return schemas
 
 

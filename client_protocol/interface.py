@@ -1,0 +1,127 @@
+"""The server's interface as data: every topic and service a client uses, with its type, direction, rate and one
+example frame. It is exported with the JSON Schemas (schemas/interface.json) for the Unity team, and tests check
+that each example fits its type and that a running server offers exactly these names with these types.
+
+Directions are from the client's side: "publish" (client -> server), "subscribe" (server -> client), "call"
+(a service the server provides).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+UNITY_HEAD_POSE = {
+    "header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity"},
+    "pose": {"position": {"x": 0.0, "y": 1.62, "z": 0.0},
+             "orientation": {"x": 0.0, "y": -0.2588, "z": 0.0, "w": 0.9659}},  # looking 30 degrees left
+}
+
+
+def _hand(x: float) -> dict[str, Any]:
+    return {"header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity"},
+            "pose": {"position": {"x": x, "y": 1.35, "z": 0.45},
+                     "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+
+
+JOY_DOC = ("Oculus Touch, fixed layout. axes: [thumbstick x (-1 left..1 right), thumbstick y (-1 down..1 up), index "
+           "trigger (0..1), grip (0..1)]; buttons: [A or X, B or Y, thumbstick click, menu] as 0/1. The grip is the "
+           "arm's dead-man: pressed above 0.6, released below 0.4. Both thumbsticks clicked together is a soft "
+           "e-stop. Send at least on every change; 30 Hz or more is usual.")
+POSE_DOC = ("geometry_msgs/PoseStamped at the headset's rate (about 90 Hz). header.frame_id 'unity' means Unity's "
+            "axes (left-handed: x right, y up, z forward, metres); any other frame id means a right-handed ROS "
+            "frame (x forward, y left, z up). NaN, infinity and non-unit quaternions are refused with a status "
+            "error. While another client holds control, poses are refused with a status error.")
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    name: str
+    type: str
+    direction: Literal["publish", "subscribe", "call"]
+    doc: str
+    rate: str = ""
+    example: dict[str, Any] = field(default_factory=dict)  # a message (topics) or call arguments (services)
+
+    def example_frame(self) -> dict[str, Any]:
+        """The rosbridge frame a client sends (publish, call_service) or receives (publish)."""
+        if self.direction == "call":
+            return {"op": "call_service", "service": self.name, "args": self.example}
+        return {"op": "publish", "topic": self.name, "msg": self.example}
+
+
+def _stamp() -> dict[str, Any]:
+    return {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": ""}
+
+
+ENDPOINTS: tuple[Endpoint, ...] = (
+    # ---- explicit control: the headset's streams ----
+    Endpoint("/vr/head/pose", "geometry_msgs/PoseStamped", "publish", "The headset's pose. " + POSE_DOC, "90 Hz",
+             UNITY_HEAD_POSE),
+    Endpoint("/vr/left_controller/pose", "geometry_msgs/PoseStamped", "publish",
+             "The left Touch controller's pose. " + POSE_DOC, "90 Hz", _hand(-0.2)),
+    Endpoint("/vr/right_controller/pose", "geometry_msgs/PoseStamped", "publish",
+             "The right Touch controller's pose. " + POSE_DOC, "90 Hz", _hand(0.2)),
+    Endpoint("/vr/left_controller/joy", "sensor_msgs/Joy", "publish", JOY_DOC, "on change, or 30+ Hz",
+             {"header": _stamp(), "axes": [0.0, 0.0, 0.0, 1.0], "buttons": [0, 0, 0, 0]}),
+    Endpoint("/vr/right_controller/joy", "sensor_msgs/Joy", "publish", JOY_DOC, "on change, or 30+ Hz",
+             {"header": _stamp(), "axes": [0.1, -0.3, 0.0, 0.85], "buttons": [1, 0, 0, 0]}),
+    # ---- explicit control: the server's services and telemetry ----
+    Endpoint("/vr_teleop/control/engage", "std_srvs/SetBool", "call",
+             "data true: take control (needs a fresh head pose from the caller; the current head orientation "
+             "becomes the robot's head zero). data false: release it; the robot keeps its pose. Refused while "
+             "another client holds control.", example={"data": True}),
+    Endpoint("/vr_teleop/control/calibrate", "std_srvs/Trigger", "call",
+             "Measure the operator's shoulders and arm length from a T-pose (arms straight out to the sides), "
+             "holding the headset and both controllers tracked. The reply's message holds the measurements as "
+             "JSON."),
+    Endpoint("/vr_teleop/control/head", "std_srvs/SetBool", "call",
+             "Whether the robot's head follows the operator's head (true by default).", example={"data": False}),
+    Endpoint("/vr_teleop/control/arms", "std_srvs/SetBool", "call",
+             "Whether the robot's arms may follow the controllers (true by default; each arm still needs its "
+             "grip).", example={"data": True}),
+    Endpoint("/vr_teleop/control/estop", "std_srvs/Trigger", "call",
+             "Emergency stop: the robot holds where it is and control is released. Anyone may call it; engaging "
+             "again resumes."),
+    Endpoint("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", "subscribe",
+             "Explicit control as the server sees it (see the type's comments for the states).",
+             "30 Hz and on every change",
+             {"header": _stamp(), "engaged": True, "state": "active", "holder": "client_3_127.0.0.1:50312",
+              "head_following": True, "left_arm_following": False, "right_arm_following": True,
+              "clamped": ["HeadYaw"], "velocity_limited": [], "pose_age": 0.004, "left_pose_age": 0.006,
+              "right_pose_age": 0.005, "robot_connected": True}),
+    Endpoint("/vr_teleop/events", "vr_teleop_msgs/Event", "subscribe",
+             "Server events: engage, release, calibrate, head_on/off, arms_on/off, estop, watchdog_stalled, "
+             "watchdog_active, watchdog_disconnected, robot_lost, robot_back, and others' features' events.",
+             "on event",
+             {"header": _stamp(), "source": "teleop", "kind": "watchdog_stalled", "level": "warning",
+              "detail": "{\"holder\": \"client_3_127.0.0.1:50312\"}"}),
+    Endpoint("/vr_teleop/clamps", "vr_teleop_msgs/Clamp", "subscribe",
+             "A joint command that did not apply as sent: clamped to a limit, or ignored (motor not on).",
+             "on clamp",
+             {"header": _stamp(), "source": "/qt_robot/head_position/command", "joints": ["HeadYaw"],
+              "requested": [80.0], "applied": [60.0], "ignored": []}),
+    # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
+    Endpoint("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", "publish",
+             "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "
+             "publishes here too, so subscribing shows its commands.", "as needed", {"data": [30.0, -5.0]}),
+    Endpoint("/qt_robot/left_arm_position/command", "std_msgs/Float64MultiArray", "publish",
+             "[LeftShoulderPitch, LeftShoulderRoll, LeftElbowRoll] in degrees.", "as needed",
+             {"data": [90.0, -60.0, -30.0]}),
+    Endpoint("/qt_robot/right_arm_position/command", "std_msgs/Float64MultiArray", "publish",
+             "[RightShoulderPitch, RightShoulderRoll, RightElbowRoll] in degrees.", "as needed",
+             {"data": [-90.0, -60.0, -30.0]}),
+    Endpoint("/qt_robot/joints/state", "sensor_msgs/JointState", "subscribe",
+             "All joints, alphabetical, positions in degrees.", "30 Hz",
+             {"header": _stamp(), "name": ["HeadPitch", "HeadYaw"], "position": [0.0, 12.5], "velocity": [0.0, 3.1],
+              "effort": [0.0, 0.0]}),
+    Endpoint("/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage", "subscribe",
+             "The head camera as JPEG, rendered only while someone subscribes.", "30 Hz (serve --camera-fps)",
+             {"header": {"seq": 1, "stamp": {"secs": 1700000000, "nsecs": 0},
+                         "frame_id": "camera_color_optical_frame"}, "format": "jpeg", "data": "/9j/4AAQSkZJRg=="}),
+)
+
+
+def endpoints() -> list[dict[str, Any]]:
+    """JSON-ready, with each example as the frame a client sends or receives."""
+    return [{**asdict(e), "example_frame": e.example_frame()} for e in ENDPOINTS]
