@@ -7,6 +7,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+import roslibpy
 
 from support import RawClient, RunningServer
 from vr_teleop_server.settings import ServerSettings
@@ -58,3 +59,20 @@ def client_factory(server: RunningServer, connect_raw: Callable[[str], RawClient
 @pytest.fixture
 def client(client_factory: Callable[[], RawClient]) -> RawClient:
     return client_factory()
+
+
+@pytest.fixture(scope="module")
+def sim_server() -> Iterator[RunningServer]:
+    """One server with the MuJoCo stand-in per test module (it takes about a second to start)."""
+    server = RunningServer(ServerSettings(port=0, backend="sim"))
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def ros(sim_server: RunningServer) -> Iterator[roslibpy.Ros]:
+    """A roslibpy client of the module's stand-in server."""
+    client = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
+    client.run(timeout=10)
+    yield client
+    client.close()

@@ -16,8 +16,7 @@ import pytest
 import roslibpy
 
 from robot_models import load_qtrobot
-from support import RawClient, RunningServer, wait_for
-from vr_teleop_server.settings import ServerSettings
+from support import RawClient, wait_for
 from vr_teleop_server.teleop import TeleopMapper
 
 MODEL = load_qtrobot()
@@ -117,19 +116,9 @@ def call(ros: roslibpy.Ros, name: str, type_name: str, args: dict[str, Any] | No
     return roslibpy.Service(ros, name, type_name).call(roslibpy.ServiceRequest(args or {}), timeout=10)
 
 
-@pytest.fixture(scope="module")
-def sim_server():
-    server = RunningServer(ServerSettings(port=0, backend="sim"))
-    yield server
-    server.stop()
-
-
-@pytest.fixture
-def ros(sim_server):
-    client = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
-    client.run(timeout=10)
-    yield client
-    client.close()
+@pytest.fixture(autouse=True)
+def control_is_free_after_each_test(sim_server):
+    yield
     assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 5)
 
 

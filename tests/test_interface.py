@@ -6,8 +6,7 @@ import pytest
 
 from client_protocol.interface import ENDPOINTS
 from client_protocol.registry import TypeRegistry
-from support import RawClient, RunningServer
-from vr_teleop_server.settings import ServerSettings
+from support import RawClient
 
 REGISTRY = TypeRegistry()
 
@@ -19,13 +18,6 @@ def test_every_example_fits_its_type(endpoint):
         REGISTRY.validate(request, endpoint.example)
     else:
         REGISTRY.validate(endpoint.type, endpoint.example)
-
-
-@pytest.fixture(scope="module")
-def sim_server():
-    server = RunningServer(ServerSettings(port=0, backend="sim"))
-    yield server
-    server.stop()
 
 
 def test_the_server_offers_each_endpoint_with_its_type(sim_server):

@@ -8,29 +8,12 @@ import time
 
 import cv2
 import numpy as np
-import pytest
 import roslibpy
 
 from robot_models import load_qtrobot
-from support import RawClient, RunningServer, wait_for
-from vr_teleop_server.settings import ServerSettings
+from support import RawClient, wait_for
 
 MODEL = load_qtrobot()
-
-
-@pytest.fixture(scope="module")
-def sim_server():
-    server = RunningServer(ServerSettings(port=0, backend="sim"))
-    yield server
-    server.stop()
-
-
-@pytest.fixture
-def ros(sim_server):
-    client = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
-    client.run(timeout=10)
-    yield client
-    client.close()
 
 
 class JointWatcher:
