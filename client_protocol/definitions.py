@@ -33,6 +33,9 @@ MESSAGES: dict[str, str] = {
     "sensor_msgs/Joy": "Header header\nfloat32[] axes\nint32[] buttons",
     # audio
     "audio_common_msgs/AudioData": "uint8[] data",
+    "audio_common_msgs/AudioInfo": (
+        "uint8 channels\nuint32 sample_rate\nstring sample_format\nuint32 bitrate\nstring coding_format"
+    ),
     # the log every ROS system has
     "rosgraph_msgs/Log": (
         "byte DEBUG=1\nbyte INFO=2\nbyte WARN=4\nbyte ERROR=8\nbyte FATAL=16\n"
@@ -60,6 +63,40 @@ MESSAGES: dict[str, str] = {
         "bool left_arm_following\nbool right_arm_following\nstring[] clamped\nstring[] velocity_limited\n"
         "float64 pose_age\nfloat64 left_pose_age\nfloat64 right_pose_age\nbool robot_connected"
     ),
+    "vr_teleop_msgs/Menu": (
+        "# One radial menu. controller: left, right or any; button: what opens it on the Touch controller\n"
+        "string id\nstring label\nstring controller\nstring button\nstring icon"
+    ),
+    "vr_teleop_msgs/MenuItem": (
+        "# One item, flattened: parent is the id of the item whose submenu holds it, or the menu's id at the top.\n"
+        "# slot: left, top, right or bottom, or 'list' with position the index in a list. command empty = submenu.\n"
+        "# args: the command's arguments as a JSON object.\n"
+        "string id\nstring menu\nstring parent\nstring label\nstring slot\nint32 position\nstring icon\n"
+        "string command\nstring args"
+    ),
+    "vr_teleop_msgs/Menus": "# Every menu tree, on the latched /vr_teleop/menus\nHeader header\nMenu[] menus\nMenuItem[] items",
+    "vr_teleop_msgs/HardwareStatus": (
+        "# The server machine's load; temperature_c is meaningful only where has_temperature\n"
+        "Header header\nfloat32 cpu_percent\nfloat32 memory_percent\nfloat32 memory_used_mb\n"
+        "bool has_temperature\nfloat32 temperature_c\nfloat32 load_1min"
+    ),
+    "vr_teleop_msgs/MotorsStatus": (
+        "# One entry per motor, once each. position_normalized: 0 at the joint's lower limit, 1 at its upper.\n"
+        "# mode: on, off or brake\n"
+        "Header header\nstring[] name\nfloat64[] position\nfloat64[] position_normalized\nfloat32[] temperature\n"
+        "float32[] voltage\nstring[] mode"
+    ),
+    "vr_teleop_msgs/DialogState": (
+        "# The dialog system's state (the prototype's question:mode:answer:candidates:optionals:chosen line)\n"
+        "Header header\nstring question\nstring mode\nstring answer\nstring[] candidates\nstring[] optionals\n"
+        "string chosen"
+    ),
+    "vr_teleop_msgs/Motivation": (
+        "# The motivation variables. low/high hold a limit only where has_low/has_high.\n"
+        "# level: ok, low or high (past its limit)\n"
+        "Header header\nstring[] name\nfloat64[] value\nfloat64[] min\nfloat64[] max\nbool[] has_low\n"
+        "float64[] low\nbool[] has_high\nfloat64[] high\nstring[] level"
+    ),
     # rosapi's own message
     "rosapi/TypeDef": (
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
@@ -75,11 +112,25 @@ SERVICES: dict[str, str] = {
     "qt_robot_interface/emotion_show": "string name\n---\nbool status",
     "qt_robot_interface/speech_say": "string message\n---\nbool status",
     "qt_robot_interface/speech_stop": "---\nbool status",
+    "qt_robot_interface/speech_config": "string language\nint16 pitch\nint16 speed\n---\nbool status",
+    "qt_gesture_controller/gesture_record": (
+        "string[] parts\nbool idleParts\nuint8 wait\nuint8 timeout\n---\nbool status"
+    ),
+    "qt_gesture_controller/gesture_save": "string name\nstring path\n---\nbool status",
     "qt_gesture_controller/gesture_play": "string name\nfloat32 speed\n---\nbool status",
     "qt_gesture_controller/gesture_list": "---\nstring[] gestures",
     "qt_gesture_controller/gesture_stop": "---\nbool status",
     "qt_motors_controller/home": "string[] parts\n---\nbool status",
     "qt_motors_controller/set_control_mode": "string[] parts\nuint8 mode\n---\nbool status",
+    # this server's own
+    "vr_teleop_msgs/MenuSelect": (
+        "# Run a menu item by id. args: a JSON object merged over the item's own (e.g. {\"text\": \"...\"})\n"
+        "string id\nstring args\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/MotivationChange": (
+        "# name: a motivation variable (reset: empty = all); value: the increment or the new value\n"
+        "string name\nfloat64 value\n---\nbool success\nstring message\nfloat64 value"
+    ),
     # rosapi, as client libraries (roslibpy, roslibjs, ROS#) call it
     "rosapi/Topics": "---\nstring[] topics\nstring[] types",
     "rosapi/TopicType": "string topic\n---\nstring type",

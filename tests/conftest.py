@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 import roslibpy
 
-from support import RawClient, RunningServer
+from support import RawClient, RunningServer, Watch
 from vr_teleop_server.settings import ServerSettings
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -62,9 +62,11 @@ def client(client_factory: Callable[[], RawClient]) -> RawClient:
 
 
 @pytest.fixture(scope="module")
-def sim_server() -> Iterator[RunningServer]:
-    """One server with the MuJoCo stand-in per test module (it takes about a second to start)."""
-    server = RunningServer(ServerSettings(port=0, backend="sim"))
+def sim_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
+    """One server with the MuJoCo stand-in per test module (it takes about a second to start); recordings and
+    audio logs go to the module's own temporary directory."""
+    tmp = tmp_path_factory.mktemp("sim_server")
+    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "gestures", audio_dir=tmp / "audio"))
     yield server
     server.stop()
 
@@ -76,3 +78,17 @@ def ros(sim_server: RunningServer) -> Iterator[roslibpy.Ros]:
     client.run(timeout=10)
     yield client
     client.close()
+
+
+@pytest.fixture
+def watch(ros: roslibpy.Ros) -> Iterator[Callable[[str, str], Watch]]:
+    """Subscribes the test's roslibpy client to topics (topic, type) and unsubscribes afterwards."""
+    made: list[Watch] = []
+
+    def make(topic: str, type_name: str) -> Watch:
+        made.append(Watch(ros, topic, type_name))
+        return made[-1]
+
+    yield make
+    for w in made:
+        w.close()

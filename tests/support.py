@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import roslibpy
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
@@ -133,3 +134,124 @@ class RawClient:
             self.ws.close()
         except ConnectionClosed:
             pass
+
+
+# ---- a fake headset and topic watchers over roslibpy (explicit control, menus) --------------------------------------
+EYE_HEIGHT = 1.6
+
+
+def unity_yaw_pitch(yaw_left_deg: float, pitch_up_deg: float = 0.0) -> dict[str, float]:
+    """Unity quaternion for a head turned left and tilted up (Unity: y up, left-handed, so left is -y)."""
+    from scipy.spatial.transform import Rotation
+
+    # Unity applies yaw about y, then pitch about x; looking up is a negative rotation about Unity's x.
+    q = Rotation.from_euler("YX", [-yaw_left_deg, -pitch_up_deg], degrees=True).as_quat()
+    return {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}
+
+
+def pose_msg(position: tuple[float, float, float], orientation: dict[str, float]) -> dict[str, Any]:
+    x, y, z = position
+    return {"header": {"frame_id": "unity"},
+            "pose": {"position": {"x": x, "y": y, "z": z}, "orientation": orientation}}
+
+
+IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+
+
+class Headset:
+    """Streams head and controller poses at 90 Hz (and Joy at 30 Hz) from a thread, like a Quest would."""
+
+    def __init__(self, ros: roslibpy.Ros) -> None:
+        self.ros = ros
+        self.head = roslibpy.Topic(ros, "/vr/head/pose", "geometry_msgs/PoseStamped")
+        self.hands = {s: roslibpy.Topic(ros, f"/vr/{s}_controller/pose", "geometry_msgs/PoseStamped")
+                      for s in ("left", "right")}
+        self.joys = {s: roslibpy.Topic(ros, f"/vr/{s}_controller/joy", "sensor_msgs/Joy") for s in ("left", "right")}
+        self.head_orientation = IDENTITY
+        self.hand_positions = {"left": (-0.19, 1.0, 0.1), "right": (0.19, 1.0, 0.1)}  # hanging down
+        self.grips = {"left": 0.0, "right": 0.0}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> Headset:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2)
+
+    def _run(self) -> None:
+        n = 0
+        while not self._stop.is_set():
+            self.head.publish(roslibpy.Message(pose_msg((0.0, EYE_HEIGHT, 0.0), self.head_orientation)))
+            for side, topic in self.hands.items():
+                topic.publish(roslibpy.Message(pose_msg(self.hand_positions[side], IDENTITY)))
+            if n % 3 == 0:
+                for side, topic in self.joys.items():
+                    topic.publish(roslibpy.Message({"axes": [0.0, 0.0, 0.0, self.grips[side]],
+                                                    "buttons": [0, 0, 0, 0]}))
+            n += 1
+            time.sleep(1 / 90)
+
+
+class Watch:
+    """The latest message of a topic, and every message, as a client receives them."""
+
+    def __init__(self, ros: roslibpy.Ros, topic: str, type_name: str) -> None:
+        self.messages: list[dict[str, Any]] = []
+        self.lock = threading.Lock()
+        self.topic = roslibpy.Topic(ros, topic, type_name)
+        self.topic.subscribe(self._on)
+
+    def _on(self, msg: dict[str, Any]) -> None:
+        with self.lock:
+            self.messages.append(msg)
+
+    @property
+    def latest(self) -> dict[str, Any]:
+        with self.lock:
+            return self.messages[-1] if self.messages else {}
+
+    def any(self, predicate) -> bool:
+        with self.lock:
+            return any(predicate(m) for m in self.messages)
+
+    def close(self) -> None:
+        self.topic.unsubscribe()
+
+
+def joints(watch: Watch) -> dict[str, float]:
+    msg = watch.latest
+    return dict(zip(msg.get("name", []), msg.get("position", [])))
+
+
+def call(ros: roslibpy.Ros, name: str, type_name: str, args: dict[str, Any] | None = None) -> dict[str, Any]:
+    return roslibpy.Service(ros, name, type_name).call(roslibpy.ServiceRequest(args or {}), timeout=10)
+
+
+def engage(ros: roslibpy.Ros) -> None:
+    deadline = time.monotonic() + 5
+    while True:  # the first head pose may still be on its way
+        try:
+            reply = call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
+            assert reply["success"], reply
+            return
+        except roslibpy.core.ServiceException:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def wait_subscribed(server: RunningServer, topic: str, clients: int = 1, timeout: float = 5.0) -> bool:
+    """Waits until `clients` clients (not the server's own features) subscribe to `topic`: roslibpy's subscribe
+    returns before the server has it, and a message published in between would be missed."""
+    from vr_teleop_server.bus import SERVER_NODE
+
+    def count() -> int:
+        t = server.server.bus.topics.get(topic)
+        return 0 if t is None else len({owner for owner, _cb in t.subscribers.values() if owner != SERVER_NODE})
+    return wait_for(lambda: server.call(count) >= clients, timeout)

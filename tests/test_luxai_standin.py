@@ -11,7 +11,7 @@ import numpy as np
 import roslibpy
 
 from robot_models import load_qtrobot
-from support import RawClient, wait_for
+from support import RawClient, wait_for, wait_subscribed
 
 MODEL = load_qtrobot()
 
@@ -75,6 +75,7 @@ def test_out_of_range_command_ends_at_the_limit_and_is_reported(ros, sim_server)
     watcher = JointWatcher(ros)
     clamps = []
     roslibpy.Topic(ros, "/vr_teleop/clamps", "vr_teleop_msgs/Clamp").subscribe(clamps.append)
+    assert wait_subscribed(sim_server, "/vr_teleop/clamps")
     raw = RawClient(sim_server.url)
     raw.send({"op": "set_level", "level": "warning"})
     raw.send({"op": "advertise", "topic": "/qt_robot/right_arm_position/command",

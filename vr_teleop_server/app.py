@@ -5,16 +5,22 @@ from __future__ import annotations
 import logging
 
 from client_protocol.registry import TypeRegistry
+from menus import load_menus
 from robot_models import load_qtrobot
 
 from .bus import Bus
 from .explicit_control import ExplicitControl
-from .gestures import GestureLibrary, packaged_gesture_dir
+from .gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
 from .luxai_api import LuxaiApi
+from .menu_service import MenuService, check_commands_implemented
+from .motivation import Motivation
+from .motivation import load_config as load_motivation_config
 from .robot import Robot
 from .rosapi import RosApi
 from .session import Session
 from .settings import ServerSettings
+from .speech import OperatorAudioLog, Speaker, default_audio_dir
+from .status import StatusPublisher
 from .transport import WebSocketTransport
 
 log = logging.getLogger(__name__)
@@ -32,6 +38,15 @@ class TeleopServer:
         self.robot: Robot | None = None
         self.luxai: LuxaiApi | None = None
         self.control: ExplicitControl | None = None
+        self.speaker: Speaker | None = None
+        self.operator_audio: OperatorAudioLog | None = None
+        self.status: StatusPublisher | None = None
+        self.motivation: Motivation | None = None
+        self.menu: MenuService | None = None
+        # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
+        check_commands_implemented()
+        self.menus = load_menus(settings.menu_dir)
+        self.motivation_config = load_motivation_config(settings.motivation_config)
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session)
 
     def _open_session(self, name: str, peer: str) -> Session:
@@ -58,11 +73,26 @@ class TeleopServer:
 
         self.robot = await SimRobot.create(self.model, camera_width=s.camera_width, camera_height=s.camera_height,
                                            camera_fps=s.camera_fps)
-        gestures = GestureLibrary([packaged_gesture_dir()], self.model, user_dir=s.gesture_dir)
-        self.luxai = LuxaiApi(self.bus, self.robot, gestures)
+        gestures = GestureLibrary([packaged_gesture_dir()], self.model,
+                                  user_dir=s.gesture_dir or default_user_gesture_dir())
+        audio_dir = s.audio_dir or default_audio_dir()
+        self.speaker = Speaker(self.bus, self.robot, audio_dir)
+        self.luxai = LuxaiApi(self.bus, self.robot, gestures, self.speaker)
         self.luxai.start()
         self.control = ExplicitControl(self.bus, self.robot, s.teleop)
         self.control.start()
+        self.operator_audio = OperatorAudioLog(self.bus, audio_dir)
+        self.operator_audio.start()
+        self.status = StatusPublisher(self.bus, self.robot)
+        self.status.start()
+        self.motivation = Motivation(self.bus, self.motivation_config)
+        self.motivation.start()
+        panels = {"hardware": self.status.hardware, "motors": self.status.motors, "dialog": self.status.dialog,
+                  "motivation": self.motivation.message}
+        self.menu = MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
+                                status=lambda which: panels[which](), recorder=self.luxai)
+        self.luxai.gestures_changed.append(self.menu.publish)
+        self.menu.start()
 
     async def start(self) -> None:
         self.rosapi.start()
@@ -80,8 +110,13 @@ class TeleopServer:
         await self._stop_robot()
 
     async def _stop_robot(self) -> None:
-        if self.control is not None:
-            await self.control.stop()
+        for part in (self.motivation, self.status, self.control):
+            if part is not None:
+                await part.stop()
+        if self.operator_audio is not None:
+            self.operator_audio.close()
+        if self.speaker is not None:
+            self.speaker.close()
         if self.luxai is not None:
             await self.luxai.stop()
         if self.robot is not None:

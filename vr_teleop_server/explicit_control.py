@@ -116,6 +116,7 @@ class ExplicitControl:
             self._last_refusal[sender] = now
             self.bus.report(sender, "error", f"{published.topic}: refused: control is held by another client "
                             f"({self.holder}); it must release control or disconnect first")
+            self._event("refused", "warning", {"client": sender, "topic": published.topic, "holder": self.holder})
         return False
 
     def _on_head_pose(self, published: Published) -> None:

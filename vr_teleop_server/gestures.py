@@ -36,7 +36,7 @@ import re
 import tempfile
 import warnings
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -281,6 +281,12 @@ def packaged_gesture_dir() -> Path:
     return GESTURE_DIR
 
 
+def default_user_gesture_dir() -> Path:
+    """Where recordings are saved when serve gets no --gesture-dir (XDG's data directory)."""
+    base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local", "share")
+    return Path(base) / "vr-teleop" / "gestures"
+
+
 def canonical_name(name: str) -> str:
     """The library key for `name`: surrounding space and one leading 'QT/' removed ("QT/wave" -> "wave")."""
     key = str(name).strip()
@@ -519,5 +525,6 @@ class GestureRecorder:
 __all__ = [
     "GestureDocument", "GestureFormatError", "GestureFormatWarning", "GestureLibrary", "GestureRecorder",
     "LUXAI_PREFIX", "NAME_PATTERN", "RECORD_RATE_HZ", "UnknownGestureError", "canonical_name", "check_save_name",
+    "default_user_gesture_dir",
     "gesture_to_xml", "packaged_gesture_dir", "parse_gesture_document", "parse_gesture_xml",
 ]

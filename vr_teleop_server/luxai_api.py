@@ -9,11 +9,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
-from typing import Any, Protocol
+import time
+from collections.abc import Callable
+from typing import Any
 
 from .bus import SERVER_NODE, Bus, BusError, Published
+from .gestures import GestureLibrary, GestureRecorder, check_save_name
 from .robot import ClampReport, Gesture, MotorMode, Robot
+from .speech import Speaker
 
 log = logging.getLogger(__name__)
 
@@ -28,16 +33,17 @@ CLAMP_TOPIC = "/vr_teleop/clamps"
 CAMERA_FRAME_ID = "camera_color_optical_frame"
 
 
-class GestureSource(Protocol):
-    def names(self) -> list[str]: ...
-    def get(self, name: str) -> Gesture: ...
-
-
 class LuxaiApi:
-    def __init__(self, bus: Bus, robot: Robot, gestures: GestureSource, joint_state_hz: float = 30.0) -> None:
+    def __init__(self, bus: Bus, robot: Robot, gestures: GestureLibrary, speaker: Speaker,
+                 joint_state_hz: float = 30.0) -> None:
         self.bus = bus
         self.robot = robot
         self.gestures = gestures
+        self.speaker = speaker
+        self.recorder = GestureRecorder(robot.model)
+        self._record_task: asyncio.Task[None] | None = None
+        self._recorded: tuple[Gesture, tuple[str, ...]] | None = None  # stopped, not yet saved
+        self.gestures_changed: list[Callable[[], None]] = []  # e.g. the menus' play list
         self.joint_state_period = 1.0 / joint_state_hz
         self._tasks: set[asyncio.Task[Any]] = set()
         self._joint_task: asyncio.Task[None] | None = None
@@ -64,6 +70,9 @@ class LuxaiApi:
         bus.provide("/qt_robot/emotion/show", "qt_robot_interface/emotion_show", self._emotion_show)
         bus.provide("/qt_robot/speech/say", "qt_robot_interface/speech_say", self._speech_say)
         bus.provide("/qt_robot/speech/stop", "qt_robot_interface/speech_stop", self._speech_stop)
+        bus.provide("/qt_robot/speech/config", "qt_robot_interface/speech_config", self._speech_config)
+        bus.provide("/qt_robot/gesture/record", "qt_gesture_controller/gesture_record", self._gesture_record)
+        bus.provide("/qt_robot/gesture/save", "qt_gesture_controller/gesture_save", self._gesture_save)
         bus.provide("/qt_robot/gesture/play", "qt_gesture_controller/gesture_play", self._gesture_play)
         bus.provide("/qt_robot/gesture/list", "qt_gesture_controller/gesture_list", self._gesture_list)
         bus.provide("/qt_robot/gesture/stop", "qt_gesture_controller/gesture_stop", self._gesture_stop)
@@ -72,7 +81,8 @@ class LuxaiApi:
         self._joint_task = asyncio.ensure_future(self._publish_joint_states())
 
     async def stop(self) -> None:
-        tasks = [t for t in (self._joint_task, self._camera_task, *self._tasks) if t is not None]
+        self.recorder.cancel()
+        tasks = [t for t in (self._joint_task, self._camera_task, self._record_task, *self._tasks) if t is not None]
         for task in tasks:
             task.cancel()
         for task in tasks:
@@ -190,14 +200,26 @@ class LuxaiApi:
         return {"status": True}
 
     def _on_speech_topic(self, published: Published) -> None:
-        self._spawn(self.robot.say(published.value.data))
+        self._spawn(self._say_reporting(published))
+
+    async def _say_reporting(self, published: Published) -> None:
+        try:
+            await self.speaker.say(published.value.data)
+        except BusError as exc:
+            self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _speech_say(self, request: Any) -> dict[str, Any]:
-        result = await self.robot.say(request.message)
+        result = await self.speaker.say(request.message)
         return {"status": result.completed}
 
     async def _speech_stop(self, _request: Any) -> dict[str, Any]:
-        self.robot.stop_speech()
+        self.speaker.stop()
+        return {"status": True}
+
+    async def _speech_config(self, request: Any) -> dict[str, Any]:
+        if request.pitch < 0 or request.speed < 0:
+            raise BusError("pitch and speed must be 0 (keep) or positive")
+        await self.speaker.configure(request.language, request.pitch, request.speed)
         return {"status": True}
 
     def _gesture(self, name: str) -> Gesture:
@@ -233,5 +255,77 @@ class LuxaiApi:
         return {"gestures": self.gestures.names()}
 
     async def _gesture_stop(self, _request: Any) -> dict[str, Any]:
-        self.robot.stop_gesture()
+        """Stops a recording if one runs (as LuxAI's controller does), else the playing gesture."""
+        if self.recorder.recording:
+            self.stop_recording()
+        else:
+            self.robot.stop_gesture()
         return {"status": True}
+
+    # ---- recording ----------------------------------------------------------------------------------------------
+    async def _gesture_record(self, request: Any) -> dict[str, Any]:
+        # idleParts is accepted but not applied: here the operator moves the robot by explicit control, so the
+        # recorded parts must stay powered.
+        self.start_recording(self._parts(request.parts), wait_s=request.wait, timeout_s=request.timeout)
+        return {"status": True}
+
+    def start_recording(self, parts: list[str], wait_s: float = 0, timeout_s: float = 0) -> None:
+        if self.recorder.recording:
+            raise BusError("already recording; stop it (/qt_robot/gesture/stop) or save it first")
+        self.recorder.start(parts)
+        self._recorded = None
+        self._record_task = asyncio.ensure_future(self._sample(wait_s, timeout_s))
+
+    async def _sample(self, wait_s: float, timeout_s: float) -> None:
+        await asyncio.sleep(wait_s)
+        end = time.monotonic() + timeout_s if timeout_s else None
+        while self.recorder.recording and (end is None or time.monotonic() < end):
+            self.recorder.sample(self.robot.joint_state(), time.monotonic())
+            await asyncio.sleep(self.recorder.period_s)
+        if self.recorder.recording:  # the timeout ended it
+            self.stop_recording()
+
+    def stop_recording(self) -> None:
+        """Ends the recording and keeps it for /qt_robot/gesture/save."""
+        if not self.recorder.recording:
+            raise BusError("not recording; start with /qt_robot/gesture/record")
+        parts = self.recorder.parts
+        self.recorder.sample(self.robot.joint_state(), time.monotonic())
+        try:
+            self._recorded = (self.recorder.stop(), parts)
+        except ValueError as exc:
+            raise BusError(str(exc)) from None
+        finally:
+            if self._record_task is not None and self._record_task is not asyncio.current_task():
+                self._record_task.cancel()
+            self._record_task = None
+
+    @property
+    def recording(self) -> bool:
+        return self.recorder.recording
+
+    async def _gesture_save(self, request: Any) -> dict[str, Any]:
+        if request.path:
+            raise BusError("path is not supported: recordings are saved in the server's gesture directory "
+                           "(serve --gesture-dir)")
+        self.save_recording(request.name)
+        return {"status": True}
+
+    def save_recording(self, name: str) -> str:
+        """Saves the last recording (stopping it if it still runs) as LuxAI gesture XML; returns its name."""
+        if self.recorder.recording:
+            self.stop_recording()
+        if self._recorded is None:
+            raise BusError("nothing recorded to save; record with /qt_robot/gesture/record first")
+        gesture, parts = self._recorded
+        name = name or time.strftime("recording_%Y%m%d_%H%M%S")
+        try:
+            check_save_name(name)
+            path = self.gestures.save(dataclasses.replace(gesture, name=name), parts)
+        except (ValueError, FileExistsError) as exc:
+            raise BusError(str(exc)) from None
+        self._recorded = None
+        log.info("recorded gesture %s saved to %s", name, path)
+        for listener in list(self.gestures_changed):
+            listener()
+        return name

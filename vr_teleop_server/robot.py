@@ -234,8 +234,9 @@ class Robot(abc.ABC):
         """Show an emotion ("happy" or "QT/happy"); ValueError names the valid ones."""
 
     @abc.abstractmethod
-    async def say(self, text: str) -> SpeechResult:
-        """Speak `text`; returns when speaking has finished (as LuxAI's speech/say service does)."""
+    async def say(self, text: str, duration_s: float | None = None) -> SpeechResult:
+        """Speak `text`; returns when speaking has finished (as LuxAI's speech/say service does). `duration_s`:
+        the length of audio the server rendered for it, which a backend that only animates should follow."""
 
     @abc.abstractmethod
     def stop_speech(self) -> None:

@@ -39,6 +39,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="head-camera frames a second while someone watches (default %(default)s)")
     p.add_argument("--gesture-dir", type=Path, default=None,
                    help="directory for recorded gestures and extra LuxAI gesture files")
+    p.add_argument("--menu-dir", type=Path, default=None, metavar="DIR",
+                   help="radial menu files (*.yaml) to use instead of the packaged ones (see menus/data)")
+    p.add_argument("--motivation-config", type=Path, default=None, metavar="FILE",
+                   help="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
+    p.add_argument("--audio-dir", type=Path, default=None, metavar="DIR",
+                   help="where the operator's voice is logged, one WAV per client (default: a temporary directory)")
     p.add_argument("--teleop-config", type=Path, default=None, metavar="FILE",
                    help="explicit-control parameters (YAML or JSON; keys as in vr_teleop_server/teleop/settings.py)")
     p.add_argument("--watchdog-timeout", type=float, default=None, metavar="S",
@@ -66,7 +72,9 @@ def run(args: argparse.Namespace) -> int:
         settings = ServerSettings(teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
                                   backend=args.backend, camera_width=width, camera_height=height,
-                                  camera_fps=args.camera_fps, gesture_dir=args.gesture_dir)
+                                  camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
+                                  menu_dir=args.menu_dir, motivation_config=args.motivation_config,
+                                  audio_dir=args.audio_dir)
     except ValidationError as exc:
         print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)
         return 2
@@ -97,7 +105,11 @@ async def _serve(settings: ServerSettings) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    server = TeleopServer(settings)
+    try:
+        server = TeleopServer(settings)
+    except ValueError as exc:  # a bad menu or motivation file: its name, the item and the problem
+        print(f"vr-teleop serve: {exc}", file=sys.stderr)
+        return 2
     try:
         await server.start()
     except OSError as exc:

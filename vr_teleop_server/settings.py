@@ -36,6 +36,10 @@ class ServerSettings(BaseModel):
     camera_fps: float = Field(30.0, gt=0, le=120, description="head-camera frames a second while someone watches")
     gesture_dir: Path | None = Field(
         None, description="where recorded gestures are saved and extra gesture files are loaded from")
+    menu_dir: Path | None = Field(None, description="the radial menu files (*.yaml); default: the packaged menus")
+    audio_dir: Path | None = Field(None, description="where operator audio is logged; default: a directory in "
+                                                     "the system's temporary directory")
+    motivation_config: Path | None = Field(None, description="motivation variables file; default: the packaged")
     teleop: TeleopSettings = Field(default_factory=TeleopSettings, description="explicit control (teleop/settings.py)")
 
     @property

@@ -122,9 +122,9 @@ class SimRobot(Robot):
         words = len(text.split())
         return 0.0 if words == 0 else max(0.3, 60.0 * words / self._wpm)
 
-    async def say(self, text: str) -> SpeechResult:
+    async def say(self, text: str, duration_s: float | None = None) -> SpeechResult:
         self.stop_speech()
-        duration = self.speech_duration(text)
+        duration = self.speech_duration(text) if duration_s is None else max(0.0, float(duration_s))
         stop = self._speech_stop = asyncio.Event()
         self._standin.speak(duration)
         t0 = time.monotonic()

@@ -1,0 +1,179 @@
+"""Radial menu trees as data: the file format, its validation, and the flattened form clients draw from.
+
+A menu file (YAML) holds one tree:
+
+    menu: {id: status, label: Status, controller: left, button: X, icon: info}
+    items:
+      - {id: status.hardware, label: Hardware, slot: left, icon: cpu,
+         command: show_status, args: {which: hardware}}
+      - {id: motion.play, label: Play, slot: bottom, icon: play, generate: gestures}
+      - {id: speech.more, label: More, slot: right, icon: dots, submenu: [...]}
+
+An item has exactly one of `command` (with `args`), `submenu` (a list of items) or `generate` (items made when
+the menus are published: `gestures` from the gesture library, `emotions` from the robot model, `sentences` from
+the text file named by `source`, relative to the menu file). Slots are left, top, right, bottom (each at most
+once per level) or list (drawn in file order). Item ids are unique across every file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from .commands import COMMANDS
+
+COMPASS = ("left", "top", "right", "bottom")
+GENERATORS = ("gestures", "emotions", "sentences")
+PACKAGED_DIR = Path(__file__).with_name("data")
+
+
+class MenuError(ValueError):
+    """A menu file that cannot be used; the message names the file, the item and the problem."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Item(_Strict):
+    id: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.\-]+$")
+    label: str = Field(min_length=1)
+    slot: Literal["left", "top", "right", "bottom", "list"] = "list"
+    icon: str = ""
+    command: str | None = None
+    args: dict[str, Any] = Field(default_factory=dict)
+    submenu: list[Item] | None = None
+    generate: Literal["gestures", "emotions", "sentences"] | None = None
+    source: str | None = Field(None, description="the sentences file, for generate: sentences")
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> Item:
+        kinds = [k for k in ("command", "submenu", "generate") if getattr(self, k) is not None]
+        if len(kinds) != 1:
+            raise ValueError(f"needs exactly one of command, submenu or generate (has {', '.join(kinds) or 'none'})")
+        if self.command is not None:
+            model = COMMANDS.get(self.command)
+            if model is None:
+                raise ValueError(f"unknown command {self.command!r}; commands are {', '.join(sorted(COMMANDS))}")
+            try:
+                model(**self.args)
+            except ValidationError as exc:
+                problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'args'}: {e['msg']}" for e in exc.errors())
+                raise ValueError(f"args of {self.command}: {problems}") from None
+        elif self.args:
+            raise ValueError("args are given but there is no command")
+        if (self.generate == "sentences") != (self.source is not None):
+            raise ValueError("generate: sentences needs source (a text file), and only it takes one")
+        if self.submenu is not None:
+            _check_slots(self.submenu)
+        return self
+
+
+class MenuInfo(_Strict):
+    id: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.\-]+$")
+    label: str = Field(min_length=1)
+    controller: Literal["left", "right", "any"] = "any"
+    button: str = ""
+    icon: str = ""
+
+
+class MenuFile(_Strict):
+    menu: MenuInfo
+    items: list[Item] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _slots(self) -> MenuFile:
+        _check_slots(self.items)
+        return self
+
+
+def _check_slots(items: list[Item]) -> None:
+    seen: dict[str, str] = {}
+    for item in items:
+        if item.slot in COMPASS:
+            if item.slot in seen:
+                raise ValueError(f"items {seen[item.slot]!r} and {item.id!r} both take slot {item.slot}")
+            seen[item.slot] = item.id
+
+
+def walk(items: list[Item], parent: str):
+    """(parent id, position, item) for every item, depth first."""
+    for position, item in enumerate(items):
+        yield parent, position, item
+        if item.submenu:
+            yield from walk(item.submenu, item.id)
+
+
+def read_sentences(path: Path) -> list[str]:
+    """One sentence per line; blank lines and lines starting with # are skipped."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
+
+
+class LoadedMenu:
+    def __init__(self, path: Path, data: MenuFile) -> None:
+        self.path = path
+        self.info = data.menu
+        self.items = data.items
+
+
+def _describe(exc: ValidationError, doc: Any) -> tuple[str, str]:
+    """(where, problem) of the first error: the item's id (found in the raw document) and the field."""
+    err = exc.errors()[0]
+    loc = list(err["loc"])
+    node, where, rest, previous = doc, "", loc, None
+    for i, key in enumerate(loc):
+        try:
+            node = node[key]
+        except (KeyError, IndexError, TypeError):
+            break
+        if previous in ("items", "submenu") and isinstance(key, int):
+            where = f"item {node.get('id')!r}" if isinstance(node, dict) and node.get("id") else f"item #{key + 1}"
+            rest = loc[i + 1:]
+        elif key == "menu" and i == 0:
+            where, rest = "menu", loc[1:]
+        previous = key
+    field = ".".join(str(k) for k in rest if not str(k).startswith("function-after"))
+    message = err["msg"].removeprefix("Value error, ")
+    return where or "file", f"{field}: {message}" if field else message
+
+
+def load_menu_file(path: Path) -> LoadedMenu:
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise MenuError(f"{path}: cannot read: {exc}") from None
+    try:
+        data = MenuFile.model_validate(doc)
+    except ValidationError as exc:
+        where, problem = _describe(exc, doc)
+        raise MenuError(f"{path}: {where}: {problem}") from None
+    for _parent, _pos, item in walk(data.items, data.menu.id):
+        if item.source is not None:
+            source = path.parent / item.source
+            try:
+                if not read_sentences(source):
+                    raise MenuError(f"{path}: item {item.id!r}: {source} holds no sentences")
+            except OSError as exc:
+                raise MenuError(f"{path}: item {item.id!r}: cannot read sentences: {exc}") from None
+    return LoadedMenu(path, data)
+
+
+def load_menus(directory: Path | None = None) -> list[LoadedMenu]:
+    """Every *.yaml menu in `directory` (default: the packaged menus), checked together for unique ids."""
+    directory = directory or PACKAGED_DIR
+    files = sorted(directory.glob("*.yaml"))
+    if not files:
+        raise MenuError(f"{directory}: no menu files (*.yaml)")
+    menus = [load_menu_file(f) for f in files]
+    owner: dict[str, Path] = {}
+    for menu in menus:
+        for id_, _ in [(menu.info.id, None)] + [(item.id, None) for _p, _i, item in walk(menu.items, menu.info.id)]:
+            if id_ in owner:
+                other = "" if owner[id_] == menu.path else f" (also in {owner[id_]})"
+                raise MenuError(f"{menu.path}: item {id_!r}: duplicate id{other}")
+            owner[id_] = menu.path
+    return menus

@@ -1,0 +1,283 @@
+"""Implicit control end to end: every menu command through the protocol (roslibpy) against the MuJoCo stand-in."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import threading
+import time
+import wave
+from pathlib import Path
+
+import numpy as np
+import pytest
+import roslibpy
+
+from sim.face import draw_face
+from support import Headset, RawClient, Watch, call, engage, joints, unity_yaw_pitch, wait_for
+from vr_teleop_server.gestures import parse_gesture_xml
+from vr_teleop_server.speech import TextToSpeech
+
+
+def select(ros: roslibpy.Ros, item: str, args: dict | None = None) -> dict:
+    return call(ros, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect",
+                {"id": item, "args": json.dumps(args) if args else ""})
+
+
+@pytest.fixture
+def menus(watch):
+    w = watch("/vr_teleop/menus", "vr_teleop_msgs/Menus")
+    assert wait_for(lambda: w.latest, 5)
+    return w
+
+
+@pytest.fixture
+def events(watch):
+    return watch("/vr_teleop/events", "vr_teleop_msgs/Event")
+
+
+def test_menu_trees_arrive_latched_with_generated_items(menus):
+    msg = menus.latest
+    assert {m["id"]: m["controller"] for m in msg["menus"]} == {
+        "emotion": "right", "motion": "right", "speech": "left", "status": "left"}
+    items = {i["id"]: i for i in msg["items"]}
+    assert items["status.hardware"]["slot"] == "left" and items["status.hardware"]["command"] == "show_status"
+    assert json.loads(items["status.hardware"]["args"]) == {"which": "hardware"}
+    wave_item = items["motion.play.list.wave"]
+    assert wave_item["parent"] == "motion.play.list" and json.loads(wave_item["args"]) == {"name": "wave"}
+    assert items["speech.sentences.well_done"]["command"] == "say"
+    assert items["emotion.all.with_a_cold"]["command"] == "show_emotion"
+    parents = {i["parent"] for i in msg["items"]}
+    assert parents <= set(items) | {m["id"] for m in msg["menus"]}  # a well-formed forest
+
+
+def test_selected_emotion_changes_the_face(sim_server, ros):
+    standin = sim_server.server.robot.standin
+    reply = select(ros, "emotion.sad")
+    assert reply["success"] and standin.emotion == "sad"
+    assert standin.wait_face(5)
+    face = standin.face_image()
+    np.testing.assert_array_equal(face, draw_face("sad", face.shape[1], face.shape[0]))
+    topic = roslibpy.Topic(ros, "/vr_teleop/menu/selection", "std_msgs/String")
+    topic.publish(roslibpy.Message({"data": "emotion.all.surprise"}))
+    assert wait_for(lambda: standin.emotion == "surprise", 5)
+
+
+def test_unknown_items_and_bad_args_get_clear_errors(sim_server, ros, events):
+    with pytest.raises(roslibpy.core.ServiceException, match="unknown menu item 'motion.fly'"):
+        select(ros, "motion.fly")
+    with pytest.raises(roslibpy.core.ServiceException, match="bad args for play_gesture: speed"):
+        select(ros, "motion.play.list.wave", {"speed": 99})
+    with pytest.raises(roslibpy.core.ServiceException, match="unknown gesture"):
+        select(ros, "motion.play.list.wave", {"name": "moonwalk"})
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "menu_failed" and "moonwalk" in e["detail"]), 5)
+    raw = RawClient(sim_server.url)
+    try:
+        raw.send({"op": "publish", "topic": "/vr_teleop/menu/selection", "msg": {"data": "no.such.item"}})
+        status = raw.expect("status", level="error")
+        assert "/vr_teleop/menu/selection" in status["msg"] and "no.such.item" in status["msg"]
+        raw.alive()
+    finally:
+        raw.close()
+
+
+def test_speech_sends_audio_whose_duration_matches_the_wav(sim_server, ros):
+    text = "Well done!"
+    tts = TextToSpeech()
+    try:
+        expected = asyncio.run(tts.render(text)).duration_s
+    finally:
+        tts.close()
+    chunks = Watch(ros, "/vr_teleop/audio/robot", "audio_common_msgs/AudioData")
+    info = Watch(ros, "/vr_teleop/audio/robot/info", "audio_common_msgs/AudioInfo")
+    standin = sim_server.server.robot.standin
+    talked = []
+    t0 = time.monotonic()
+    watcher = threading.Thread(target=lambda: talked.append(wait_for(standin.is_talking, 5)))
+    watcher.start()
+    reply = select(ros, "speech.sentences.well_done")
+    elapsed = time.monotonic() - t0
+    watcher.join()
+    assert reply["success"] and talked == [True]
+    assert elapsed >= expected * 0.9  # the reply comes once the robot has finished saying it
+    assert wait_for(lambda: info.latest, 5)
+    rate, width = info.latest["sample_rate"], int(info.latest["sample_format"][1:3]) // 8
+    assert info.latest["sample_format"] == "S16LE" and info.latest["channels"] == 1
+    def total() -> int:
+        with chunks.lock:
+            return sum(len(base64.b64decode(c["data"])) for c in chunks.messages)
+    said = Path(sim_server.settings.audio_dir)
+    with wave.open(str(sorted(said.glob("robot-*Well_done.wav"))[-1])) as w:  # the WAV the robot said
+        pcm, wav_rate = w.readframes(w.getnframes()), w.getframerate()
+    assert wav_rate == rate
+    assert wait_for(lambda: total() == len(pcm), 5), (total(), len(pcm))
+    with chunks.lock:
+        assert b"".join(base64.b64decode(c["data"]) for c in chunks.messages) == pcm
+    assert abs(len(pcm) / (rate * width) - expected) < 0.005  # espeak varies by a few samples between renders
+    chunks.close()
+    info.close()
+
+
+def test_speech_can_be_stopped_and_configured(sim_server, ros):
+    chunks = Watch(ros, "/vr_teleop/audio/robot", "audio_common_msgs/AudioData")
+    say = roslibpy.Topic(ros, "/qt_robot/speech/say", "std_msgs/String")
+    say.publish(roslibpy.Message({"data": "This is a rather long sentence that the teacher will cut short, "
+                                          "because the class already knows the answer to the question."}))
+    standin = sim_server.server.robot.standin
+    assert wait_for(standin.is_talking, 10)
+    time.sleep(0.5)
+    assert select(ros, "speech.stop")["success"]
+    assert wait_for(lambda: not standin.is_talking(), 2)
+    time.sleep(0.3)
+    count = len(chunks.messages)
+    time.sleep(1.0)
+    assert len(chunks.messages) == count  # no audio after the stop
+    assert count < 40  # the whole sentence is several seconds: 100 ms chunks
+    assert select(ros, "speech.slower")["success"]
+    assert call(ros, "/qt_robot/speech/config", "qt_robot_interface/speech_config",
+                {"language": "fr", "pitch": 60, "speed": 100})["status"]
+    with pytest.raises(roslibpy.core.ServiceException, match="no voice for language 'klingon'"):
+        call(ros, "/qt_robot/speech/config", "qt_robot_interface/speech_config", {"language": "klingon"})
+    call(ros, "/qt_robot/speech/config", "qt_robot_interface/speech_config", {"language": "en"})
+    chunks.close()
+
+
+def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_server, ros, menus):
+    js = Watch(ros, "/qt_robot/joints/state", "sensor_msgs/JointState")
+    headset = Headset(ros).start()
+    try:
+        engage(ros)
+        assert select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})["success"]
+        for yaw in (0, 10, 20, 30, 20, 0, -15, -30, -15, 0):
+            headset.head_orientation = unity_yaw_pitch(yaw)
+            time.sleep(0.3)
+        reply = select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})
+        assert reply["message"] == "saved as look_around"
+    finally:
+        headset.stop()
+    call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
+    path = Path(sim_server.settings.gesture_dir) / "look_around.xml"
+    gesture = parse_gesture_xml(path, sim_server.server.model)  # LuxAI's format, read back
+    recorded = np.array([[wp.time_s, wp.targets["HeadYaw"]] for wp in gesture.waypoints])
+    assert recorded[:, 1].max() > 20 and recorded[:, 1].min() < -20
+    assert wait_for(lambda: any(i["id"] == "motion.play.list.look_around" for i in menus.latest["items"]), 5)
+    # Play it back from where the recording started, and compare the trajectory the robot follows.
+    roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
+        roslibpy.Message({"data": [float(recorded[0, 1]), 0.0]}))
+    assert wait_for(lambda: abs(joints(js).get("HeadYaw", 99) - recorded[0, 1]) < 1.0, 10)
+    samples = []
+    stop = False
+
+    def sample() -> None:
+        while not stop:
+            j = joints(js)
+            if j:
+                samples.append((time.monotonic(), j["HeadYaw"]))
+            time.sleep(1 / 60)
+
+    sampler = threading.Thread(target=sample)
+    sampler.start()
+    t0 = time.monotonic()
+    try:
+        assert select(ros, "motion.play.list.look_around")["message"] == "played look_around"
+    finally:
+        stop = True
+        sampler.join()
+    played = np.array([(t - t0, v) for t, v in samples])
+    # Allow the playback a constant start delay (the first command and the joint-state rate); find the best one.
+    errors = []
+    for lag in np.arange(0.0, 0.3, 0.01):
+        want = np.interp(played[:, 0] - lag, recorded[:, 0], recorded[:, 1])
+        inside = (played[:, 0] - lag >= 0) & (played[:, 0] - lag <= recorded[-1, 0])
+        errors.append(np.abs(played[inside, 1] - want[inside]).max())
+    assert min(errors) < 4.0, min(errors)
+    js.close()
+
+
+def test_motivation_crossing_its_limit_sends_the_event(ros, events):
+    state = Watch(ros, "/vr_teleop/status/motivation", "vr_teleop_msgs/Motivation")
+    call(ros, "/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", {"name": ""})
+    reply = call(ros, "/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange",
+                 {"name": "frustration", "value": 75})
+    assert reply["value"] == 75
+    assert select(ros, "status.motivation")["success"]
+    call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
+         {"name": "frustration", "value": 10})
+    assert wait_for(lambda: events.any(lambda e: e["source"] == "motivation" and e["kind"] == "frustration_high"
+                                       and e["level"] == "warning"), 5)
+    detail = json.loads(next(e for e in events.messages if e["kind"] == "frustration_high")["detail"])
+    assert detail["limit"] == 80 and detail["value"] >= 80
+    assert wait_for(lambda: dict(zip(state.latest.get("name", []), state.latest.get("level", []))).get(
+        "frustration") == "high", 5)
+    reply = call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
+                 {"name": "frustration", "value": 100})
+    assert reply["value"] == 90 and "clamped" in reply["message"]
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "frustration_high" and e["level"] == "danger"), 5)
+    with pytest.raises(roslibpy.core.ServiceException, match="unknown motivation variable 'boredom'"):
+        call(ros, "/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange", {"name": "boredom", "value": 1})
+    call(ros, "/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", {"name": "frustration"})
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "frustration_ok"), 5)
+    state.close()
+
+
+def test_status_panels_at_2_hz(sim_server, ros):
+    motors = Watch(ros, "/vr_teleop/status/motors", "vr_teleop_msgs/MotorsStatus")
+    hardware = Watch(ros, "/vr_teleop/status/hardware", "vr_teleop_msgs/HardwareStatus")
+    dialog = Watch(ros, "/vr_teleop/status/dialog", "vr_teleop_msgs/DialogState")
+    time.sleep(2.2)
+    assert 3 <= len(motors.messages) <= 7
+    m = motors.latest
+    model = sim_server.server.model
+    assert sorted(m["name"]) == sorted(model.names) and len(set(m["name"])) == len(m["name"])  # each motor once
+    for name, pos, norm in zip(m["name"], m["position"], m["position_normalized"]):
+        joint = model.joint(name)
+        assert joint.lower < joint.upper and 0.0 <= norm <= 1.0
+        assert abs(joint.lower + norm * (joint.upper - joint.lower) - pos) < 0.5
+    assert set(m["mode"]) <= {"on", "off", "brake"}
+    assert 0 <= hardware.latest["cpu_percent"] <= 100 * 64 and hardware.latest["memory_used_mb"] > 0
+    roslibpy.Topic(ros, "/vr_teleop/dialog/update", "vr_teleop_msgs/DialogState").publish(roslibpy.Message({
+        "question": "What colour is the sky?", "mode": "quiz", "answer": "blue", "candidates": ["blue", "green"],
+        "optionals": [], "chosen": "blue"}))
+    assert wait_for(lambda: dialog.latest.get("question") == "What colour is the sky?", 3)
+    assert json.loads(select(ros, "status.dialog")["message"])["chosen"] == "blue"
+    for w in (motors, hardware, dialog):
+        w.close()
+
+
+def test_operator_voice_is_logged_as_a_wav(sim_server, ros):
+    topic = roslibpy.Topic(ros, "/vr_teleop/audio/operator", "audio_common_msgs/AudioData")
+    tone = (np.sin(np.arange(16000) * 2 * np.pi * 440 / 16000) * 8000).astype("<i2").tobytes()
+    for i in range(0, len(tone), 3200):  # 100 ms chunks at 16 kHz
+        topic.publish(roslibpy.Message({"data": base64.b64encode(tone[i:i + 3200]).decode()}))
+    audio_dir = Path(sim_server.settings.audio_dir)
+
+    def logged() -> bytes:
+        files = sorted(audio_dir.glob("operator-*.wav"))
+        if not files:
+            return b""
+        with wave.open(str(files[-1])) as w:  # readable while the server still writes it
+            return w.readframes(w.getnframes())
+    assert wait_for(lambda: logged() == tone, 5)
+
+
+def test_head_and_arms_control_switches(ros):
+    state = Watch(ros, "/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState")
+    headset = Headset(ros).start()
+    try:
+        engage(ros)
+        assert wait_for(lambda: state.latest.get("head_following"), 5)
+        assert select(ros, "motion.head")["message"] == "head control off"
+        assert wait_for(lambda: state.latest.get("engaged") and not state.latest.get("head_following"), 5)
+        assert select(ros, "motion.head")["message"] == "head control on"
+        assert wait_for(lambda: state.latest.get("head_following"), 5)
+        assert select(ros, "motion.arms", {"enable": False})["message"] == "arms control off"
+        headset.grips["right"] = 1.0
+        time.sleep(0.5)
+        assert not state.latest["right_arm_following"]
+        select(ros, "motion.arms", {"enable": True})
+        assert select(ros, "motion.robot.release")["success"]
+        assert wait_for(lambda: not state.latest.get("engaged"), 5)
+    finally:
+        headset.stop()
+        state.close()

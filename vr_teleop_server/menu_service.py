@@ -1,0 +1,232 @@
+"""The radial menus on the bus: trees published on the latched /vr_teleop/menus, selections executed by id.
+
+A selection comes as a service call (/vr_teleop/menu/select, vr_teleop_msgs/MenuSelect) or on the topic
+/vr_teleop/menu/selection (std_msgs/String holding the item id). Each command is carried out as an ordinary bus
+call made on behalf of the selecting client (so "take control" makes *that* client the holder), and announced on
+/vr_teleop/events (source "menu": kind "select", or "menu_failed" with the reason). Generated items (gestures,
+emotions, sentences) are made when the menus are published, and the menus are published again when the gesture
+library changes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import re
+from collections.abc import Callable
+from typing import Any
+
+from pydantic import ValidationError
+
+from menus import COMMANDS, Item, LoadedMenu, read_sentences, walk
+
+from .bus import SERVER_NODE, Bus, BusError, Published
+from .explicit_control import declare_event_topic, publish_event
+
+log = logging.getLogger(__name__)
+
+MENUS_TOPIC = "/vr_teleop/menus"
+SELECT_SERVICE = "/vr_teleop/menu/select"
+SELECTION_TOPIC = "/vr_teleop/menu/selection"
+CALL_TIMEOUT_S = 60.0  # a sentence or a gesture may take a while; the reply comes when it is done
+MOTOR_MODES = {"on": 0, "off": 1, "brake": 2}
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_")[:40] or "item"
+
+
+class MenuService:
+    def __init__(self, bus: Bus, menus: list[LoadedMenu], *, gestures: Callable[[], list[str]],
+                 emotions: tuple[str, ...], status: Callable[[str], dict[str, Any]],
+                 recorder: Any) -> None:
+        self.bus = bus
+        self.menus = menus
+        self._gestures = gestures
+        self._emotions = emotions
+        self._status = status
+        self._recorder = recorder  # start_recording / save_recording / recording (LuxaiApi)
+        self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
+        self._arms_on = True
+        self._head_on = True
+
+    def start(self) -> None:
+        declare_event_topic(self.bus)
+        self.bus.declare_topic(MENUS_TOPIC, "vr_teleop_msgs/Menus", latched=True, persistent=True)
+        self.bus.declare_topic(SELECTION_TOPIC, "std_msgs/String", persistent=True)
+        self.bus.subscribe(SERVER_NODE, SELECTION_TOPIC, None, self._on_selection)
+        self.bus.provide(SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", self._select_service)
+        self.publish()
+
+    # ---- the trees ----------------------------------------------------------------------------------------------
+    def _generated(self, item: Item, menu: LoadedMenu) -> list[tuple[str, str, str, dict[str, Any]]]:
+        """(id, label, command, args) of the items a `generate` item stands for."""
+        if item.generate == "gestures":
+            rows = [(name, "play_gesture", {"name": name}) for name in self._gestures()]
+        elif item.generate == "emotions":
+            rows = [(name, "show_emotion", {"name": name}) for name in self._emotions]
+        else:
+            sentences = read_sentences(menu.path.parent / str(item.source))
+            rows = [(text, "say", {"text": text}) for text in sentences]
+        out, seen = [], set()
+        for label, command, args in rows:
+            ident = f"{item.id}.{_slug(label)}"
+            while ident in seen:
+                ident += "_"
+            seen.add(ident)
+            out.append((ident, label, command, args))
+        return out
+
+    def publish(self) -> None:
+        items: list[dict[str, Any]] = []
+        table: dict[str, tuple[str, dict[str, Any]]] = {}
+        for menu in self.menus:
+            for parent, position, item in walk(menu.items, menu.info.id):
+                items.append({"id": item.id, "menu": menu.info.id, "parent": parent, "label": item.label,
+                              "slot": item.slot, "position": position, "icon": item.icon,
+                              "command": item.command or "", "args": json.dumps(item.args) if item.command else ""})
+                if item.command:
+                    table[item.id] = (item.command, dict(item.args))
+                if item.generate:
+                    for pos, (ident, label, command, args) in enumerate(self._generated(item, menu)):
+                        items.append({"id": ident, "menu": menu.info.id, "parent": item.id, "label": label,
+                                      "slot": "list", "position": pos, "icon": "", "command": command,
+                                      "args": json.dumps(args)})
+                        table[ident] = (command, args)
+        self._items = table
+        self.bus.publish(MENUS_TOPIC, {
+            "header": {"stamp": self.bus.registry.now()},
+            "menus": [{"id": m.info.id, "label": m.info.label, "controller": m.info.controller,
+                       "button": m.info.button, "icon": m.info.icon} for m in self.menus],
+            "items": items}, latch=True)
+
+    # ---- selections ---------------------------------------------------------------------------------------------
+    async def _select_service(self, request: Any) -> dict[str, Any]:
+        message = await self.select(request.id, request.args, Bus.caller())
+        return {"success": True, "message": message}
+
+    def _on_selection(self, published: Published) -> None:
+        async def run() -> None:
+            try:
+                await self.select(published.value.data, "", published.sender)
+            except BusError as exc:
+                self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
+
+        asyncio.ensure_future(run())
+
+    async def select(self, item_id: str, args_json: str, caller: str) -> str:
+        """Runs an item's command for `caller`; returns what happened, or raises BusError saying why not."""
+        entry = self._items.get(item_id)
+        if entry is None:
+            raise self._failed(item_id, "", caller, f"unknown menu item {item_id!r}; the items are on "
+                                                    f"{MENUS_TOPIC}")
+        command, args = entry
+        try:
+            extra = json.loads(args_json) if args_json.strip() else {}
+            if not isinstance(extra, dict):
+                raise ValueError("args must be a JSON object")
+            parsed = COMMANDS[command](**{**args, **extra})
+        except (ValueError, ValidationError) as exc:
+            text = str(exc) if not isinstance(exc, ValidationError) else "; ".join(
+                f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise self._failed(item_id, command, caller, f"bad args for {command}: {text}") from None
+        try:
+            message = await getattr(self, f"_do_{command}")(parsed, caller)
+        except BusError as exc:
+            raise self._failed(item_id, command, caller, str(exc)) from None
+        publish_event(self.bus, "menu", "select", "info",
+                      {"id": item_id, "command": command, "by": caller, "result": message})
+        return message
+
+    def _failed(self, item_id: str, command: str, caller: str, reason: str) -> BusError:
+        publish_event(self.bus, "menu", "menu_failed", "warning",
+                      {"id": item_id, "command": command, "by": caller, "reason": reason})
+        return BusError(f"menu item {item_id!r}: {reason}")
+
+    async def _call(self, service: str, args: dict[str, Any], caller: str) -> Any:
+        return await self.bus.call_service(service, args, CALL_TIMEOUT_S, caller=caller)
+
+    async def _luxai(self, service: str, args: dict[str, Any], caller: str, done: str) -> str:
+        response = await self._call(service, args, caller)
+        if not response.status:
+            raise BusError(f"{service} answered status false")
+        return done
+
+    async def _trigger(self, service: str, args: dict[str, Any], caller: str) -> str:
+        response = await self._call(service, args, caller)
+        if not response.success:
+            raise BusError(response.message)
+        return response.message
+
+    # ---- the commands (one method per name in menus.COMMANDS) --------------------------------------------------
+    async def _do_show_emotion(self, a: Any, caller: str) -> str:
+        return await self._luxai("/qt_robot/emotion/show", {"name": a.name}, caller, f"showing {a.name}")
+
+    async def _do_say(self, a: Any, caller: str) -> str:
+        response = await self._call("/qt_robot/speech/say", {"message": a.text}, caller)
+        return f"said {a.text!r}" if response.status else f"stopped while saying {a.text!r}"
+
+    async def _do_stop_speech(self, _a: Any, caller: str) -> str:
+        return await self._luxai("/qt_robot/speech/stop", {}, caller, "speech stopped")
+
+    async def _do_configure_speech(self, a: Any, caller: str) -> str:
+        return await self._luxai("/qt_robot/speech/config", {"language": a.language, "pitch": a.pitch,
+                                                             "speed": a.speed}, caller, "speech configured")
+
+    async def _do_play_gesture(self, a: Any, caller: str) -> str:
+        response = await self._call("/qt_robot/gesture/play", {"name": a.name, "speed": a.speed}, caller)
+        return f"played {a.name}" if response.status else f"{a.name} was stopped"
+
+    async def _do_stop_gesture(self, _a: Any, caller: str) -> str:
+        return await self._luxai("/qt_robot/gesture/stop", {}, caller, "gesture stopped")
+
+    async def _do_record_toggle(self, a: Any, caller: str) -> str:
+        if not self._recorder.recording:
+            await self._luxai("/qt_robot/gesture/record", {"parts": a.parts}, caller, "")
+            return f"recording {', '.join(a.parts)}; select again to stop and save"
+        return await self._do_save_recording(a, caller)
+
+    async def _do_save_recording(self, a: Any, caller: str) -> str:
+        name = self._recorder.save_recording(a.name)  # publishes the menus again, with the new gesture
+        return f"saved as {name}"
+
+    async def _switch(self, service: str, a: Any, current: bool, caller: str) -> bool:
+        enable = (not current) if a.enable is None else a.enable
+        await self._trigger(service, {"data": enable}, caller)
+        return enable
+
+    async def _do_set_arms_control(self, a: Any, caller: str) -> str:
+        self._arms_on = await self._switch("/vr_teleop/control/arms", a, self._arms_on, caller)
+        return f"arms control {'on' if self._arms_on else 'off'}"
+
+    async def _do_set_head_control(self, a: Any, caller: str) -> str:
+        self._head_on = await self._switch("/vr_teleop/control/head", a, self._head_on, caller)
+        return f"head control {'on' if self._head_on else 'off'}"
+
+    async def _do_engage(self, a: Any, caller: str) -> str:
+        return await self._trigger("/vr_teleop/control/engage", {"data": a.enable}, caller)
+
+    async def _do_estop(self, _a: Any, caller: str) -> str:
+        return await self._trigger("/vr_teleop/control/estop", {}, caller)
+
+    async def _do_home(self, a: Any, caller: str) -> str:
+        return await self._luxai("/qt_robot/motors/home", {"parts": a.parts}, caller, "going home")
+
+    async def _do_set_motors(self, a: Any, caller: str) -> str:
+        return await self._luxai("/qt_robot/motors/setControlMode", {"parts": a.parts, "mode": MOTOR_MODES[a.mode]},
+                                 caller, f"motors {a.mode}")
+
+    async def _do_show_status(self, a: Any, _caller: str) -> str:
+        return json.dumps(self._status(a.which), default=str)
+
+    async def _do_change_motivation(self, a: Any, caller: str) -> str:
+        return await self._trigger(f"/vr_teleop/motivation/{a.op}", {"name": a.name, "value": a.value}, caller)
+
+
+def check_commands_implemented() -> None:
+    """Every command in the vocabulary has a handler here (a test and start-up both check it)."""
+    missing = [c for c in COMMANDS if not hasattr(MenuService, f"_do_{c}")]
+    if missing:
+        raise RuntimeError(f"menu commands without a handler: {', '.join(missing)}")
+

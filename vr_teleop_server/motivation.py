@@ -1,0 +1,226 @@
+"""Motivation variables (curiosity, frustration, fatigue, pain) with limits, dynamics, events and services.
+
+Configuration is data (motivation.yaml beside this file, or serve --motivation-config). The dynamics:
+fatigue grows with engaged time and recovers at rest; frustration grows with every clamp on /vr_teleop/clamps and
+every refused command (events of kind "refused" or "menu_failed") and decays; curiosity grows with each new face
+(new_face(), for perception to call) and otherwise decays. Every variable decays towards its `rest` value (default:
+its initial value for pain, its min otherwise) at decay_per_min.
+
+Crossing a limit publishes a vr_teleop_msgs/Event (source "motivation", kind "<name>_high" or "<name>_low",
+level warning; danger once the variable reaches its min or max; kind "<name>_ok", info, on the way back).
+Services (vr_teleop_msgs/MotivationChange): /vr_teleop/motivation/increment, /set, /reset (empty name: all).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from client_protocol.registry import describe_validation_error
+
+from .bus import SERVER_NODE, Bus, BusError, Published
+from .explicit_control import EVENT_TOPIC, STATE_TOPIC, declare_event_topic, publish_event
+
+DEFAULT_CONFIG = Path(__file__).with_name("motivation.yaml")
+TOPIC = "/vr_teleop/status/motivation"
+CLAMP_TOPIC = "/vr_teleop/clamps"
+REFUSAL_KINDS = ("refused", "menu_failed")
+RATE_HZ = 2.0
+
+
+class VariableConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    min: float
+    max: float
+    low: float | None = None
+    high: float | None = None
+    initial: float
+    rest: float | None = Field(None, description="the value decay moves towards (default: min, or initial if "
+                                                 "the range spans zero)")
+    decay_per_min: float = Field(0.0, ge=0)
+    engaged_per_min: float = 0.0
+    rest_per_min: float = Field(0.0, ge=0, description="fall per minute while control is not engaged")
+    per_clamp: float = 0.0
+    per_refusal: float = 0.0
+    per_new_face: float = 0.0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> VariableConfig:
+        if not self.min < self.max:
+            raise ValueError(f"min ({self.min:g}) must be below max ({self.max:g})")
+        for label in ("low", "high", "initial", "rest"):
+            value = getattr(self, label)
+            if value is not None and not self.min <= value <= self.max:
+                raise ValueError(f"{label} ({value:g}) must lie within min..max ({self.min:g}..{self.max:g})")
+        if self.low is not None and self.high is not None and not self.low < self.high:
+            raise ValueError(f"low ({self.low:g}) must be below high ({self.high:g})")
+        return self
+
+    @property
+    def rest_value(self) -> float:
+        if self.rest is not None:
+            return self.rest
+        return self.initial if self.min < 0 < self.max else self.min
+
+
+class MotivationConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    update_period_s: float = Field(1.0, gt=0, le=60)
+    variables: dict[str, VariableConfig] = Field(min_length=1)
+
+
+def load_config(path: Path | None = None) -> MotivationConfig:
+    path = path or DEFAULT_CONFIG
+    try:
+        return MotivationConfig.model_validate(yaml.safe_load(path.read_text(encoding="utf-8")))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: cannot read: {exc}") from None
+    except ValidationError as exc:
+        raise ValueError(f"{path}: {describe_validation_error(exc)}") from None
+
+
+class Motivation:
+    def __init__(self, bus: Bus, config: MotivationConfig | None = None) -> None:
+        self.bus = bus
+        self.config = config or load_config()
+        self.values = {name: v.initial for name, v in self.config.variables.items()}
+        self._levels = {name: self._level(name) for name in self.values}
+        self._engaged = False
+        self._last_update = time.monotonic()
+        self._tasks: list[asyncio.Task[None]] = []
+
+    # ---- lifetime -----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        bus = self.bus
+        declare_event_topic(bus)
+        bus.declare_topic(TOPIC, "vr_teleop_msgs/Motivation", persistent=True)
+        bus.declare_topic(CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
+        bus.declare_topic(STATE_TOPIC, "vr_teleop_msgs/TeleopState", persistent=True)
+        bus.subscribe(SERVER_NODE, CLAMP_TOPIC, None, lambda _p: self._bump("per_clamp"))
+        bus.subscribe(SERVER_NODE, EVENT_TOPIC, None, self._on_event)
+        bus.subscribe(SERVER_NODE, STATE_TOPIC, None, self._on_state)
+        bus.provide("/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange", self._increment)
+        bus.provide("/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange", self._set)
+        bus.provide("/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", self._reset)
+        self._tasks = [asyncio.ensure_future(self._dynamics()), asyncio.ensure_future(self._publish_loop())]
+
+    async def stop(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._tasks = []
+
+    # ---- inputs -------------------------------------------------------------------------------------------------
+    def _on_event(self, published: Published) -> None:
+        if published.value.kind in REFUSAL_KINDS:
+            self._bump("per_refusal")
+
+    def _on_state(self, published: Published) -> None:
+        self._engaged = bool(published.value.engaged)
+
+    def new_face(self) -> None:
+        """A face not seen before came into view (for perception to call)."""
+        self._bump("per_new_face")
+
+    def _bump(self, rule: str) -> None:
+        for name, cfg in self.config.variables.items():
+            step = getattr(cfg, rule)
+            if step:
+                self._change(name, self.values[name] + step)
+
+    async def _dynamics(self) -> None:
+        while True:
+            await asyncio.sleep(self.config.update_period_s)
+            now = time.monotonic()
+            minutes = (now - self._last_update) / 60.0
+            self._last_update = now
+            for name, cfg in self.config.variables.items():
+                value = self.values[name]
+                if self._engaged:
+                    value += cfg.engaged_per_min * minutes
+                else:
+                    value -= cfg.rest_per_min * minutes
+                rest = cfg.rest_value
+                if cfg.decay_per_min and value != rest:
+                    step = min(abs(value - rest), cfg.decay_per_min * minutes)
+                    value += step if value < rest else -step
+                self._change(name, value)
+
+    async def _publish_loop(self) -> None:
+        while True:
+            self.publish()
+            await asyncio.sleep(1.0 / RATE_HZ)
+
+    # ---- values, levels, events ---------------------------------------------------------------------------------
+    def _level(self, name: str) -> tuple[str, bool]:
+        """('high'|'low'|'ok', at the extreme)."""
+        cfg, value = self.config.variables[name], self.values[name]
+        if cfg.high is not None and value >= cfg.high:
+            return "high", value >= cfg.max
+        if cfg.low is not None and value <= cfg.low:
+            return "low", value <= cfg.min
+        return "ok", False
+
+    def _change(self, name: str, value: float) -> float:
+        cfg = self.config.variables[name]
+        self.values[name] = min(cfg.max, max(cfg.min, value))
+        level = self._level(name)
+        if level != self._levels[name]:
+            self._levels[name] = level
+            side, extreme = level
+            limit = cfg.high if side == "high" else cfg.low if side == "low" else None
+            publish_event(self.bus, "motivation", f"{name}_{side}",
+                          "info" if side == "ok" else "danger" if extreme else "warning",
+                          {"variable": name, "value": round(self.values[name], 3), "side": side, "limit": limit})
+            self.publish()
+        return self.values[name]
+
+    def message(self) -> dict[str, Any]:
+        names = list(self.config.variables)
+        cfgs = [self.config.variables[n] for n in names]
+        return {"header": {"stamp": self.bus.registry.now()}, "name": names,
+                "value": [self.values[n] for n in names], "min": [c.min for c in cfgs], "max": [c.max for c in cfgs],
+                "has_low": [c.low is not None for c in cfgs], "low": [c.low or 0.0 for c in cfgs],
+                "has_high": [c.high is not None for c in cfgs], "high": [c.high or 0.0 for c in cfgs],
+                "level": [self._levels[n][0] for n in names]}
+
+    def publish(self) -> None:
+        self.bus.publish(TOPIC, self.message())
+
+    # ---- services -----------------------------------------------------------------------------------------------
+    def _variable(self, name: str) -> str:
+        if name not in self.config.variables:
+            raise BusError(f"unknown motivation variable {name!r}; variables are "
+                           f"{', '.join(self.config.variables)}")
+        return name
+
+    def _reply(self, name: str, wanted: float) -> dict[str, Any]:
+        value = self._change(name, wanted)
+        cfg = self.config.variables[name]
+        note = "" if value == wanted else f" (clamped to {cfg.min:g}..{cfg.max:g})"
+        return {"success": True, "message": f"{name} = {value:g}{note}", "value": value}
+
+    async def _increment(self, request: Any) -> dict[str, Any]:
+        name = self._variable(request.name)
+        return self._reply(name, self.values[name] + request.value)
+
+    async def _set(self, request: Any) -> dict[str, Any]:
+        return self._reply(self._variable(request.name), request.value)
+
+    async def _reset(self, request: Any) -> dict[str, Any]:
+        names = [self._variable(request.name)] if request.name else list(self.config.variables)
+        for name in names:
+            self._change(name, self.config.variables[name].initial)
+        return {"success": True, "message": json.dumps({n: self.values[n] for n in names}), "value":
+                self.values[names[0]] if len(names) == 1 else 0.0}

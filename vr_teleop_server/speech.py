@@ -1,0 +1,269 @@
+"""Speech both ways: the robot's text-to-speech (pyttsx3 on espeak-ng) streamed to the headset, and the operator's
+voice written to the session's audio log.
+
+Robot speech. The text is rendered to a WAV off the event loop, in the one thread that owns the pyttsx3 engine
+(engines are not thread-safe). The robot then "says" it for exactly the WAV's duration (the stand-in animates its
+talking face; a real QTrobot gets /qt_robot/speech/say), while the same audio goes to the headset as raw PCM
+chunks of audio_common_msgs/AudioData on /vr_teleop/audio/robot, paced in real time with a small lead, whose
+format is on the latched /vr_teleop/audio/robot/info (audio_common_msgs/AudioInfo).
+
+Every WAV the robot says is also kept in the audio log directory (robot-<time>-<text>.wav).
+
+Operator voice. Chunks on /vr_teleop/audio/operator (PCM S16LE; the format a client declares on
+/vr_teleop/audio/operator/info, else mono 16 kHz) are appended to one WAV per client in the audio log directory.
+The WAV header is rewritten with every chunk, so a crash loses nothing already received.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import io
+import logging
+import os
+import re
+import tempfile
+import time
+import wave
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .bus import SERVER_NODE, Bus, BusError, Published
+from .robot import Robot, SpeechResult
+
+log = logging.getLogger(__name__)
+
+ROBOT_AUDIO_TOPIC = "/vr_teleop/audio/robot"
+ROBOT_AUDIO_INFO_TOPIC = "/vr_teleop/audio/robot/info"
+OPERATOR_AUDIO_TOPIC = "/vr_teleop/audio/operator"
+OPERATOR_AUDIO_INFO_TOPIC = "/vr_teleop/audio/operator/info"
+CHUNK_S = 0.1  # audio per chunk sent to the headset
+LEAD_S = 0.3  # how far ahead of real time chunks are sent, so the headset's player never starves
+NORMAL_SPEED = 100  # LuxAI's speech speed is a percentage of normal
+
+
+@dataclass(frozen=True)
+class Wav:
+    pcm: bytes
+    sample_rate: int
+    channels: int
+    sample_width: int
+
+    @property
+    def duration_s(self) -> float:
+        return len(self.pcm) / (self.sample_rate * self.channels * self.sample_width)
+
+    @classmethod
+    def parse(cls, data: bytes) -> Wav:
+        with wave.open(io.BytesIO(data)) as w:
+            return cls(w.readframes(w.getnframes()), w.getframerate(), w.getnchannels(), w.getsampwidth())
+
+
+class TextToSpeech:
+    """pyttsx3 in its own thread. Voice, pitch and speed follow LuxAI's /qt_robot/speech/config."""
+
+    def __init__(self) -> None:
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="tts")
+        self._engine: Any = None
+        self._normal_rate = 175
+        self._voices: list[Any] = []
+
+    def _engine_ready(self) -> Any:
+        if self._engine is None:
+            import pyttsx3
+
+            self._engine = pyttsx3.init()
+            self._normal_rate = int(self._engine.getProperty("rate"))
+            self._voices = list(self._engine.getProperty("voices"))
+        return self._engine
+
+    def _voice_for(self, language: str) -> str:
+        wanted = language.strip().lower().replace("_", "-")
+        for voice in self._voices:
+            names = [str(voice.id).lower(), *(str(v).lower() for v in (voice.languages or []))]
+            if wanted in names or any(n.endswith("/" + wanted) for n in names):
+                return voice.id
+        for voice in self._voices:  # "en" also matches "en-gb"
+            if any(str(v).lower().startswith(wanted + "-") for v in (voice.languages or [])):
+                return voice.id
+        raise ValueError(f"no voice for language {language!r}; espeak-ng offers e.g. en, en-gb, en-us, fr, de, nl")
+
+    def _configure(self, language: str, pitch: int, speed: int) -> None:
+        engine = self._engine_ready()
+        if language:
+            engine.setProperty("voice", self._voice_for(language))
+        if pitch:
+            engine.setProperty("pitch", pitch)
+        if speed:
+            engine.setProperty("rate", max(40, round(self._normal_rate * speed / NORMAL_SPEED)))
+
+    def _render(self, text: str) -> Wav:
+        engine = self._engine_ready()
+        fd, path = tempfile.mkstemp(suffix=".wav", prefix="vr-teleop-tts-")
+        os.close(fd)
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):  # the espeak driver prints each file it saves
+                engine.save_to_file(text, path)
+                engine.runAndWait()
+            return Wav.parse(Path(path).read_bytes())
+        finally:
+            Path(path).unlink(missing_ok=True)
+
+    async def configure(self, language: str = "", pitch: int = 0, speed: int = 0) -> None:
+        await asyncio.get_running_loop().run_in_executor(self._executor, self._configure, language, pitch, speed)
+
+    async def render(self, text: str) -> Wav:
+        return await asyncio.get_running_loop().run_in_executor(self._executor, self._render, text)
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=False, cancel_futures=True)
+
+
+class Speaker:
+    """What /qt_robot/speech/say does here: render, let the robot talk for the WAV's length, stream the audio."""
+
+    def __init__(self, bus: Bus, robot: Robot, audio_dir: Path, tts: TextToSpeech | None = None) -> None:
+        self.bus = bus
+        self.robot = robot
+        self.audio_dir = audio_dir
+        self.tts = tts or TextToSpeech()
+        self.last_wav_path: Path | None = None
+        self._stream: asyncio.Task[None] | None = None
+        self._info: tuple[int, int, int] | None = None
+        bus.declare_topic(ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
+        bus.declare_topic(ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True, persistent=True)
+
+    async def say(self, text: str) -> SpeechResult:
+        if not text.strip():
+            raise BusError("nothing to say: the message is empty")
+        wav = await self.tts.render(text)
+        self.stop()
+        self._log(text, wav)
+        self._publish_info(wav)
+        stream = self._stream = asyncio.ensure_future(self._stream_audio(wav))
+        completed = False
+        try:
+            result = await self.robot.say(text, duration_s=wav.duration_s)
+            completed = result.completed
+        finally:
+            if not completed:  # stopped or cancelled: the headset's audio stops too
+                stream.cancel()
+        return result
+
+    def stop(self) -> None:
+        self.robot.stop_speech()
+        if self._stream is not None:
+            self._stream.cancel()
+            self._stream = None
+
+    async def configure(self, language: str, pitch: int, speed: int) -> None:
+        try:
+            await self.tts.configure(language, pitch, speed)
+        except ValueError as exc:
+            raise BusError(str(exc)) from None
+
+    def _log(self, text: str, wav: Wav) -> None:
+        """Keeps what the robot said in the audio log, beside the operator's voice."""
+        self.audio_dir.mkdir(parents=True, exist_ok=True)
+        slug = re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_")[:30]
+        path = self.audio_dir / f"robot-{time.strftime('%Y%m%d-%H%M%S')}-{time.monotonic_ns() % 10**6:06d}-{slug}.wav"
+        with wave.open(str(path), "wb") as w:
+            w.setnchannels(wav.channels)
+            w.setsampwidth(wav.sample_width)
+            w.setframerate(wav.sample_rate)
+            w.writeframes(wav.pcm)
+        self.last_wav_path = path
+
+    def _publish_info(self, wav: Wav) -> None:
+        info = (wav.sample_rate, wav.channels, wav.sample_width)
+        if info == self._info:
+            return
+        self._info = info
+        self.bus.publish(ROBOT_AUDIO_INFO_TOPIC, {
+            "channels": wav.channels, "sample_rate": wav.sample_rate, "sample_format": f"S{8 * wav.sample_width}LE",
+            "bitrate": wav.sample_rate * wav.channels * wav.sample_width * 8, "coding_format": "pcm"})
+
+    async def _stream_audio(self, wav: Wav) -> None:
+        step = int(CHUNK_S * wav.sample_rate) * wav.channels * wav.sample_width
+        start = time.monotonic()
+        for i, offset in enumerate(range(0, len(wav.pcm), step)):
+            due = start + i * CHUNK_S - LEAD_S
+            delay = due - time.monotonic()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            self.bus.publish(ROBOT_AUDIO_TOPIC, {"data": wav.pcm[offset:offset + step]})
+
+    def close(self) -> None:
+        self.stop()
+        self.tts.close()
+
+
+def default_audio_dir() -> Path:
+    return Path(tempfile.gettempdir()) / "vr-teleop-audio"
+
+
+class OperatorAudioLog:
+    """One WAV per client that sends operator audio, in `directory`."""
+
+    def __init__(self, bus: Bus, directory: Path, default_rate: int = 16000) -> None:
+        self.bus = bus
+        self.directory = directory
+        self.default_rate = default_rate
+        self._formats: dict[str, tuple[int, int]] = {}  # sender -> (sample rate, channels)
+        self._files: dict[str, tuple[wave.Wave_write, Path]] = {}
+
+    def start(self) -> None:
+        self.bus.declare_topic(OPERATOR_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
+        self.bus.declare_topic(OPERATOR_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", persistent=True)
+        self.bus.subscribe(SERVER_NODE, OPERATOR_AUDIO_TOPIC, None, self._on_chunk)
+        self.bus.subscribe(SERVER_NODE, OPERATOR_AUDIO_INFO_TOPIC, None, self._on_info)
+        self.bus.owner_dropped.append(self._close_for)
+
+    def path_for(self, sender: str) -> Path | None:
+        entry = self._files.get(sender)
+        return entry[1] if entry else None
+
+    def _on_info(self, published: Published) -> None:
+        info = published.value
+        if info.sample_format.upper() not in ("S16LE", "") or info.channels not in (1, 2) or info.sample_rate <= 0:
+            self.bus.report(published.sender, "error", f"{published.topic}: only PCM S16LE, 1 or 2 channels, is "
+                            f"logged (got {info.sample_format or '?'}, {info.channels} channel(s), "
+                            f"{info.sample_rate} Hz)")
+            return
+        if published.sender in self._files:
+            self._close_for(published.sender)  # a new format starts a new file
+        self._formats[published.sender] = (info.sample_rate, info.channels)
+
+    def _on_chunk(self, published: Published) -> None:
+        data: bytes = bytes(published.value.data)
+        rate, channels = self._formats.get(published.sender, (self.default_rate, 1))
+        if len(data) % (2 * channels):
+            self.bus.report(published.sender, "error", f"{published.topic}: a chunk of {len(data)} bytes is not a "
+                            f"whole number of {channels}-channel 16-bit samples")
+            return
+        entry = self._files.get(published.sender)
+        if entry is None:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", published.sender).strip("_")
+            path = self.directory / f"operator-{time.strftime('%Y%m%d-%H%M%S')}-{safe}.wav"
+            w = wave.open(str(path), "wb")
+            w.setnchannels(channels)
+            w.setsampwidth(2)
+            w.setframerate(rate)
+            entry = self._files[published.sender] = (w, path)
+            log.info("operator audio from %s goes to %s", published.sender, path)
+        entry[0].writeframes(data)  # rewrites the header: the file is whole after every chunk
+
+    def _close_for(self, owner: str) -> None:
+        entry = self._files.pop(owner, None)
+        self._formats.pop(owner, None)
+        if entry is not None:
+            entry[0].close()
+
+    def close(self) -> None:
+        for owner in list(self._files):
+            self._close_for(owner)
+        if self._close_for in self.bus.owner_dropped:
+            self.bus.owner_dropped.remove(self._close_for)
