@@ -5,7 +5,7 @@ convert the head and both controller PoseStamped dicts (Unity frame), two Joy me
 moves continuously with a little tracking jitter (so the IK cache seldom helps) and both grips held. Scenarios:
   front  hands sweep in front of the body (the common case);
   sides  hands sweep out towards a T-pose, where many targets lie beyond the arm's limits and the IK falls
-         back to a bounded least-squares search;
+         back to a bounded Levenberg-Marquardt search;
   mixed  half of each.
 
 Over the wire (milliseconds). `vr-teleop serve --backend sim` runs as its own process; one client engages, then
