@@ -15,6 +15,7 @@ from .luxai_api import LuxaiApi
 from .menu_service import MenuService, check_commands_implemented
 from .motivation import Motivation
 from .motivation import load_config as load_motivation_config
+from .recording import Recorder
 from .robot import Robot
 from .rosapi import RosApi
 from .session import Session
@@ -43,6 +44,7 @@ class TeleopServer:
         self.status: StatusPublisher | None = None
         self.motivation: Motivation | None = None
         self.menu: MenuService | None = None
+        self.recorder: Recorder | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         check_commands_implemented()
         self.menus = load_menus(settings.menu_dir)
@@ -52,11 +54,16 @@ class TeleopServer:
     def _open_session(self, name: str, peer: str) -> Session:
         session = Session(name, self.bus, self.settings, peer)
         self.sessions[name] = session
+        if self.recorder is not None:
+            session.tap = self.recorder.on_frame
+            self.recorder.on_connection(name, "connect", peer)
         return session
 
     def _close_session(self, session: Session) -> None:
         session.close()
         self.sessions.pop(session.name, None)
+        if self.recorder is not None:
+            self.recorder.on_connection(session.name, "disconnect", session.peer)
 
     def _report(self, owner: str, level: str, text: str) -> None:
         session = self.sessions.get(owner)
@@ -95,6 +102,10 @@ class TeleopServer:
         self.menu.start()
 
     async def start(self) -> None:
+        if self.settings.record is not None:
+            self.recorder = Recorder(self.settings.record, self.registry, self.settings.record_camera_fps)
+            self.recorder.attach(self.bus)
+            log.info("recording to %s", self.settings.record)
         self.rosapi.start()
         await self._start_robot()
         try:
@@ -108,6 +119,9 @@ class TeleopServer:
         for session in list(self.sessions.values()):
             self._close_session(session)
         await self._stop_robot()
+        if self.recorder is not None:
+            await self.recorder.close(self.bus)
+            self.recorder = None
 
     async def _stop_robot(self) -> None:
         for part in (self.motivation, self.status, self.control):

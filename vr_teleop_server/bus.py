@@ -125,6 +125,8 @@ class Bus:
             logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text)
         # Called with the owner's name after a client has gone and everything it held was dropped.
         self.owner_dropped: list[Callable[[str], None]] = []
+        # Called with every message published, before its subscribers (e.g. a session recording).
+        self.taps: list[Callable[[Published], None]] = []
 
     @staticmethod
     def caller() -> str:
@@ -213,6 +215,8 @@ class Bus:
         if topic.latched or latch:
             topic.latched = True
             topic.last = published
+        for tap in self.taps:
+            tap(published)
         for _owner, callback in list(topic.subscribers.values()):
             try:
                 callback(published)

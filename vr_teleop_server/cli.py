@@ -12,6 +12,7 @@ import sys
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "vr_teleop_server.serve_cli",
     "vr_teleop_server.schema_cli",
+    "vr_teleop_server.replay_cli",
     "vr_teleop_server.questionnaires.cli",
     "vr_teleop_server.study.metrics.cli",
 )

@@ -45,6 +45,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
     p.add_argument("--audio-dir", type=Path, default=None, metavar="DIR",
                    help="where the operator's voice is logged, one WAV per client (default: a temporary directory)")
+    p.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
+                   help="record every message of the session, both ways, per client, to an MCAP file")
+    p.add_argument("--record-camera-fps", type=float, default=defaults.record_camera_fps, metavar="FPS",
+                   help="camera frames a second kept in the recording; 0 keeps none (default %(default)s)")
     p.add_argument("--teleop-config", type=Path, default=None, metavar="FILE",
                    help="explicit-control parameters (YAML or JSON; keys as in vr_teleop_server/teleop/settings.py)")
     p.add_argument("--watchdog-timeout", type=float, default=None, metavar="S",
@@ -74,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
                                   backend=args.backend, camera_width=width, camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,
-                                  audio_dir=args.audio_dir)
+                                  audio_dir=args.audio_dir, record=args.record,
+                                  record_camera_fps=args.record_camera_fps)
     except ValidationError as exc:
         print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)
         return 2

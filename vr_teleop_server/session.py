@@ -112,6 +112,8 @@ class Session:
         self._fragments: dict[Any, FragmentSet] = {}
         self._ids = itertools.count(1)
         self.counters = {"frames_in": 0, "errors": 0, "dropped": 0}
+        # Sees every frame but topic messages, in ("in") and out ("out"): (session name, direction, frame).
+        self.tap: Callable[[str, str, Frame], None] | None = None
         self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
             name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
         }
@@ -132,6 +134,8 @@ class Session:
         raw_id = raw.get("id")
         msg_id = raw_id if isinstance(raw_id, (str, int)) and not isinstance(raw_id, bool) else None
         name = raw["op"]
+        if self.tap is not None and name != "publish":  # published messages are recorded from the bus
+            self.tap(self.name, "in", frame)
         model = ops.CLIENT_OP_MODELS.get(name)
         if model is None:
             self.status("error", f"unknown op '{name[:60]}'; this server understands: "
@@ -404,6 +408,8 @@ class Session:
     def _push(self, frame: Frame) -> None:
         if self.closed:
             return
+        if self.tap is not None:
+            self.tap(self.name, "out", frame)
         self._control.append(frame)
         self._wake.set()
 

@@ -1,0 +1,195 @@
+"""Session recordings (MCAP, crash-safe), synthesised headsets, and replays against a real server."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from support import Headset, RawClient, RunningServer, call, engage, unity_yaw_pitch, wait_for
+from vr_teleop_server import synth
+from vr_teleop_server.recording import read_recording
+from vr_teleop_server.settings import ServerSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def serve(*args: str) -> tuple[subprocess.Popen, str]:
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port),
+                             "--log-level", "warning", *args], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    assert "listening" in proc.stdout.readline()
+    return proc, f"ws://127.0.0.1:{port}"
+
+
+def head_pose(seq: int) -> dict:
+    return {"op": "publish", "topic": "/vr/head/pose", "msg": {
+        "header": {"seq": seq, "frame_id": "unity"},
+        "pose": {"position": {"x": 0, "y": 1.6, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}}
+
+
+def test_a_server_killed_mid_session_leaves_a_readable_recording(tmp_path):
+    path = tmp_path / "killed.mcap"
+    proc, url = serve("--record", str(path), "--gesture-dir", str(tmp_path / "g"), "--audio-dir", str(tmp_path / "a"))
+    client = RawClient(url)
+    try:
+        client.send({"op": "call_service", "id": "t", "service": "/rosapi/get_time"})
+        sent = 0
+        start = time.monotonic()
+        while time.monotonic() - start < 3.0:
+            client.send(head_pose(sent))
+            sent += 1
+            time.sleep(1 / 90)
+        killed_at = time.time()
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        client.close()
+    messages = list(read_recording(path))
+    poses = [m for m in messages if m.topic == "/vr/head/pose"]
+    assert poses and poses[0].schema == "geometry_msgs/PoseStamped"
+    assert poses[-1].sender.startswith("/rosbridge_websocket/client_")
+    assert killed_at - poses[-1].time_ns / 1e9 < 1.5  # all but the last second or so survived
+    assert poses[-1].data["header"]["seq"] >= sent - 1.5 * 90
+    assert [m.data["header"]["seq"] for m in poses] == list(range(len(poses)))  # in order, none lost before
+    calls = [m for m in messages if m.topic == "/rosbridge/in"]
+    assert calls[0].data == {"op": "call_service", "id": "t", "service": "/rosapi/get_time"}
+    assert any(m.topic == "/rosbridge/out" and m.data.get("op") == "service_response" for m in messages)
+    assert any(m.topic == "/rosbridge/connections" and m.data["op"] == "connect" for m in messages)
+    assert any(m.topic == "/qt_robot/joints/state" and m.sender == "/vr_teleop_server" for m in messages)
+
+
+def test_a_clean_recording_has_its_summary_and_keeps_camera_frames_at_the_reduced_rate(tmp_path):
+    path = tmp_path / "clean.mcap"
+    proc, url = serve("--record", str(path), "--record-camera-fps", "2", "--gesture-dir", str(tmp_path / "g"),
+                      "--audio-dir", str(tmp_path / "a"))
+    client = RawClient(url)
+    try:
+        client.send({"op": "subscribe", "topic": "/camera/color/image_raw/compressed"})
+        received = 0
+        start = time.monotonic()
+        while time.monotonic() - start < 3.0:
+            if client.recv(5).get("topic") == "/camera/color/image_raw/compressed":
+                received += 1
+    finally:
+        client.close()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(10)
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()  # a finished file, as Foxglove expects it
+    assert summary is not None
+    schemas = {s.name: s.encoding for s in summary.schemas.values()}
+    assert schemas["sensor_msgs/CompressedImage"] == "jsonschema"
+    assert all(c.message_encoding == "json" for c in summary.channels.values())
+    kept = [m for m in read_recording(path) if m.topic == "/camera/color/image_raw/compressed"]
+    assert received > 40 and 3 <= len(kept) <= 8, (received, len(kept))
+
+
+def test_synthesised_sessions_move_like_people(tmp_path):
+    path = tmp_path / "look.mcap"
+    ticks = synth.write(synth.build("look-around"), path)
+    messages = list(read_recording(path))
+    heads = [m for m in messages if m.topic == "/vr/head/pose"]
+    assert len(heads) == ticks
+    times = np.array([m.time_ns for m in heads]) / 1e9
+    assert np.allclose(np.diff(times), 1 / 90, atol=1e-6)
+    from vr_teleop_server.teleop import pose_from_message
+    from vr_teleop_server.teleop.head import yaw_pitch_deg
+
+    yaw = np.array([yaw_pitch_deg(pose_from_message(m.data).matrix)[0] for m in heads])
+    assert yaw.max() > 65 and yaw.min() < -65  # past QTrobot's ±60
+    speed = np.abs(np.diff(yaw)) * 90
+    assert speed.max() < 200  # deg/s: a human head turn, no jumps
+    positions = np.array([[m.data["pose"]["position"][k] for k in "xyz"] for m in heads])
+    assert 0.0002 < np.std(np.diff(positions[:, 0])) < 0.003  # millimetre tracking noise
+    engage_calls = [m for m in messages if m.topic == "/rosbridge/in"]
+    assert engage_calls[0].data["service"] == "/vr_teleop/control/engage"
+
+
+def test_menu_tour_selects_every_item_once():
+    session = synth.build("menu-tour")
+    selected = [c[3]["id"] for c in session.calls if c[1] == "/vr_teleop/menu/select"]
+    ids = synth.menu_item_ids()
+    assert set(selected) == set(ids)
+    assert Counter(selected)["motion.record"] == 2  # start, then stop and save
+    assert all(n == 1 for i, n in Counter(selected).items() if i != "motion.record")
+
+
+@pytest.fixture(scope="module")
+def replay_server(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("replay")
+    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a"))
+    yield server
+    server.stop()
+
+
+def replay(file: Path, url: str, *extra: str) -> dict:
+    proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(file), "--server", url,
+                           "--quiet", *extra], capture_output=True, text=True, timeout=180, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
+
+
+def test_replaying_a_synthesised_wave_reports_latency_tracking_and_camera(tmp_path, replay_server):
+    path = tmp_path / "wave.mcap"
+    synth.write(synth.build("wave"), path)
+    report = replay(path, replay_server.url, "--speed", "2", "--report", str(tmp_path / "r.json"),
+                    "--plot", str(tmp_path / "p.png"))
+    assert json.loads((tmp_path / "r.json").read_text()) == report
+    assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert report["speed_achieved"] > 1.8 and report["calls_answered"] == report["calls_sent"] == 1
+    assert report["commands_received"]["right_arm"] > 100 and "left_arm" not in report["commands_received"]
+    assert report["latency_ms"]["n"] > 200 and report["latency_ms"]["p50"] < 50
+    assert report["tracking_error_deg"]["n"] > 200 and report["tracking_error_deg"]["max"] < 1.0
+    assert report["camera"]["frames"] > 20 and report["camera"]["age_ms_p50"] < 500
+    assert report["errors"]["count"] == 0
+
+
+def test_a_recorded_session_replays_against_another_server(tmp_path, replay_server):
+    """Record an operator with `serve --record` settings, then replay the recording on a second server."""
+    path = tmp_path / "operator.mcap"
+    recording = RunningServer(ServerSettings(port=0, backend="sim", record=path, gesture_dir=tmp_path / "g",
+                                             audio_dir=tmp_path / "a"))
+    try:
+        import roslibpy
+
+        ros = roslibpy.Ros(host="127.0.0.1", port=recording.port)
+        ros.run(timeout=10)
+        headset = Headset(ros).start()
+        engage(ros)
+        for yaw in (20, 40, 0, -30, 0):
+            headset.head_orientation = unity_yaw_pitch(yaw)
+            time.sleep(0.4)
+        call(ros, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": "emotion.happy", "args": ""})
+        headset.stop()
+        ros.close()
+    finally:
+        recording.stop()
+    report = replay(path, replay_server.url, "--speed", "2", "--no-camera")
+    assert report["client"].startswith("/rosbridge_websocket/client_")
+    assert report["calls_sent"] >= 2 and report["menu"]["selected"] == report["menu"]["acknowledged"] == 1
+    assert report["commands_received"]["head"] > 100
+    assert report["tracking_error_deg"]["max"] < 1.0 and report["errors"]["count"] == 0
+    assert wait_for(lambda: replay_server.server.robot.standin.emotion == "happy", 2)
+
+
+def test_replay_says_what_is_wrong_with_its_input(tmp_path):
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(tmp_path / "empty.mcap")],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and "no messages" in proc.stderr

@@ -1,0 +1,212 @@
+"""Session recordings in MCAP, and a reader that survives a crash mid-file.
+
+What a recording holds (all JSON-encoded, so that Foxglove opens it):
+- every message published on the server's bus, whoever sent it (a client's poses, the server's joint commands,
+  joint states, teleop state, events, clamps...), on a channel named by its topic with the ROS type as schema
+  name (a JSON Schema generated from the type) and `sender` in the channel metadata. These are also what the
+  server sent subscribers. Camera frames are kept at a reduced rate (serve --record-camera-fps, 0 for none);
+- every other rosbridge frame each client sent (call_service, subscribe, fragments...), on "/rosbridge/in", and
+  every reply or status the server sent it, on "/rosbridge/out"; `client` in the channel metadata;
+- connections and disconnections on "/rosbridge/connections".
+Log time is the wall clock in nanoseconds.
+
+Crash safety: messages go into small zstd chunks, and an unfinished chunk is closed every FLUSH_S and flushed to
+disk. A server killed with SIGKILL leaves a file without its summary; read_recording() reads it sequentially up
+to the last whole chunk, i.e. all but the last second or so.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Message, Schema
+from mcap.writer import CompressionType, Writer
+
+from client_protocol.registry import TypeRegistry
+
+from .bus import Bus, Published
+from .wire import message_json
+
+log = logging.getLogger(__name__)
+
+FLUSH_S = 0.5
+CHUNK_SIZE = 256 * 1024
+CAMERA_TOPIC = "/camera/color/image_raw/compressed"
+FRAME_SCHEMA = "rosbridge/Frame"
+CONNECTIONS = "/rosbridge/connections"
+FRAME_JSON_SCHEMA = {"type": "object", "description": "a rosbridge v2 frame as sent on the WebSocket",
+                     "properties": {"op": {"type": "string"}}, "required": ["op"]}
+
+
+class Recorder:
+    def __init__(self, path: Path, registry: TypeRegistry, camera_fps: float = 2.0) -> None:
+        self.path = path
+        self.registry = registry
+        self.camera_period = 1.0 / camera_fps if camera_fps > 0 else None
+        self._last_camera = -1e18
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = path.open("wb")
+        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="vr-teleop-server")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[tuple[str, str, str], int] = {}
+        self._seq = 0
+        self._dirty = False
+        self._task: asyncio.Task[None] | None = None
+        self.messages = 0
+
+    # ---- attach -------------------------------------------------------------------------------------------------
+    def attach(self, bus: Bus) -> None:
+        bus.taps.append(self.on_published)
+        self._task = asyncio.ensure_future(self._flush_loop())
+
+    async def _flush_loop(self) -> None:
+        while True:
+            await asyncio.sleep(FLUSH_S)
+            self.flush()
+
+    def flush(self) -> None:
+        """Closes the open chunk and pushes it to disk, so a crash loses at most FLUSH_S of the session."""
+        if not self._dirty:
+            return
+        self._dirty = False
+        # mcap's Writer has no public way to close a chunk early; its private one is the only way short of
+        # giving up compression (tests/test_recording.py kills a recording server to hold this to account).
+        self._writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
+        self._file.flush()
+
+    # ---- records ------------------------------------------------------------------------------------------------
+    def _schema(self, name: str) -> int:
+        sid = self._schemas.get(name)
+        if sid is None:
+            if name == FRAME_SCHEMA:
+                schema = FRAME_JSON_SCHEMA
+            else:
+                try:
+                    schema = self.registry.model(name).model_json_schema(by_alias=True)
+                except (KeyError, ValueError):
+                    schema = {"type": "object", "description": f"{name}: a type this server does not know"}
+            sid = self._schemas[name] = self._writer.register_schema(name, "jsonschema",
+                                                                    json.dumps(schema).encode())
+        return sid
+
+    def _channel(self, topic: str, schema: str, key: str, metadata: dict[str, str]) -> int:
+        cid = self._channels.get((topic, schema, key))
+        if cid is None:
+            cid = self._channels[(topic, schema, key)] = self._writer.register_channel(
+                topic, "json", self._schema(schema), metadata)
+        return cid
+
+    def _write(self, channel: int, data: bytes, time_ns: int | None = None) -> None:
+        now = time.time_ns() if time_ns is None else time_ns
+        self._seq += 1
+        self._writer.add_message(channel, log_time=now, data=data, publish_time=now, sequence=self._seq)
+        self._dirty = True
+        self.messages += 1
+
+    def on_published(self, published: Published) -> None:
+        if published.topic == CAMERA_TOPIC:
+            now = time.monotonic()
+            if self.camera_period is None or now - self._last_camera < self.camera_period:
+                return
+            self._last_camera = now
+        self.write_message(published.topic, published.type, published.sender, message_json(published).encode())
+
+    def write_message(self, topic: str, type_name: str, sender: str, data: bytes, time_ns: int | None = None) -> None:
+        """A topic message as JSON bytes (also how `vr-teleop synth` writes its headset sessions)."""
+        channel = self._channel(topic, type_name, sender, {"sender": sender, "ros_type": type_name})
+        self._write(channel, data, time_ns)
+
+    def on_frame(self, client: str, direction: str, frame: str | bytes, time_ns: int | None = None) -> None:
+        """A rosbridge frame a client sent ("in", publish frames excepted) or the server sent it ("out")."""
+        if isinstance(frame, bytes):
+            return  # CBOR and PNG frames carry topic messages, which the bus side records
+        channel = self._channel(f"/rosbridge/{direction}", FRAME_SCHEMA, client,
+                                {"client": client, "direction": direction})
+        self._write(channel, frame.encode(), time_ns)
+
+    def on_connection(self, client: str, event: str, peer: str) -> None:
+        channel = self._channel(CONNECTIONS, FRAME_SCHEMA, "", {})
+        self._write(channel, json.dumps({"op": event, "client": client, "peer": peer}).encode())
+
+    async def close(self, bus: Bus) -> None:
+        if self.on_published in bus.taps:
+            bus.taps.remove(self.on_published)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+        self.finish()
+
+    def finish(self) -> None:
+        self._writer.finish()
+        self._file.close()
+        log.info("recording %s closed: %d messages", self.path, self.messages)
+
+
+# ---- reading ----------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Recorded:
+    time_ns: int
+    topic: str
+    schema: str
+    metadata: dict[str, str]
+    data: dict[str, Any]
+
+    @property
+    def sender(self) -> str:
+        return self.metadata.get("sender") or self.metadata.get("client", "")
+
+
+def read_recording(path: Path) -> Iterator[Recorded]:
+    """Every message in log order; a file cut short (a crash) yields what it holds up to its last whole chunk."""
+    with path.open("rb") as f:
+        try:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+        except (McapError, ValueError, EOFError, AssertionError):
+            summary = None
+        if summary is not None:
+            f.seek(0)
+            for schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+                yield _recorded(schema, channel, message)
+            return
+        f.seek(0)
+        yield from _read_stream(f)
+
+
+def _read_stream(f: Any) -> Iterator[Recorded]:
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    records = StreamReader(f, skip_magic=False, emit_chunks=False).records
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except Exception:  # the torn end of a killed writer fails in whatever way the parser meets it
+            return
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            channel = channels.get(record.channel_id)
+            if channel is not None:
+                yield _recorded(schemas.get(channel.schema_id), channel, record)
+
+
+def _recorded(schema: Schema | None, channel: Channel, message: Message) -> Recorded:
+    return Recorded(message.log_time, channel.topic, schema.name if schema else "", dict(channel.metadata),
+                    json.loads(message.data))

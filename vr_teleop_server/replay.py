@@ -1,0 +1,289 @@
+"""`vr-teleop replay`: a headless rosbridge client that plays a recorded or synthesised headset session against a
+server, S times faster if asked, and reports what came back.
+
+What is replayed: the operator's messages (the client that published /vr/head/pose the most, or --client):
+its /vr/* poses and Joy, its operator audio and menu selections, and the service calls it made (engage, menu
+select, calibrate...). Everything else in the recording is context and is not sent.
+
+What is measured, all from what the server sends back:
+- pose-to-command latency: from sending a head pose to receiving the head command it caused;
+- joint tracking error: the commands received against what TeleopMapper computes offline from the same poses at
+  the same send times (the server runs the same mapping; differences are timing, or a bug);
+- camera frames received, their rate and their age (receive time minus the frame's stamp);
+- menu selections acknowledged (successful service responses) and errors (status errors, failed calls).
+The plot shows, per joint, the commanded angles against the measured ones (/qt_robot/joints/state).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+from websockets.asyncio.client import connect
+
+from robot_models import load_qtrobot
+
+from .recording import read_recording
+from .teleop import TeleopError, TeleopMapper, TeleopSettings
+
+REPLAYED_TOPIC_PREFIXES = ("/vr/", "/vr_teleop/menu/selection", "/vr_teleop/audio/operator")
+COMMAND_TOPICS = {"/qt_robot/head_position/command": "head", "/qt_robot/left_arm_position/command": "left_arm",
+                  "/qt_robot/right_arm_position/command": "right_arm"}
+CAMERA_TOPIC = "/camera/color/image_raw/compressed"
+MENUS_TOPIC = "/vr_teleop/menus"
+TOPIC_TYPES = {"/vr/head/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/pose": "geometry_msgs/PoseStamped",
+               "/vr/right_controller/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/joy": "sensor_msgs/Joy",
+               "/vr/right_controller/joy": "sensor_msgs/Joy", "/vr_teleop/menu/selection": "std_msgs/String",
+               "/vr_teleop/audio/operator": "audio_common_msgs/AudioData",
+               "/vr_teleop/audio/operator/info": "audio_common_msgs/AudioInfo"}
+
+
+@dataclass(frozen=True)
+class Step:
+    t: float  # seconds from the session's start, at speed 1
+    kind: str  # "publish" or "call"
+    topic: str  # the topic, or the service
+    payload: dict[str, Any]  # the message, or the call_service frame
+
+
+def load_steps(path: Path, client: str | None = None) -> tuple[list[Step], str]:
+    """The operator's messages and calls, in time order, and which client they came from."""
+    messages = list(read_recording(path))
+    if not messages:
+        raise ValueError(f"{path}: no messages (not a recording, or empty)")
+    if client is None:
+        counts: dict[str, int] = defaultdict(int)
+        for m in messages:
+            if m.topic == "/vr/head/pose":
+                counts[m.sender] += 1
+        if not counts:
+            raise ValueError(f"{path}: no client published /vr/head/pose; nothing to replay")
+        client = max(counts, key=counts.__getitem__)
+    start = min(m.time_ns for m in messages)
+    steps = []
+    for m in messages:
+        if m.sender != client:
+            continue
+        t = (m.time_ns - start) / 1e9
+        if m.topic.startswith(REPLAYED_TOPIC_PREFIXES) and m.metadata.get("direction") is None:
+            steps.append(Step(t, "publish", m.topic, m.data))
+        elif m.topic == "/rosbridge/in" and m.data.get("op") == "call_service":
+            steps.append(Step(t, "call", m.data.get("service", ""), m.data))
+    steps.sort(key=lambda s: s.t)
+    return steps, client
+
+
+@dataclass
+class Collected:
+    sent_head: list[tuple[float, int]] = field(default_factory=list)  # send time, index into steps
+    commands: dict[str, list[tuple[float, list[float]]]] = field(default_factory=lambda: defaultdict(list))
+    joint_states: list[tuple[float, dict[str, float]]] = field(default_factory=list)
+    camera: list[tuple[float, float]] = field(default_factory=list)  # receive wall time, stamp
+    calls: dict[str, tuple[str, float, dict[str, Any]]] = field(default_factory=dict)  # id -> service, sent, args
+    responses: dict[str, tuple[bool, Any, float]] = field(default_factory=dict)
+    errors: list[str] = field(default_factory=list)
+    menu_items: list[str] = field(default_factory=list)  # selectable ids on the server's latched /vr_teleop/menus
+
+
+async def _receive(ws: Any, got: Collected) -> None:
+    async for frame in ws:
+        now = time.monotonic()
+        if isinstance(frame, bytes):
+            continue
+        msg = json.loads(frame)
+        op = msg.get("op")
+        if op == "publish":
+            topic = msg["topic"]
+            if topic in COMMAND_TOPICS:
+                got.commands[COMMAND_TOPICS[topic]].append((now, msg["msg"]["data"]))
+            elif topic == "/qt_robot/joints/state":
+                got.joint_states.append((now, dict(zip(msg["msg"]["name"], msg["msg"]["position"]))))
+            elif topic == MENUS_TOPIC:
+                got.menu_items = [item["id"] for item in msg["msg"]["items"] if item.get("command")]
+            elif topic == CAMERA_TOPIC:
+                stamp = msg["msg"]["header"]["stamp"]
+                secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
+                got.camera.append((time.time(), secs))
+        elif op == "service_response":
+            got.responses[str(msg.get("id"))] = (bool(msg.get("result")), msg.get("values"), now)
+        elif op == "status" and msg.get("level") == "error":
+            got.errors.append(msg.get("msg", ""))
+
+
+async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = True,
+                     progress: bool = True) -> tuple[Collected, float]:
+    got = Collected()
+    async with connect(url, max_size=None, compression=None) as ws:
+        subscriptions = [*COMMAND_TOPICS, "/qt_robot/joints/state"] + ([CAMERA_TOPIC] if camera else [])
+        for topic in subscriptions:
+            await ws.send(json.dumps({"op": "subscribe", "topic": topic}))
+        await ws.send(json.dumps({"op": "subscribe", "topic": MENUS_TOPIC, "type": "vr_teleop_msgs/Menus"}))
+        for topic in sorted({s.topic for s in steps if s.kind == "publish"} & set(TOPIC_TYPES)):
+            await ws.send(json.dumps({"op": "advertise", "topic": topic, "type": TOPIC_TYPES[topic]}))
+        receiver = asyncio.create_task(_receive(ws, got))
+        await asyncio.sleep(0.3)  # let the subscriptions settle
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        bar = tqdm(total=len(steps), unit="msg", disable=not progress, file=sys.stderr, desc="replay")
+        for i, step in enumerate(steps):
+            delay = t0 + step.t / speed - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            if step.kind == "publish":
+                sent = time.monotonic()
+                await ws.send(json.dumps({"op": "publish", "topic": step.topic, "msg": step.payload}))
+                if step.topic == "/vr/head/pose":
+                    got.sent_head.append((sent, i))
+            else:
+                frame = {**step.payload, "id": f"replay:{i}"}
+                got.calls[frame["id"]] = (step.topic, time.monotonic(), frame.get("args") or {})
+                await ws.send(json.dumps(frame))
+            bar.update(1)
+        bar.close()
+        elapsed = loop.time() - t0
+        deadline = loop.time() + 10.0  # wait for the last answers (a sentence, a gesture)
+        while loop.time() < deadline and len(got.responses) < len(got.calls):
+            await asyncio.sleep(0.1)
+        await asyncio.sleep(0.3)
+        receiver.cancel()
+    return got, elapsed
+
+
+def _first_after(times: np.ndarray, values: list[Any], sent: float, before: float) -> tuple[float, Any] | None:
+    j = int(np.searchsorted(times, sent))
+    return (float(times[j]), values[j]) if j < len(times) and times[j] < before else None
+
+
+def _responses(got: Collected) -> dict[int, dict[str, tuple[float, list[float]]]]:
+    """For each head pose sent (by step index), the commands it caused, per part: the first command of each part
+    received after it and before the next head pose (the server steps on each head pose)."""
+    series = {part: (np.array([c[0] for c in cmds]), [c[1] for c in cmds]) for part, cmds in got.commands.items()}
+    out: dict[int, dict[str, tuple[float, list[float]]]] = {}
+    for k, (sent, index) in enumerate(got.sent_head):
+        before = got.sent_head[k + 1][0] if k + 1 < len(got.sent_head) else float("inf")
+        caused = {part: hit for part, (times, values) in series.items()
+                  if (hit := _first_after(times, values, sent, before)) is not None}
+        if caused:
+            out[index] = caused
+    return out
+
+
+def _measured_at(got: Collected, t: float) -> dict[str, float] | None:
+    states = [joints for when, joints in got.joint_states if when <= t]
+    return states[-1] if states else None
+
+
+def expected_commands(steps: list[Step], got: Collected,
+                      settings: TeleopSettings | None = None) -> dict[int, dict[str, list[float]]]:
+    """What TeleopMapper gives for each head pose, computed offline from the same messages at the replay's send
+    times, engaged where the server acknowledged an engage call, from the joints the robot reported then."""
+    mapper = TeleopMapper(load_qtrobot(), settings)
+    send_time = {index: sent for sent, index in got.sent_head}
+    expected: dict[int, dict[str, list[float]]] = {}
+    last_t = 0.0
+    for i, step in enumerate(steps):
+        if step.kind == "call":
+            # The server handles frames in order: an engage acts on the messages sent before it.
+            cid = f"replay:{i}"
+            if step.topic == "/vr_teleop/control/engage" and got.responses.get(cid, (False,))[0]:
+                when = got.calls[cid][1]
+                if got.calls[cid][2].get("data"):
+                    mapper.engage(when, _measured_at(got, when))
+                else:
+                    mapper.release()
+            continue
+        t = last_t = send_time.get(i, last_t)
+        try:
+            if step.topic == "/vr/head/pose":
+                mapper.on_head_pose(step.payload, t)
+                out = mapper.step(t)
+                if out.commands:
+                    expected[i] = {part: list(values) for part, values in out.commands.items()}
+            elif step.topic.endswith("_controller/pose"):
+                mapper.on_controller_pose(step.topic.split("/")[2].split("_")[0], step.payload, t)
+            elif step.topic.endswith("/joy"):
+                mapper.on_joy(step.topic.split("/")[2].split("_")[0], step.payload["axes"], step.payload["buttons"], t)
+        except (ValueError, TeleopError):  # the server refuses these too
+            continue
+    return expected
+
+
+def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
+    duration = steps[-1].t if steps else 0.0
+    caused = _responses(got)
+    sent_at = {index: sent for sent, index in got.sent_head}
+    lat_ms = np.array([(min(t for t, _v in parts.values()) - sent_at[i]) * 1e3 for i, parts in caused.items()])
+    expected = expected_commands(steps, got)
+    errors = {part: np.array([np.abs(np.array(parts[part][1]) - np.array(expected[i][part])).max()
+                              for i, parts in caused.items() if part in parts and part in expected.get(i, {})])
+              for part in COMMAND_TOPICS.values()}
+    cam_rx = np.array([c[0] for c in got.camera])
+    cam_age = np.array([(rx - stamp) * 1e3 for rx, stamp in got.camera])
+    menu_ids = [cid for cid, (service, _t, _a) in got.calls.items() if service == "/vr_teleop/menu/select"]
+    failed_calls = {cid: got.responses[cid][1] for cid in got.calls if cid in got.responses and not got.responses[cid][0]}
+
+    def pct(a: np.ndarray, q: float) -> float | None:
+        return round(float(np.percentile(a, q)), 3) if a.size else None
+
+    return {
+        "session_s": round(duration, 2), "replay_s": round(elapsed, 2), "speed_requested": speed,
+        "speed_achieved": round(duration / elapsed, 2) if elapsed > 0 else None,
+        "messages_sent": sum(1 for s in steps if s.kind == "publish"),
+        "calls_sent": len(got.calls), "calls_answered": len(got.responses),
+        "latency_ms": {"n": int(lat_ms.size), "p50": pct(lat_ms, 50), "p99": pct(lat_ms, 99),
+                       "max": round(float(lat_ms.max()), 3) if lat_ms.size else None},
+        "tracking_error_deg": {part: {"n": int(e.size), "mean": round(float(e.mean()), 3) if e.size else None,
+                                      "p99": pct(e, 99), "max": round(float(e.max()), 3) if e.size else None}
+                               for part, e in errors.items()},
+        "commands_received": {part: len(v) for part, v in got.commands.items()},
+        "camera": {"frames": int(cam_rx.size),
+                   "fps": round(float((cam_rx.size - 1) / (cam_rx[-1] - cam_rx[0])), 2) if cam_rx.size > 1 else 0.0,
+                   "age_ms_p50": pct(cam_age, 50), "age_ms_p99": pct(cam_age, 99)},
+        "menu": {"selected": len(menu_ids), "acknowledged": sum(1 for c in menu_ids if got.responses.get(c, (0,))[0]),
+                 "failed": {got.calls[c][2].get("id", c): failed_calls[c] for c in menu_ids if c in failed_calls},
+                 "items_on_server": len(got.menu_items),
+                 # a session that used the menus: which of the server's items it never tried
+                 "not_selected": sorted(set(got.menu_items) - {got.calls[c][2].get("id") for c in menu_ids})
+                 if menu_ids else []},
+        "errors": {"count": len(got.errors) + len(failed_calls), "status": got.errors[:20],
+                   "failed_calls": {c: v for c, v in list(failed_calls.items())[:20]}},
+    }
+
+
+def plot(got: Collected, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    model = load_qtrobot()
+    t0 = min([t for t, _ in got.joint_states] + [c[0] for v in got.commands.values() for c in v] or [0.0])
+    fig, axes = plt.subplots(4, 2, figsize=(12, 10), sharex=True)
+    for ax, name in zip(axes.flat, model.names):
+        part = next(p for p, names in model.parts.items() if name in names)
+        k = model.parts[part].index(name)
+        cmds = got.commands.get(part, [])
+        if cmds:
+            ax.plot([c[0] - t0 for c in cmds], [c[1][k] for c in cmds], label="commanded", lw=1, color="C0")
+        if got.joint_states:
+            ax.plot([t - t0 for t, _ in got.joint_states], [j.get(name, np.nan) for _, j in got.joint_states],
+                    label="measured", lw=1, color="C1")
+        joint = model.joint(name)
+        ax.axhline(joint.lower, color="grey", ls=":", lw=0.8)
+        ax.axhline(joint.upper, color="grey", ls=":", lw=0.8)
+        ax.set_title(name, fontsize=9)
+        ax.set_ylabel("deg")
+    axes.flat[0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("replay time (s)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
