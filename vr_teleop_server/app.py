@@ -76,10 +76,15 @@ class TeleopServer:
         s = self.settings
         if s.backend == "none":
             return
-        from .backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
+        if s.backend == "ros":
+            from .backends.ros import RosRobot
 
-        self.robot = await SimRobot.create(self.model, camera_width=s.camera_width, camera_height=s.camera_height,
-                                           camera_fps=s.camera_fps)
+            self.robot = await RosRobot.create(s.robot_url, self.model)
+        else:
+            from .backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
+
+            self.robot = await SimRobot.create(self.model, camera_width=s.camera_width,
+                                               camera_height=s.camera_height, camera_fps=s.camera_fps)
         gestures = GestureLibrary([packaged_gesture_dir()], self.model,
                                   user_dir=s.gesture_dir or default_user_gesture_dir())
         audio_dir = s.audio_dir or default_audio_dir()

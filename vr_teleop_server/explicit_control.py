@@ -185,12 +185,13 @@ class ExplicitControl:
         if connected == self._robot_connected:
             return
         self._robot_connected = connected
-        if not connected and self.holder is not None:
-            self.mapper.release()
+        if not connected:
             self._event("robot_lost", "danger", {"holder": self.holder})
-            self.bus.report(self.holder, "error", "the robot backend is disconnected: the robot holds; "
-                            "engage again once it is back")
-        elif connected:
+            if self.holder is not None:
+                self.mapper.release()
+                self.bus.report(self.holder, "error", "the robot backend is disconnected: the robot holds; "
+                                "engage again once it is back")
+        else:
             self._event("robot_back", "info", {"holder": self.holder})
         self._publish_state()
 

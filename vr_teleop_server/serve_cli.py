@@ -31,8 +31,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="larger frames get a status error (default %(default)s)")
     p.add_argument("--service-timeout", type=float, default=defaults.service_timeout, metavar="S",
                    help="seconds a service call waits when the caller gives no timeout (default %(default)s)")
-    p.add_argument("--backend", choices=["sim", "none"], default=defaults.backend,
-                   help="the robot: the embedded MuJoCo stand-in (sim) or none (default %(default)s)")
+    p.add_argument("--backend", choices=["sim", "ros", "none"], default=defaults.backend,
+                   help="the robot: the embedded MuJoCo stand-in (sim), a real QTrobot's rosbridge (ros, with "
+                        "--robot-url) or none (default %(default)s)")
+    p.add_argument("--robot-url", default=defaults.robot_url, metavar="ws://ROBOT:9090",
+                   help="the real robot's rosbridge, for --backend ros (default %(default)s)")
     p.add_argument("--camera-size", default=f"{defaults.camera_width}x{defaults.camera_height}", metavar="WxH",
                    help="head-camera image size (default %(default)s)")
     p.add_argument("--camera-fps", type=float, default=defaults.camera_fps,
@@ -75,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         settings = ServerSettings(teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
-                                  backend=args.backend, camera_width=width, camera_height=height,
+                                  backend=args.backend, robot_url=args.robot_url, camera_width=width,
+                                  camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,
                                   audio_dir=args.audio_dir, record=args.record,
@@ -117,6 +121,9 @@ async def _serve(settings: ServerSettings) -> int:
         return 2
     try:
         await server.start()
+    except RuntimeError as exc:  # the robot cannot be reached
+        logging.getLogger("vr_teleop_server").error("%s", exc)
+        return 1
     except OSError as exc:
         logging.getLogger("vr_teleop_server").error("cannot listen on %s:%s: %s", settings.host, settings.port, exc)
         return 1

@@ -29,8 +29,10 @@ class ServerSettings(BaseModel):
     control_queue_bound: int = Field(1000, ge=10, description="replies and status messages kept for a slow reader")
     fragment_timeout: float = Field(10.0, gt=0, description="seconds an incomplete fragment set is kept")
     max_pending_calls: int = Field(100, ge=1, description="service calls one client may have in progress")
-    backend: Literal["sim", "none"] = Field(
-        "sim", description="the robot: 'sim', the embedded MuJoCo stand-in; 'none', the protocol server alone")
+    backend: Literal["sim", "ros", "none"] = Field(
+        "sim", description="the robot: 'sim', the embedded MuJoCo stand-in; 'ros', a real QTrobot through its own "
+                           "rosbridge at robot_url; 'none', the protocol server alone")
+    robot_url: str = Field("ws://127.0.0.1:9091", description="the real robot's rosbridge, for backend 'ros'")
     camera_width: int = Field(640, ge=16, le=4096)
     camera_height: int = Field(480, ge=16, le=4096)
     camera_fps: float = Field(30.0, gt=0, le=120, description="head-camera frames a second while someone watches")

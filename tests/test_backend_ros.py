@@ -1,0 +1,97 @@
+"""The real-robot backend, for real: a second server runs the stand-in and plays the robot's rosbridge (it serves
+LuxAI's API), and the server under test reaches it with backend "ros". The robot side is killed and restarted."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+import roslibpy
+
+from support import Headset, RunningServer, Watch, call, engage, joints, unity_yaw_pitch, wait_for
+from vr_teleop_server.settings import ServerSettings
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def robot_side(port: int, tmp) -> RunningServer:
+    return RunningServer(ServerSettings(port=port, backend="sim", gesture_dir=tmp / "rg", audio_dir=tmp / "ra"))
+
+
+@pytest.fixture
+def robot_and_server(tmp_path):
+    port = free_port()
+    robot = robot_side(port, tmp_path)
+    server = RunningServer(ServerSettings(port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}",
+                                          gesture_dir=tmp_path / "g", audio_dir=tmp_path / "a"))
+    state = {"robot": robot}
+    yield state, server, port
+    server.stop()
+    state["robot"].stop()
+
+
+def test_commands_camera_and_services_reach_the_robot(robot_and_server):
+    state, server, _port = robot_and_server
+    robot = state["robot"]
+    ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    ros.run(timeout=10)
+    try:
+        js = Watch(ros, "/qt_robot/joints/state", "sensor_msgs/JointState")  # relayed from the robot
+        assert wait_for(lambda: "HeadYaw" in joints(js), 10)
+        roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
+            roslibpy.Message({"data": [25.0, 5.0]}))
+        standin = robot.server.robot.standin
+        assert wait_for(lambda: abs(standin.joint_positions()["HeadYaw"] - 25.0) < 1.5, 10)
+        assert wait_for(lambda: abs(joints(js)["HeadYaw"] - 25.0) < 1.5, 5)
+        assert call(ros, "/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": "QT/happy"})["status"]
+        assert wait_for(lambda: standin.emotion == "happy", 5)
+        camera = Watch(ros, "/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage")
+        assert wait_for(lambda: len(camera.messages) >= 5, 15)
+        assert camera.latest["format"] == "jpeg"
+        assert server.server.robot.latest_frame().width == 640
+    finally:
+        ros.close()
+
+
+def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, tmp_path):
+    state, server, port = robot_and_server
+    ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    ros.run(timeout=10)
+    try:
+        teleop = Watch(ros, "/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState")
+        events = Watch(ros, "/vr_teleop/events", "vr_teleop_msgs/Event")
+        headset = Headset(ros).start()
+        engage(ros)
+        headset.head_orientation = unity_yaw_pitch(20)
+        assert wait_for(lambda: abs(state["robot"].server.robot.standin.joint_positions()["HeadYaw"] - 20) < 2, 10)
+        state["robot"].stop()  # the robot's rosbridge goes away
+        assert wait_for(lambda: teleop.latest.get("state") == "robot_lost"
+                        and not teleop.latest["robot_connected"], 10), teleop.latest
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), 5)
+        with pytest.raises(roslibpy.core.ServiceException, match="disconnected"):
+            call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
+        state["robot"] = robot_side(port, tmp_path)  # back, on the same port
+        assert wait_for(lambda: teleop.latest.get("robot_connected"), 20), teleop.latest
+        assert events.any(lambda e: e["kind"] == "robot_back")
+        engage(ros)  # resuming needs a fresh engage
+        headset.head_orientation = unity_yaw_pitch(-30)
+        assert wait_for(lambda: abs(state["robot"].server.robot.standin.joint_positions()["HeadYaw"] + 30) < 2, 15)
+        headset.stop()
+    finally:
+        ros.close()
+
+
+def test_serve_says_when_the_robot_cannot_be_reached():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    port = free_port()
+    proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", "0", "--backend", "ros",
+                           "--robot-url", f"ws://127.0.0.1:{port}"], capture_output=True, text=True, timeout=60,
+                          cwd=Path(__file__).resolve().parent.parent)
+    assert proc.returncode == 1 and f"ws://127.0.0.1:{port}" in proc.stderr, proc.stderr

@@ -1,0 +1,296 @@
+"""The real QTrobot, reached through its own rosbridge (LuxAI's /qt_robot/* API) with roslibpy.
+
+roslibpy runs its own networking thread; what arrives there (joint states, camera frames, connection changes) is
+stored under a lock and handed to asyncio waiters with call_soon_threadsafe. roslibpy reconnects with backoff
+(1 s doubling to MAX_BACKOFF_S) and re-subscribes by itself. While the robot is unreachable, `connected` is False:
+commands are refused (reported as ignored, never queued to burst out later), explicit control holds and says so,
+and services answer with an error.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import logging
+import math
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+from urllib.parse import urlparse
+
+import roslibpy
+from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
+
+from robot_models import RobotModel, load_qtrobot
+
+from ..robot import (
+    CameraFrame, ClampReport, Gesture, GestureResult, JointState, MotorMode, MotorStatus, Robot, SpeechResult,
+    clamp_command,
+)
+
+log = logging.getLogger(__name__)
+
+MAX_BACKOFF_S = 5.0
+CALL_TIMEOUT_S = 10.0
+CAMERA_TOPIC = "/camera/color/image_raw/compressed"
+PART_TOPICS = {"head": "/qt_robot/head_position/command", "right_arm": "/qt_robot/right_arm_position/command",
+               "left_arm": "/qt_robot/left_arm_position/command"}
+
+
+class RobotUnreachable(RuntimeError):
+    pass
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int]:
+    """(width, height) from a JPEG's start-of-frame marker, without decoding the image."""
+    i = 2
+    while i + 9 < len(data):
+        if data[i] != 0xFF:
+            break
+        marker, length = data[i + 1], int.from_bytes(data[i + 2:i + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return int.from_bytes(data[i + 7:i + 9], "big"), int.from_bytes(data[i + 5:i + 7], "big")
+        i += 2 + length
+    return 0, 0
+
+
+class RosRobot(Robot):
+    def __init__(self, url: str, model: RobotModel | None = None, connect_timeout: float = 10.0) -> None:
+        parsed = urlparse(url)
+        if parsed.scheme not in ("ws", "wss") or not parsed.hostname:
+            raise ValueError(f"robot URL must look like ws://HOST:PORT, not {url!r}")
+        self.url = url
+        self._model = model or load_qtrobot()
+        AutobahnRosBridgeClientFactory.set_initial_delay(0.5)
+        AutobahnRosBridgeClientFactory.set_max_delay(MAX_BACKOFF_S)
+        self._ros = roslibpy.Ros(host=parsed.hostname, port=parsed.port or 9090, is_secure=parsed.scheme == "wss")
+        self._lock = threading.Lock()
+        self._connected = False
+        self._state: JointState | None = None
+        self._commanded: dict[str, float] = {}
+        self._modes = {n: MotorMode.ON for n in self._model.names}
+        self._frame: CameraFrame | None = None
+        self._frame_seq = 0
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, int]] = []
+        self._camera_count = 0
+        self._gesture_stop: asyncio.Event | None = None
+        self._ros.on("close", self._on_close)
+        self._ros.on("ready", self._on_ready)
+        try:
+            self._ros.run(timeout=connect_timeout)
+        except Exception as exc:  # roslibpy raises its own exception types on timeout
+            self._stop_reconnecting()
+            raise RobotUnreachable(f"cannot reach the robot's rosbridge at {url}: {exc or 'timed out'}") from None
+        self._connected = True
+        self._publishers = {part: roslibpy.Topic(self._ros, topic, "std_msgs/Float64MultiArray")
+                            for part, topic in PART_TOPICS.items()}
+        for topic in self._publishers.values():
+            topic.advertise()
+        self._joints_topic = roslibpy.Topic(self._ros, "/qt_robot/joints/state", "sensor_msgs/JointState")
+        self._joints_topic.subscribe(self._on_joint_state)
+        self._camera_topic = roslibpy.Topic(self._ros, CAMERA_TOPIC, "sensor_msgs/CompressedImage", queue_length=1)
+
+    @classmethod
+    async def create(cls, url: str, model: RobotModel | None = None) -> RosRobot:
+        return await asyncio.to_thread(cls, url, model)
+
+    # ---- connection ---------------------------------------------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        return self._ros.is_connected
+
+    def _on_ready(self, *_args: Any) -> None:
+        if not self._connected:
+            log.info("robot rosbridge %s connected", self.url)
+        self._connected = True
+
+    def _on_close(self, *_args: Any) -> None:
+        if self._connected:
+            log.warning("robot rosbridge %s disconnected; reconnecting", self.url)
+        self._connected = False
+
+    @property
+    def model(self) -> RobotModel:
+        return self._model
+
+    # ---- motion -------------------------------------------------------------------------------------------------
+    def set_joint_targets(self, targets: Mapping[str, float]) -> ClampReport:
+        clamped, report = clamp_command(self._model, targets)
+        if not self.connected:
+            return ClampReport(report.names, report.requested, report.applied, report.clamped, tuple(clamped))
+        with self._lock:
+            current = self._state.as_dict() if self._state is not None else {}
+        for part, names in self._model.parts.items():
+            if not any(n in clamped for n in names):
+                continue
+            values = []
+            for n in names:
+                value = clamped.get(n, self._commanded.get(n, current.get(n, self._model.joint(n).home)))
+                values.append(float(value))
+                self._commanded[n] = float(value)
+            self._publishers[part].publish(roslibpy.Message({"data": values}))
+        return report
+
+    def _on_joint_state(self, msg: dict[str, Any]) -> None:
+        positions = dict(zip(msg.get("name", []), msg.get("position", [])))
+        velocities = dict(zip(msg.get("name", []), msg.get("velocity", []) or []))
+        efforts = dict(zip(msg.get("name", []), msg.get("effort", []) or []))
+        names = tuple(n for n in self._model.names if n in positions)
+        state = JointState(names, tuple(float(positions[n]) for n in names),
+                           tuple(float(velocities.get(n, 0.0)) for n in names),
+                           tuple(float(efforts.get(n, 0.0)) for n in names), time.monotonic(), time.time())
+        with self._lock:
+            self._state = state
+
+    def joint_state(self) -> JointState:
+        with self._lock:
+            state = self._state
+        if state is None:  # no state yet: the commanded (or home) pose, so callers always get all joints
+            names = self._model.names
+            home = tuple(self._commanded.get(n, self._model.joint(n).home) for n in names)
+            return JointState(names, home, tuple(0.0 for _ in names), tuple(0.0 for _ in names), time.monotonic(),
+                              time.time())
+        return state
+
+    def set_control_mode(self, parts: Sequence[str], mode: MotorMode) -> None:
+        mode = MotorMode(mode)
+        self._call_nowait("/qt_robot/motors/setControlMode", "qt_motors_controller/set_control_mode",
+                          {"parts": list(parts), "mode": int(mode)})
+        for part in parts:
+            for n in self._model.part_joints(part):
+                self._modes[n] = mode
+
+    def motor_status(self) -> tuple[MotorStatus, ...]:
+        positions = self.joint_state().as_dict()
+        out = []
+        for part, names in self._model.parts.items():
+            for n in names:
+                out.append(MotorStatus(n, part, positions.get(n, math.nan), None, None, self._modes[n], "measured"))
+        return tuple(out)
+
+    # ---- services -----------------------------------------------------------------------------------------------
+    def _call_nowait(self, name: str, type_name: str, args: dict[str, Any]) -> None:
+        if not self.connected:
+            log.warning("%s not called: the robot is disconnected", name)
+            return
+        roslibpy.Service(self._ros, name, type_name).call(
+            roslibpy.ServiceRequest(args), lambda _r: None, lambda err: log.warning("%s failed: %s", name, err))
+
+    async def _call(self, name: str, type_name: str, args: dict[str, Any]) -> dict[str, Any]:
+        if not self.connected:
+            raise RuntimeError(f"{name}: the robot is disconnected")
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future = loop.create_future()
+
+        def done(result: Any) -> None:
+            loop.call_soon_threadsafe(lambda: fut.done() or fut.set_result(dict(result)))
+
+        def failed(error: Any) -> None:
+            loop.call_soon_threadsafe(lambda: fut.done() or fut.set_exception(RuntimeError(f"{name}: {error}")))
+
+        roslibpy.Service(self._ros, name, type_name).call(roslibpy.ServiceRequest(args), done, failed)
+        return await asyncio.wait_for(fut, CALL_TIMEOUT_S)
+
+    def show_emotion(self, name: str) -> None:
+        short = name[3:] if name.startswith("QT/") else name
+        if short not in self._model.emotions:
+            raise ValueError(f"unknown emotion {name!r}; valid emotions: {', '.join(self._model.emotions)}")
+        self._call_nowait("/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": f"QT/{short}"})
+
+    async def say(self, text: str, duration_s: float | None = None) -> SpeechResult:
+        start = time.monotonic()
+        response = await self._call("/qt_robot/speech/say", "qt_robot_interface/speech_say", {"message": text})
+        return SpeechResult(text, bool(response.get("status")), time.monotonic() - start, audible=True)
+
+    def stop_speech(self) -> None:
+        self._call_nowait("/qt_robot/speech/stop", "qt_robot_interface/speech_stop", {})
+
+    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
+        """Streams the gesture's waypoints as position commands, so recordings the robot does not hold play too."""
+        gesture.validate(self._model)
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
+        self.stop_gesture()
+        stop = self._gesture_stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        start, sent, clamps, ignored = loop.time(), 0, [], {}
+        for wp in gesture.waypoints:
+            wait = start + wp.time_s / speed - loop.time()
+            if wait > 0:
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(stop.wait(), wait)
+            if stop.is_set():
+                break
+            report = self.set_joint_targets(wp.targets)
+            clamps.extend(report.clamped)
+            ignored.update(dict.fromkeys(report.ignored))
+            sent += 1
+        if self._gesture_stop is stop:
+            self._gesture_stop = None
+        stopped = stop.is_set()
+        completed = not stopped and sent == len(gesture.waypoints) and not ignored
+        return GestureResult(gesture.name, completed, stopped, sent, tuple(clamps), tuple(ignored), None)
+
+    def stop_gesture(self) -> None:
+        if self._gesture_stop is not None:
+            self._gesture_stop.set()
+
+    # ---- camera -------------------------------------------------------------------------------------------------
+    def add_camera_subscriber(self) -> None:
+        self._camera_count += 1
+        if self._camera_count == 1:
+            self._camera_topic.subscribe(self._on_camera)
+
+    def remove_camera_subscriber(self) -> None:
+        self._camera_count = max(0, self._camera_count - 1)
+        if self._camera_count == 0 and self._camera_topic.is_subscribed:
+            self._camera_topic.unsubscribe()
+
+    def _on_camera(self, msg: dict[str, Any]) -> None:
+        data = msg.get("data", "")
+        jpeg = base64.b64decode(data) if isinstance(data, str) else bytes(data)
+        width, height = _jpeg_size(jpeg)
+        with self._lock:
+            self._frame_seq += 1
+            frame = self._frame = CameraFrame(jpeg, width, height, self._frame_seq, time.monotonic(), time.time())
+            ready = [(loop, fut) for loop, fut, after in self._waiters if frame.seq > after]
+        for loop, fut in ready:
+            try:
+                loop.call_soon_threadsafe(lambda fut=fut: fut.done() or fut.set_result(frame))
+            except RuntimeError:
+                pass
+
+    def latest_frame(self) -> CameraFrame | None:
+        with self._lock:
+            return self._frame
+
+    async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future = loop.create_future()
+        entry = (loop, fut, after_seq)
+        with self._lock:
+            if self._frame is not None and self._frame.seq > after_seq:
+                return self._frame
+            self._waiters.append(entry)
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        except asyncio.TimeoutError:
+            return None
+        finally:
+            with self._lock:
+                if entry in self._waiters:
+                    self._waiters.remove(entry)
+
+    def _stop_reconnecting(self) -> None:
+        from twisted.internet import reactor
+
+        reactor.callFromThread(self._ros.factory.stopTrying)
+
+    def close(self) -> None:
+        self._stop_reconnecting()
+        with contextlib.suppress(Exception):  # already gone
+            self._ros.close(timeout=2)
+
+
