@@ -21,8 +21,9 @@ bench: $(STAMP)
 schema: $(STAMP)
 	$(VENV)/bin/vr-teleop schema --out client_protocol/schemas
 
-# Debian packages: espeak-ng for text-to-speech, Mesa's EGL for MuJoCo's offscreen camera.
-$(SYSTEM):
+# Debian packages: espeak-ng for text-to-speech, Mesa's EGL for MuJoCo's offscreen camera, Chromium for the
+# dashboard's browser tests.
+$(SYSTEM): scripts/install-system-packages.sh
 	bash scripts/install-system-packages.sh
 	mkdir -p $(VENV) && touch $@
 

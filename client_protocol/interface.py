@@ -170,6 +170,17 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "Set a variable (clamped to its min..max).", example={"name": "pain", "value": 2.0}),
     Endpoint("/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", "call",
              "Back to the initial value; an empty name resets every variable.", example={"name": "", "value": 0.0}),
+    # ---- the dashboard's own needs ----
+    Endpoint("/vr_teleop/robot_description", "std_msgs/String", "subscribe",
+             "The robot's joints as JSON: {robot, joints: [{name, part, lower, upper, home, max_velocity}]}, "
+             "latched, so that clients draw gauges without hard-coding limits.", "latched",
+             {"data": "{\"robot\": \"QTrobot\", \"joints\": [{\"name\": \"HeadYaw\", \"part\": \"head\", "
+                      "\"lower\": -60.0, \"upper\": 60.0, \"home\": 0.0, \"max_velocity\": 60.0}]}"}),
+    Endpoint("/study/labels", "vr_teleop_msgs/Event", "publish",
+             "The experimenter's labels (source experimenter; kind human_action_start, human_action_stop or "
+             "intervention; detail JSON {action, wall_time}); recorded with the session.", "on label",
+             {"header": _stamp(), "source": "experimenter", "kind": "human_action_start", "level": "info",
+              "detail": "{\"action\": \"hand_over_cup\", \"wall_time\": 1700000000.0}"}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

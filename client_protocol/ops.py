@@ -170,10 +170,17 @@ class Status(Op):
     msg: StrictStr
 
 
+class Auth(Op):
+    """Authenticates the connection (rosbridge's auth op). This server carries a role's token in `mac`; the other
+    fields of rosbridge's MAC scheme (client, dest, rand, t, level, end) are accepted and ignored."""
+    op: Literal["auth"]
+    mac: Name
+
+
 CLIENT_OPS: tuple[type[Op], ...] = (
     Advertise, Unadvertise, Publish, Subscribe, Unsubscribe, CallService, AdvertiseService, UnadvertiseService,
     ServiceResponse, AdvertiseAction, UnadvertiseAction, SendActionGoal, CancelActionGoal, ActionFeedback,
-    ActionResult, Fragment, SetLevel, Status,
+    ActionResult, Fragment, SetLevel, Status, Auth,
 )
 SERVER_OPS: tuple[type[Op], ...] = (
     Publish, ServiceResponse, CallService, Status, Fragment, Png, SendActionGoal, CancelActionGoal,

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import logging
 
 from client_protocol.registry import TypeRegistry
 from menus import load_menus
 from robot_models import load_qtrobot
 
+from .access import AccessPolicy, Role, is_loopback, tokens_from
 from .bus import Bus
-from .explicit_control import ExplicitControl
+from .explicit_control import ExplicitControl, publish_event
 from .gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
 from .luxai_api import LuxaiApi
 from .menu_service import MenuService, check_commands_implemented
@@ -25,6 +27,8 @@ from .status import StatusPublisher
 from .transport import WebSocketTransport
 
 log = logging.getLogger(__name__)
+DESCRIPTION_TOPIC = "/vr_teleop/robot_description"
+LABELS_TOPIC = "/study/labels"
 
 
 class TeleopServer:
@@ -46,6 +50,13 @@ class TeleopServer:
         self.menu: MenuService | None = None
         self.recorder: Recorder | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
+        tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
+                              "spectator": settings.spectator_token})
+        self.access = AccessPolicy(tokens)
+        if self.access.open and not is_loopback(settings.host) and not settings.insecure:
+            raise ValueError(f"refusing to serve {settings.host} without tokens: anyone on the network could drive "
+                             "the robot. Give --operator-token/--supervisor-token (or --generate-tokens), or pass "
+                             "--insecure")
         check_commands_implemented()
         self.menus = load_menus(settings.menu_dir)
         self.motivation_config = load_motivation_config(settings.motivation_config)
@@ -53,6 +64,7 @@ class TeleopServer:
 
     def _open_session(self, name: str, peer: str) -> Session:
         session = Session(name, self.bus, self.settings, peer)
+        session.policy = self.access
         self.sessions[name] = session
         if self.recorder is not None:
             session.tap = self.recorder.on_frame
@@ -64,6 +76,18 @@ class TeleopServer:
         self.sessions.pop(session.name, None)
         if self.recorder is not None:
             self.recorder.on_connection(session.name, "disconnect", session.peer)
+
+    def _role(self, owner: str) -> Role | None:
+        session = self.sessions.get(owner)
+        return session.role if session is not None else None
+
+    def _publish_description(self) -> None:
+        """The robot's joints and limits, latched, so that clients (the dashboard's gauges) hard-code none."""
+        self.bus.declare_topic(DESCRIPTION_TOPIC, "std_msgs/String", latched=True, persistent=True)
+        joints = [{"name": n, "part": part, "lower": self.model.joint(n).lower, "upper": self.model.joint(n).upper,
+                   "home": self.model.joint(n).home, "max_velocity": self.model.joint(n).max_velocity}
+                  for part, names in self.model.parts.items() for n in names]
+        self.bus.publish(DESCRIPTION_TOPIC, {"data": json.dumps({"robot": "QTrobot", "joints": joints})}, latch=True)
 
     def _report(self, owner: str, level: str, text: str) -> None:
         session = self.sessions.get(owner)
@@ -79,7 +103,10 @@ class TeleopServer:
         if s.backend == "ros":
             from .backends.ros import RosRobot
 
-            self.robot = await RosRobot.create(s.robot_url, self.model)
+            self.robot = robot = await RosRobot.create(s.robot_url, self.model)
+            robot.connection_changed.append(lambda up: publish_event(
+                self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",
+                {"robot_url": s.robot_url}))
         else:
             from .backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
 
@@ -92,6 +119,7 @@ class TeleopServer:
         self.luxai = LuxaiApi(self.bus, self.robot, gestures, self.speaker)
         self.luxai.start()
         self.control = ExplicitControl(self.bus, self.robot, s.teleop)
+        self.control.may_override = lambda caller: self.access.may_override_control(self._role(caller))
         self.control.start()
         self.operator_audio = OperatorAudioLog(self.bus, audio_dir)
         self.operator_audio.start()
@@ -112,6 +140,8 @@ class TeleopServer:
             self.recorder.attach(self.bus)
             log.info("recording to %s", self.settings.record)
         self.rosapi.start()
+        self._publish_description()
+        self.bus.declare_topic(LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)  # the experimenter's labels
         await self._start_robot()
         try:
             await self.transport.start()
@@ -143,7 +173,8 @@ class TeleopServer:
 
     @property
     def url(self) -> str:
-        return f"ws://{self.settings.host}:{self.transport.port}"
+        scheme = "wss" if self.settings.certfile else "ws"
+        return f"{scheme}://{self.settings.host}:{self.transport.port}"
 
     async def __aenter__(self) -> "TeleopServer":
         await self.start()

@@ -74,6 +74,7 @@ class ExplicitControl:
         self._last_refusal: dict[str, float] = {}
         self._robot_connected = True
         self._tick_task: asyncio.Task[None] | None = None
+        self.may_override: Callable[[str], bool] = lambda caller: False  # may take control from its holder
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -226,8 +227,9 @@ class ExplicitControl:
         """Ends control; the robot keeps its pose. Only the holder (or the server itself) may release."""
         if self.holder is None:
             return {"success": True, "message": "nobody held control"}
-        if caller not in (self.holder, SERVER_NODE):
-            raise BusError(f"control is held by another client ({self.holder}); only it can release control")
+        if caller not in (self.holder, SERVER_NODE) and not self.may_override(caller):
+            raise BusError(f"control is held by another client ({self.holder}); only it (or a supervisor) can "
+                           "release control")
         holder, self.holder = self.holder, None
         self.mapper.release()
         self._event(reason, "info", {"holder": holder, "by": caller})
@@ -289,7 +291,7 @@ class ExplicitControl:
     def state_name(self) -> str:
         if not self._robot_connected:
             return "robot_lost"
-        if not self._ever_engaged:
+        if not self._ever_engaged and self.mapper.state is WatchdogState.RELEASED:
             return "idle"
         return self.mapper.state.value
 

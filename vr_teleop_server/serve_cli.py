@@ -16,6 +16,7 @@ from client_protocol.registry import describe_validation_error
 
 from .app import TeleopServer
 from .settings import ServerSettings
+from .access import ROLES, generate_tokens
 from .teleop import TeleopSettings
 
 
@@ -52,6 +53,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="record every message of the session, both ways, per client, to an MCAP file")
     p.add_argument("--record-camera-fps", type=float, default=defaults.record_camera_fps, metavar="FPS",
                    help="camera frames a second kept in the recording; 0 keeps none (default %(default)s)")
+    p.add_argument("--operator-token", default=None, help="token of the operator role (or $VR_TELEOP_OPERATOR_TOKEN)")
+    p.add_argument("--supervisor-token", default=None,
+                   help="token of the supervisor role (or $VR_TELEOP_SUPERVISOR_TOKEN)")
+    p.add_argument("--spectator-token", default=None,
+                   help="token of the read-only spectator role (or $VR_TELEOP_SPECTATOR_TOKEN)")
+    p.add_argument("--generate-tokens", action="store_true", help="make a token for each role and print them")
+    p.add_argument("--insecure", action="store_true",
+                   help="allow open access (no tokens) on a non-loopback address")
+    p.add_argument("--certfile", type=Path, default=None, help="TLS certificate (PEM): serve wss:// and https://")
+    p.add_argument("--keyfile", type=Path, default=None, help="TLS private key (PEM)")
     p.add_argument("--teleop-config", type=Path, default=None, metavar="FILE",
                    help="explicit-control parameters (YAML or JSON; keys as in vr_teleop_server/teleop/settings.py)")
     p.add_argument("--watchdog-timeout", type=float, default=None, metavar="S",
@@ -75,8 +86,13 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"vr-teleop serve: {exc}", file=sys.stderr)
         return 2
+    tokens = {role: getattr(args, f"{role}_token") for role in ROLES}
+    if args.generate_tokens:
+        tokens = {role: tokens[role] or token for role, token in generate_tokens().items()}
     try:
-        settings = ServerSettings(teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
+        settings = ServerSettings(operator_token=tokens["operator"], supervisor_token=tokens["supervisor"],
+                                  spectator_token=tokens["spectator"], insecure=args.insecure,
+                                  certfile=args.certfile, keyfile=args.keyfile, teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
                                   backend=args.backend, robot_url=args.robot_url, camera_width=width,
                                   camera_height=height,
@@ -128,6 +144,12 @@ async def _serve(settings: ServerSettings) -> int:
         logging.getLogger("vr_teleop_server").error("cannot listen on %s:%s: %s", settings.host, settings.port, exc)
         return 1
     print(f"vr-teleop: listening on {server.url}", flush=True)
+    web = server.url.replace("ws", "http", 1) + "/"
+    if server.access.open:
+        print(f"vr-teleop: open access (no tokens), loopback only; dashboard at {web}", flush=True)
+    else:
+        for token, role in server.access.tokens.items():
+            print(f"vr-teleop: {role} token {token}  (dashboard: {web}#token={token})", flush=True)
     await stop.wait()
     await server.stop()
     print("vr-teleop: stopped", flush=True)

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ValidationError
 from client_protocol import ops
 from client_protocol.registry import describe_validation_error
 
+from .access import AccessDenied, AccessPolicy, Role
 from .bus import GOAL_STATUS_ABORTED, Bus, BusError, GoalHandle, Published
 from .settings import ServerSettings
 from .wire import FrameError, decode_frame, dumps, encode_for_client, png_pack, publish_cbor, publish_text, \
@@ -114,6 +115,8 @@ class Session:
         self.counters = {"frames_in": 0, "errors": 0, "dropped": 0}
         # Sees every frame but topic messages, in ("in") and out ("out"): (session name, direction, frame).
         self.tap: Callable[[str, str, Frame], None] | None = None
+        self.policy = AccessPolicy({})  # set by the server; open until then
+        self.role: Role | None = None  # set by a successful auth op
         self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
             name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
         }
@@ -148,6 +151,11 @@ class Session:
             op = model.model_validate(raw)
         except ValidationError as exc:
             self.status("error", f"{name}: {describe_validation_error(exc)}", msg_id)
+            return
+        try:
+            self.policy.check(self.role, name, getattr(op, "service", None) or getattr(op, "topic", None) or "")
+        except AccessDenied as exc:
+            self.status("error", f"{name}: refused: {exc}", msg_id)
             return
         try:
             result = self._handlers[name](op)
@@ -377,6 +385,13 @@ class Session:
         entry = self._fragments.pop(frag_id, None)
         if entry is not None and entry.expiry is not None:
             entry.expiry.cancel()
+
+    def _op_auth(self, op: ops.Auth) -> None:
+        role = self.policy.role_for(op.mac)
+        if role is None:
+            raise ProtocolError("this token is not known; ask whoever runs the server for one")
+        self.role = role
+        log.info("%s authenticated as %s", self.name, role)
 
     def _op_set_level(self, op: ops.SetLevel) -> None:
         self.level = op.level

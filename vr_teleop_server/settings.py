@@ -45,6 +45,12 @@ class ServerSettings(BaseModel):
     record: Path | None = Field(None, description="record the session to this MCAP file")
     record_camera_fps: float = Field(2.0, ge=0, le=120, description="camera frames a second kept in the "
                                                                      "recording (0: none)")
+    operator_token: str | None = Field(None, description="token of the operator role (auth op)")
+    supervisor_token: str | None = Field(None, description="token of the supervisor role")
+    spectator_token: str | None = Field(None, description="token of the spectator role")
+    insecure: bool = Field(False, description="allow open access (no tokens) on a non-loopback address")
+    certfile: Path | None = Field(None, description="TLS certificate (PEM): serve wss:// and https://")
+    keyfile: Path | None = Field(None, description="TLS private key (PEM), with certfile")
     teleop: TeleopSettings = Field(default_factory=TeleopSettings, description="explicit control (teleop/settings.py)")
 
     @property

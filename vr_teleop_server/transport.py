@@ -1,4 +1,5 @@
-"""The WebSocket transport: accepts connections and moves frames between sockets and sessions.
+"""The WebSocket transport: accepts connections and moves frames between sockets and sessions, and serves the
+dashboard's static files over plain HTTP on the same port (a GET that is not a WebSocket upgrade).
 
 It holds no protocol logic, so sessions are testable without sockets.
 """
@@ -8,15 +9,22 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
+import mimetypes
+import ssl
 from collections.abc import Callable
+from http import HTTPStatus
+from pathlib import Path
 
 from websockets.asyncio.server import Server, ServerConnection, serve
+from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
+from websockets.http11 import Request, Response
 
 from .session import Session
 from .settings import ServerSettings
 
 log = logging.getLogger(__name__)
+WEB_ROOT = Path(__file__).with_name("web")
 
 
 class WebSocketTransport:
@@ -29,13 +37,31 @@ class WebSocketTransport:
         self._numbers = itertools.count(1)
 
     async def start(self) -> None:
+        tls = None
+        if self.settings.certfile is not None:
+            tls = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+            tls.load_cert_chain(self.settings.certfile, self.settings.keyfile)
         self._server = await serve(
             self._handle, self.settings.host, self.settings.port,
+            process_request=self._http, ssl=tls,
             max_size=self.settings.max_frame_size,
             compression=None,  # deflate costs CPU on every pose and gains nothing on JPEG frames
             close_timeout=0.5,
             ping_interval=20, ping_timeout=20,
         )
+
+    @staticmethod
+    def _http(_connection: ServerConnection, request: Request) -> Response | None:
+        """Static files for a plain GET; None lets a WebSocket upgrade through."""
+        if "websocket" in request.headers.get("Upgrade", "").lower():
+            return None
+        path = request.path.split("?", 1)[0].split("#", 1)[0]
+        relative = "index.html" if path in ("", "/") else path.lstrip("/")
+        target = (WEB_ROOT / relative).resolve()
+        if WEB_ROOT.resolve() not in target.parents or not target.is_file():
+            return _response(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain")
+        kind = mimetypes.guess_type(target.name)[0] or "application/octet-stream"
+        return _response(HTTPStatus.OK, target.read_bytes(), kind)
 
     @property
     def port(self) -> int:
@@ -71,3 +97,10 @@ class WebSocketTransport:
                     await ws.send(frame)
         except ConnectionClosed:
             pass
+
+
+def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
+    headers = Headers({"Content-Type": f"{kind}; charset=utf-8" if kind.startswith("text/") or kind.endswith(
+        "javascript") else kind, "Content-Length": str(len(body)), "Cache-Control": "no-cache",
+        "X-Content-Type-Options": "nosniff"})
+    return Response(status.value, status.phrase, headers, body)

@@ -1,0 +1,94 @@
+"""Roles and what each may do: one policy, consulted by every session before it runs an op.
+
+Roles: operator (drives the robot: may engage control, send poses and Joy, run menu commands), supervisor
+(everything, including taking control away from the operator), spectator (reads: subscribes, and calls only
+read-only services). Tokens are given with `serve --operator-token/--supervisor-token/--spectator-token`, the
+environment (VR_TELEOP_OPERATOR_TOKEN, ...), or `--generate-tokens`; a client presents one with the rosbridge
+`auth` op (the token in `mac`) before anything else. Without tokens the server is open: every client is a
+supervisor, and serve binds to loopback only unless told `--insecure`.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import os
+import secrets
+from dataclasses import dataclass
+from typing import Literal
+
+Role = Literal["operator", "supervisor", "spectator"]
+ROLES: tuple[Role, ...] = ("operator", "supervisor", "spectator")
+ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
+# What a spectator may call: services that only read.
+READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
+READ_ONLY_SERVICES = {"/qt_robot/gesture/list"}
+# What only a supervisor may do on top of an operator.
+SUPERVISOR_ONLY_SERVICES = {"/vr_teleop/motivation/set", "/vr_teleop/motivation/reset"}
+READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}
+
+
+class AccessDenied(Exception):
+    pass
+
+
+@dataclass(frozen=True)
+class AccessPolicy:
+    tokens: dict[str, Role]  # token -> role; empty: open access
+
+    @property
+    def open(self) -> bool:
+        return not self.tokens
+
+    def role_for(self, token: str) -> Role | None:
+        for known, role in self.tokens.items():
+            if hmac.compare_digest(known.encode(), token.encode()):
+                return role
+        return None
+
+    def check(self, role: Role | None, op: str, target: str = "") -> None:
+        """Raises AccessDenied saying what the role may not do."""
+        if self.open:
+            return
+        if role is None:
+            if op != "auth":
+                raise AccessDenied('authenticate first: send {"op": "auth", "mac": "<your token>"}')
+            return
+        if role == "supervisor" or op in READ_OPS:
+            return
+        if role == "spectator":
+            if op == "call_service" and (target in READ_ONLY_SERVICES or target.startswith(READ_ONLY_SERVICES_PREFIXES)):
+                return
+            raise AccessDenied(f"role spectator may not {op.replace('_', ' ')}{' ' + target if target else ''}: "
+                               "spectators only watch")
+        if op == "call_service" and target in SUPERVISOR_ONLY_SERVICES:
+            raise AccessDenied(f"role operator may not call {target}: only a supervisor may")
+
+    def may_override_control(self, role: Role | None) -> bool:
+        """Whether a caller may take control away from whoever holds it."""
+        return self.open or role == "supervisor"
+
+
+def generate_tokens() -> dict[Role, str]:
+    return {role: secrets.token_urlsafe(18) for role in ROLES}
+
+
+def tokens_from(flags: dict[Role, str | None]) -> dict[str, Role]:
+    """Flags first, then the environment; token -> role."""
+    out: dict[str, Role] = {}
+    for role in ROLES:
+        token = flags.get(role) or os.environ.get(ENV[role])
+        if token:
+            if token in out:
+                raise ValueError(f"the {role} token is the same as the {out[token]} token; give each role its own")
+            out[token] = role
+    return out
+
+
+def is_loopback(host: str) -> bool:
+    if host in ("localhost", ""):
+        return host == "localhost"
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

@@ -1,0 +1,234 @@
+// The supervisor's dashboard. It speaks rosbridge v2 to the server that serves it, like any other client:
+// subscriptions, service calls and publishes, with no private back door. Token: the page's #token=... fragment.
+
+class Rosbridge {
+  // hello(): the frames that open every connection (auth, set_level), before subscriptions and anything queued.
+  constructor(url, hello) {
+    this.url = url;
+    this.hello = hello;
+    this.handlers = new Map();   // topic -> [callback]
+    this.subscriptions = [];     // subscribe frames, sent again after a reconnection
+    this.pending = new Map();    // call id -> {resolve, reject}
+    this.ids = 0;
+    this.onstatus = () => {};
+    this.onopen = () => {};
+    this.onclose = () => {};
+    this.queue = [];
+    this.connect();
+  }
+  connect() {
+    this.ws = new WebSocket(this.url);
+    this.ws.onopen = () => {
+      [...this.hello(), ...this.subscriptions].forEach(f => this.ws.send(JSON.stringify(f)));
+      this.queue.splice(0).forEach(f => this.ws.send(f));
+      this.onopen();
+    };
+    this.ws.onclose = () => { this.onclose(); setTimeout(() => this.connect(), 1000); };
+    this.ws.onmessage = (event) => this.receive(JSON.parse(event.data));
+  }
+  send(frame) {
+    const text = JSON.stringify(frame);
+    if (this.ws.readyState === WebSocket.OPEN) this.ws.send(text); else this.queue.push(text);
+  }
+  receive(msg) {
+    if (msg.op === "publish") (this.handlers.get(msg.topic) || []).forEach(cb => cb(msg.msg));
+    else if (msg.op === "service_response") {
+      const waiter = this.pending.get(msg.id);
+      if (!waiter) return;
+      this.pending.delete(msg.id);
+      msg.result ? waiter.resolve(msg.values) : waiter.reject(new Error(String(msg.values)));
+    } else if (msg.op === "status") this.onstatus(msg);
+  }
+  subscribe(topic, type, callback, options = {}) {
+    if (!this.handlers.has(topic)) this.handlers.set(topic, []);
+    this.handlers.get(topic).push(callback);
+    const frame = {op: "subscribe", topic, type, ...options};
+    this.subscriptions.push(frame);
+    if (this.ws.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify(frame));
+  }
+  publish(topic, type, msg) {
+    this.send({op: "advertise", topic, type});
+    this.send({op: "publish", topic, msg});
+  }
+  call(service, args = {}) {
+    const id = `dashboard:${++this.ids}`;
+    return new Promise((resolve, reject) => {
+      this.pending.set(id, {resolve, reject});
+      this.send({op: "call_service", id, service, args});
+    });
+  }
+}
+
+const $ = (id) => document.getElementById(id);
+const el = (tag, props = {}, ...children) => {
+  const node = Object.assign(document.createElement(tag), props);
+  children.forEach(c => node.append(c));
+  return node;
+};
+const token = new URLSearchParams(location.hash.slice(1)).get("token");
+const scheme = location.protocol === "https:" ? "wss" : "ws";
+const ros = new Rosbridge(`${scheme}://${location.host}/`,
+  () => [...(token ? [{op: "auth", mac: token}] : []), {op: "set_level", level: "warning"}]);
+window.dashboard = {ros, frames: 0};
+
+function logLine(list, text, level = "info") {
+  const item = el("li", {className: level, textContent: `${new Date().toLocaleTimeString()}  ${text}`});
+  list.prepend(item);
+  while (list.children.length > 200) list.lastChild.remove();
+}
+
+function setup() {
+  $("role").textContent = token ? "token given" : "open access";
+  $("connection").textContent = "connected";
+  $("connection").className = "badge on";
+}
+ros.onopen = setup;
+ros.onclose = () => { $("connection").textContent = "disconnected"; $("connection").className = "badge off"; };
+ros.onstatus = (msg) => logLine($("events"), `server: ${msg.msg}`, msg.level);
+
+// ---- camera -----------------------------------------------------------------------------------------------------
+let lastStamp = null;
+ros.subscribe("/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage", (msg) => {
+  $("camera").src = `data:image/jpeg;base64,${msg.data}`;
+  const s = msg.header.stamp;
+  lastStamp = (s.secs ?? s.sec) + (s.nsecs ?? s.nanosec) / 1e9;
+  window.dashboard.frames += 1;
+}, {throttle_rate: 0, queue_length: 1});
+setInterval(() => {
+  if (lastStamp !== null) $("camera-age").textContent = `frame age ${Math.max(0, Date.now() / 1000 - lastStamp).toFixed(2)} s`;
+}, 200);
+
+// ---- joints -----------------------------------------------------------------------------------------------------
+const gauges = new Map();
+let clamped = new Set();
+function gauge(container, name, lower, upper) {
+  const mark = el("div", {className: "mark"});
+  const value = el("span", {className: "value", textContent: "–"});
+  const row = el("div", {className: "gauge", title: `${lower} … ${upper}`},
+    el("span", {className: "name", textContent: name}), el("div", {className: "bar"}, mark), value);
+  row.dataset.name = name;
+  container.append(row);
+  return {row, mark, value, lower, upper,
+    set(v) {
+      this.mark.style.left = `${Math.min(100, Math.max(0, 100 * (v - lower) / (upper - lower)))}%`;
+      this.value.textContent = v.toFixed(1);
+    }};
+}
+ros.subscribe("/vr_teleop/robot_description", "std_msgs/String", (msg) => {
+  const description = JSON.parse(msg.data);
+  $("gauges").replaceChildren();
+  gauges.clear();
+  for (const j of description.joints) gauges.set(j.name, gauge($("gauges"), j.name, j.lower, j.upper));
+});
+ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (msg) => {
+  msg.name.forEach((name, i) => gauges.get(name)?.set(msg.position[i]));
+}, {throttle_rate: 100, queue_length: 1});
+
+// ---- teleoperation --------------------------------------------------------------------------------------------------
+ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
+  $("teleop-state").textContent = s.engaged ? `${s.state} (engaged)` : s.state;
+  $("teleop-state").className = ["stalled", "estopped", "robot_lost", "disconnected"].includes(s.state) ? "danger" : "";
+  $("teleop-holder").textContent = s.holder || "nobody";
+  const parts = [s.head_following && "head", s.left_arm_following && "left arm", s.right_arm_following && "right arm"];
+  $("teleop-following").textContent = parts.filter(Boolean).join(", ") || "nothing";
+  $("teleop-age").textContent = s.pose_age < 0 ? "no poses" : `${(s.pose_age * 1000).toFixed(0)} ms`;
+  $("teleop-robot").textContent = s.robot_connected ? "connected" : "DISCONNECTED";
+  clamped = new Set(s.clamped);
+  for (const [name, g] of gauges) g.row.classList.toggle("clamped", clamped.has(name));
+}, {throttle_rate: 100, queue_length: 1});
+ros.subscribe("/vr_teleop/clamps", "vr_teleop_msgs/Clamp", (c) => {
+  for (const name of c.joints) {
+    const g = gauges.get(name);
+    if (!g) continue;
+    g.row.classList.add("clamped");
+    setTimeout(() => { if (!clamped.has(name)) g.row.classList.remove("clamped"); }, 1500);
+  }
+});
+
+// ---- status and motivation ------------------------------------------------------------------------------------------
+ros.subscribe("/vr_teleop/status/hardware", "vr_teleop_msgs/HardwareStatus", (h) => {
+  const rows = [["CPU", `${h.cpu_percent.toFixed(0)} %`], ["memory", `${h.memory_percent.toFixed(0)} %`],
+                ["load", h.load_1min.toFixed(2)]];
+  if (h.has_temperature) rows.push(["temperature", `${h.temperature_c.toFixed(0)} °C`]);
+  $("status").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {textContent: k}), el("dd", {textContent: v})]));
+});
+const motivation = new Map();
+ros.subscribe("/vr_teleop/status/motivation", "vr_teleop_msgs/Motivation", (m) => {
+  m.name.forEach((name, i) => {
+    if (!motivation.has(name)) motivation.set(name, gauge($("motivation"), name, m.min[i], m.max[i]));
+    const g = motivation.get(name);
+    g.set(m.value[i]);
+    g.row.classList.toggle("high", m.level[i] === "high");
+    g.row.classList.toggle("low", m.level[i] === "low");
+  });
+});
+ros.subscribe("/vr_teleop/events", "vr_teleop_msgs/Event", (e) => {
+  logLine($("events"), `${e.source}: ${e.kind}${e.detail ? " " + e.detail : ""}`, e.level);
+});
+
+// ---- Wizard-of-Oz buttons, from the same menu data as the headset's --------------------------------------------
+let sayItem = null;
+function select(id, args = "") {
+  return ros.call("/vr_teleop/menu/select", {id, args})
+    .then((r) => logLine($("events"), `${id}: ${r.message}`))
+    .catch((err) => logLine($("events"), `${id}: ${err.message}`, "error"));
+}
+ros.subscribe("/vr_teleop/menus", "vr_teleop_msgs/Menus", (m) => {
+  const byParent = new Map();
+  for (const item of m.items) {
+    if (!byParent.has(item.parent)) byParent.set(item.parent, []);
+    byParent.get(item.parent).push(item);
+  }
+  const sections = [];
+  for (const menu of m.menus) {
+    const buttons = el("div", {className: "buttons"});
+    const walk = (parent) => (byParent.get(parent) || []).forEach((item) => {
+      if (item.command) {
+        if (item.command === "say" && !sayItem) sayItem = item.id;
+        const b = el("button", {textContent: item.label, title: item.id});
+        b.dataset.item = item.id;
+        b.onclick = () => select(item.id);
+        buttons.append(b);
+      }
+      walk(item.id);
+    });
+    walk(menu.id);
+    sections.push(el("div", {className: "menu"}, el("h3", {textContent: menu.label}), buttons));
+  }
+  $("menus").replaceChildren(...sections);
+});
+$("say-form").onsubmit = (event) => {
+  event.preventDefault();
+  const text = $("say-text").value.trim();
+  if (text && sayItem) select(sayItem, JSON.stringify({text}));
+  $("say-text").value = "";
+};
+
+// ---- emergency stop and control ---------------------------------------------------------------------------------
+function estop() {
+  ros.call("/vr_teleop/control/estop")
+    .then((r) => logLine($("events"), `EMERGENCY STOP: ${r.message}`, "danger"))
+    .catch((err) => logLine($("events"), `e-stop refused: ${err.message}`, "error"));
+}
+$("estop").onclick = estop;
+$("release").onclick = () => ros.call("/vr_teleop/control/engage", {data: false})
+  .then((r) => logLine($("events"), r.message)).catch((err) => logLine($("events"), err.message, "error"));
+
+// ---- study labels: published as events, so recordings and the metrics see them -----------------------------------
+function label(kind) {
+  const action = $("label-action").value.trim() || "human_action";
+  const detail = JSON.stringify({action, wall_time: Date.now() / 1000});
+  ros.publish("/study/labels", "vr_teleop_msgs/Event",
+              {header: {}, source: "experimenter", kind, level: "info", detail});
+  logLine($("labels"), `${kind} ${action}`);
+}
+$("label-start").onclick = () => label("human_action_start");
+$("label-stop").onclick = () => label("human_action_stop");
+$("label-intervention").onclick = () => label("intervention");
+document.addEventListener("keydown", (event) => {
+  if (event.target.tagName === "INPUT") { if (event.key === "Escape") estop(); return; }
+  if (event.key === "Escape") estop();
+  else if (event.key === "h" || event.key === "H") label("human_action_start");
+  else if (event.key === "j" || event.key === "J") label("human_action_stop");
+  else if (event.key === "i" || event.key === "I") label("intervention");
+});
