@@ -7,8 +7,17 @@ import socket
 
 import pytest
 import roslibpy
+from support import (
+    Headset,
+    RunningServer,
+    Watch,
+    call,
+    engage,
+    joints,
+    unity_yaw_pitch,
+    wait_for,
+)
 
-from support import Headset, RunningServer, Watch, call, engage, joints, unity_yaw_pitch, wait_for
 from vr_teleop_server.settings import ServerSettings
 
 
@@ -72,17 +81,51 @@ def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, tmp_
         assert wait_for(lambda: teleop.latest.get("state") == "robot_lost"
                         and not teleop.latest["robot_connected"], 10), teleop.latest
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), 5)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"), 5)
         with pytest.raises(roslibpy.core.ServiceException, match="disconnected"):
             call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
+        with pytest.raises(roslibpy.core.ServiceException, match="disconnected"):  # refused, not queued
+            call(ros, "/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": "QT/sad"})
         state["robot"] = robot_side(port, tmp_path)  # back, on the same port
         assert wait_for(lambda: teleop.latest.get("robot_connected"), 20), teleop.latest
-        assert events.any(lambda e: e["kind"] == "robot_back")
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), 5)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 5)
         engage(ros)  # resuming needs a fresh engage
         headset.head_orientation = unity_yaw_pitch(-30)
         assert wait_for(lambda: abs(state["robot"].server.robot.standin.joint_positions()["HeadYaw"] + 30) < 2, 15)
         headset.stop()
+        assert state["robot"].server.robot.standin.emotion != "sad"  # the refused emotion did not burst out later
     finally:
         ros.close()
+
+
+def test_motor_states_are_read_from_the_robot(tmp_path):
+    """The firmware's /qt_robot/motors/states type varies; the backend subscribes without naming one."""
+    port = free_port()
+    robot = robot_side(port, tmp_path)
+    firmware = roslibpy.Ros(host="127.0.0.1", port=port)
+    firmware.run(timeout=10)
+    server = None
+    try:
+        states = roslibpy.Topic(firmware, "/qt_robot/motors/states", "vr_teleop_msgs/MotorsStatus")
+        states.advertise()  # exists before the backend connects, as on a robot
+        server = RunningServer(ServerSettings(port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}",
+                                              gesture_dir=tmp_path / "g", audio_dir=tmp_path / "a"))
+        backend = server.server.robot
+
+        def temperatures():
+            states.publish(roslibpy.Message({"name": ["HeadYaw", "RightElbowRoll"], "temperature": [41.5, 38.0],
+                                             "voltage": [12.1, 11.9]}))
+            return {m.name: (m.temperature_c, m.voltage_v) for m in backend.motor_status()}
+
+        assert wait_for(lambda: temperatures()["HeadYaw"] == (41.5, pytest.approx(12.1)), 10)
+        assert temperatures()["RightElbowRoll"] == (38.0, pytest.approx(11.9))
+        assert temperatures()["HeadPitch"] == (None, None)  # not reported: unknown, not zero
+    finally:
+        if server is not None:
+            server.stop()
+        firmware.close()
+        robot.stop()
 
 
 def test_serve_says_when_the_robot_cannot_be_reached():
@@ -93,5 +136,6 @@ def test_serve_says_when_the_robot_cannot_be_reached():
     port = free_port()
     proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", "0", "--backend", "ros",
                            "--robot-url", f"ws://127.0.0.1:{port}"], capture_output=True, text=True, timeout=60,
-                          cwd=Path(__file__).resolve().parent.parent)
-    assert proc.returncode == 1 and f"ws://127.0.0.1:{port}" in proc.stderr, proc.stderr
+                          check=False, cwd=Path(__file__).resolve().parent.parent)
+    assert proc.returncode == 1 and f"cannot reach the robot's rosbridge at ws://127.0.0.1:{port}" in proc.stderr, \
+        proc.stderr

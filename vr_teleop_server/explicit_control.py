@@ -242,7 +242,8 @@ class ExplicitControl:
         self.mapper.estop()
         state = self.robot.joint_state().as_dict()
         for part, names in self.robot.model.parts.items():
-            self.bus.publish(COMMAND_TOPICS[part], {"data": [state[n] for n in names]})
+            # where the joints are, within the limits: the physical joints may sit a hair beyond them
+            self.bus.publish(COMMAND_TOPICS[part], {"data": [self.robot.model.clamp(n, state[n]) for n in names]})
         self._event("estop", "danger", {"holder": holder, "by": caller})
         self._publish_state()
         return {"success": True, "message": "stopped: the robot holds where it is and control is released"}

@@ -49,7 +49,7 @@ class ClampReport:
     requested: tuple[float, ...]
     applied: tuple[float, ...]  # after clamping; for ignored joints, the clamped value that was NOT applied
     clamped: tuple[JointClamp, ...] = ()
-    ignored: tuple[str, ...] = ()  # joints whose motor is OFF or BRAKE: the command did not move them
+    ignored: tuple[str, ...] = ()  # motor OFF or BRAKE, or the robot unreachable: the command did not move them
 
     @property
     def ok(self) -> bool:
@@ -60,7 +60,7 @@ class ClampReport:
         """A one-line account for logs and client status messages."""
         parts = [f"{c.name} {c.requested:.1f} -> {c.applied:.1f} deg (limit)" for c in self.clamped]
         if self.ignored:
-            parts.append(f"ignored (motor not ON): {', '.join(self.ignored)}")
+            parts.append(f"ignored (motor not ON, or the robot disconnected): {', '.join(self.ignored)}")
         return "; ".join(parts) or "applied as requested"
 
 

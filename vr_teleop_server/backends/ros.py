@@ -2,9 +2,9 @@
 
 roslibpy runs its own networking thread; what arrives there (joint states, camera frames, connection changes) is
 stored under a lock and handed to asyncio waiters with call_soon_threadsafe. roslibpy reconnects with backoff
-(1 s doubling to MAX_BACKOFF_S) and re-subscribes by itself. While the robot is unreachable, `connected` is False:
-commands are refused (reported as ignored, never queued to burst out later), explicit control holds and says so,
-and services answer with an error.
+(0.5 s growing to MAX_BACKOFF_S) and re-subscribes by itself. While the robot is unreachable, `connected` is False
+and `connection_changed` listeners hear it on the event loop: joint commands are refused (reported as ignored, never
+queued to burst out later), explicit control holds and says so, and services answer with an error.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 from urllib.parse import urlparse
 
@@ -25,8 +25,17 @@ from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
 
 from robot_models import RobotModel, load_qtrobot
 
+from ..bus import BusError
 from ..robot import (
-    CameraFrame, ClampReport, Gesture, GestureResult, JointState, MotorMode, MotorStatus, Robot, SpeechResult,
+    CameraFrame,
+    ClampReport,
+    Gesture,
+    GestureResult,
+    JointState,
+    MotorMode,
+    MotorStatus,
+    Robot,
+    SpeechResult,
     clamp_command,
 )
 
@@ -35,12 +44,17 @@ log = logging.getLogger(__name__)
 MAX_BACKOFF_S = 5.0
 CALL_TIMEOUT_S = 10.0
 CAMERA_TOPIC = "/camera/color/image_raw/compressed"
+MOTOR_STATES_TOPIC = "/qt_robot/motors/states"
 PART_TOPICS = {"head": "/qt_robot/head_position/command", "right_arm": "/qt_robot/right_arm_position/command",
                "left_arm": "/qt_robot/left_arm_position/command"}
 
 
 class RobotUnreachable(RuntimeError):
-    pass
+    """The robot's rosbridge did not answer at start-up: the server cannot run this backend."""
+
+
+class RobotDisconnected(BusError):
+    """A request refused while the robot is away; the client sees the message as it is."""
 
 
 def _jpeg_size(data: bytes) -> tuple[int, int]:
@@ -76,13 +90,17 @@ class RosRobot(Robot):
         self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, int]] = []
         self._camera_count = 0
         self._gesture_stop: asyncio.Event | None = None
+        self._motor_readings: dict[str, tuple[float | None, float | None]] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.connection_changed: list[Callable[[bool], None]] = []  # called on the event loop with the new state
         self._ros.on("close", self._on_close)
         self._ros.on("ready", self._on_ready)
         try:
             self._ros.run(timeout=connect_timeout)
-        except Exception as exc:  # roslibpy raises its own exception types on timeout
+        except roslibpy.core.RosTimeoutError:  # roslibpy kept retrying (refused, unreachable) until the timeout
             self._stop_reconnecting()
-            raise RobotUnreachable(f"cannot reach the robot's rosbridge at {url}: {exc or 'timed out'}") from None
+            raise RobotUnreachable(f"cannot reach the robot's rosbridge at {url} within {connect_timeout:g} s") \
+                from None
         self._connected = True
         self._publishers = {part: roslibpy.Topic(self._ros, topic, "std_msgs/Float64MultiArray")
                             for part, topic in PART_TOPICS.items()}
@@ -90,11 +108,16 @@ class RosRobot(Robot):
             topic.advertise()
         self._joints_topic = roslibpy.Topic(self._ros, "/qt_robot/joints/state", "sensor_msgs/JointState")
         self._joints_topic.subscribe(self._on_joint_state)
+        # no type: the robot's rosbridge names it (it varies by firmware); a robot without the topic answers a status
+        self._motors_topic = roslibpy.Topic(self._ros, MOTOR_STATES_TOPIC, "")
+        self._motors_topic.subscribe(self._on_motor_states)
         self._camera_topic = roslibpy.Topic(self._ros, CAMERA_TOPIC, "sensor_msgs/CompressedImage", queue_length=1)
 
     @classmethod
     async def create(cls, url: str, model: RobotModel | None = None) -> RosRobot:
-        return await asyncio.to_thread(cls, url, model)
+        robot = await asyncio.to_thread(cls, url, model)
+        robot._loop = asyncio.get_running_loop()
+        return robot
 
     # ---- connection ---------------------------------------------------------------------------------------------
     @property
@@ -104,12 +127,29 @@ class RosRobot(Robot):
     def _on_ready(self, *_args: Any) -> None:
         if not self._connected:
             log.info("robot rosbridge %s connected", self.url)
-        self._connected = True
+            self._connected = True
+            self._announce(True)
 
     def _on_close(self, *_args: Any) -> None:
         if self._connected:
             log.warning("robot rosbridge %s disconnected; reconnecting", self.url)
-        self._connected = False
+            self._connected = False
+            self._announce(False)
+
+    def _announce(self, connected: bool) -> None:
+        """From roslibpy's thread to the listeners on the event loop (none before start-up completed)."""
+        loop = self._loop
+        if loop is None:
+            return
+        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody to tell
+            loop.call_soon_threadsafe(self._notify, connected)
+
+    def _notify(self, connected: bool) -> None:
+        for listener in list(self.connection_changed):
+            try:
+                listener(connected)
+            except Exception:  # one faulty listener must not silence the others
+                log.exception("robot connection listener failed")
 
     @property
     def model(self) -> RobotModel:
@@ -162,25 +202,44 @@ class RosRobot(Robot):
             for n in self._model.part_joints(part):
                 self._modes[n] = mode
 
+    def _on_motor_states(self, msg: dict[str, Any]) -> None:
+        """Reads the firmware's per-motor arrays leniently: name with temperature and/or voltage."""
+        names = msg.get("name") or []
+        temperatures = list(msg.get("temperature") or [])
+        voltages = list(msg.get("voltage") or [])
+        readings = {}
+        for i, name in enumerate(names):
+            t = temperatures[i] if i < len(temperatures) else None
+            v = voltages[i] if i < len(voltages) else None
+            readings[str(name)] = (None if t is None else float(t), None if v is None else float(v))
+        with self._lock:
+            self._motor_readings.update(readings)
+
     def motor_status(self) -> tuple[MotorStatus, ...]:
         positions = self.joint_state().as_dict()
+        with self._lock:
+            readings = dict(self._motor_readings)
         out = []
         for part, names in self._model.parts.items():
             for n in names:
-                out.append(MotorStatus(n, part, positions.get(n, math.nan), None, None, self._modes[n], "measured"))
+                temperature, voltage = readings.get(n, (None, None))
+                out.append(MotorStatus(n, part, positions.get(n, math.nan), temperature, voltage, self._modes[n],
+                                       "measured"))
         return tuple(out)
 
     # ---- services -----------------------------------------------------------------------------------------------
-    def _call_nowait(self, name: str, type_name: str, args: dict[str, Any]) -> None:
+    def _refuse_if_disconnected(self, name: str) -> None:
         if not self.connected:
-            log.warning("%s not called: the robot is disconnected", name)
-            return
+            raise RobotDisconnected(f"{name}: the robot's rosbridge at {self.url} is disconnected (reconnecting); "
+                                    "try again once it is back")
+
+    def _call_nowait(self, name: str, type_name: str, args: dict[str, Any]) -> None:
+        self._refuse_if_disconnected(name)
         roslibpy.Service(self._ros, name, type_name).call(
             roslibpy.ServiceRequest(args), lambda _r: None, lambda err: log.warning("%s failed: %s", name, err))
 
     async def _call(self, name: str, type_name: str, args: dict[str, Any]) -> dict[str, Any]:
-        if not self.connected:
-            raise RuntimeError(f"{name}: the robot is disconnected")
+        self._refuse_if_disconnected(name)
         loop = asyncio.get_running_loop()
         fut: asyncio.Future = loop.create_future()
 
@@ -194,7 +253,7 @@ class RosRobot(Robot):
         return await asyncio.wait_for(fut, CALL_TIMEOUT_S)
 
     def show_emotion(self, name: str) -> None:
-        short = name[3:] if name.startswith("QT/") else name
+        short = name.removeprefix("QT/")
         if short not in self._model.emotions:
             raise ValueError(f"unknown emotion {name!r}; valid emotions: {', '.join(self._model.emotions)}")
         self._call_nowait("/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": f"QT/{short}"})
@@ -210,6 +269,7 @@ class RosRobot(Robot):
     async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
         """Streams the gesture's waypoints as position commands, so recordings the robot does not hold play too."""
         gesture.validate(self._model)
+        self._refuse_if_disconnected("/qt_robot/gesture/play")
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
         self.stop_gesture()
@@ -276,7 +336,7 @@ class RosRobot(Robot):
             self._waiters.append(entry)
         try:
             return await asyncio.wait_for(fut, timeout)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             return None
         finally:
             with self._lock:
@@ -289,6 +349,7 @@ class RosRobot(Robot):
         reactor.callFromThread(self._ros.factory.stopTrying)
 
     def close(self) -> None:
+        self._loop = None  # our own closing is no news for the listeners
         self._stop_reconnecting()
         with contextlib.suppress(Exception):  # already gone
             self._ros.close(timeout=2)
