@@ -216,7 +216,10 @@ class Bus:
             topic.latched = True
             topic.last = published
         for tap in self.taps:
-            tap(published)
+            try:
+                tap(published)
+            except Exception:  # a failing recording (disk full...) must not stop the robot's traffic
+                log.exception("tap on %s failed", name)
         for _owner, callback in list(topic.subscribers.values()):
             try:
                 callback(published)

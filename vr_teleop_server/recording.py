@@ -29,8 +29,8 @@ from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from client_protocol.registry import TypeRegistry
@@ -195,7 +195,7 @@ def _read_stream(f: Any) -> Iterator[Recorded]:
             record = next(records)
         except StopIteration:
             return
-        except Exception:  # the torn end of a killed writer fails in whatever way the parser meets it
+        except Exception:  # noqa: BLE001 (the torn end of a killed writer fails however the parser meets it)
             return
         if isinstance(record, Schema):
             schemas[record.id] = record

@@ -39,6 +39,10 @@ COMMAND_TOPICS = {"/qt_robot/head_position/command": "head", "/qt_robot/left_arm
                   "/qt_robot/right_arm_position/command": "right_arm"}
 CAMERA_TOPIC = "/camera/color/image_raw/compressed"
 MENUS_TOPIC = "/vr_teleop/menus"
+ENGAGE = "/vr_teleop/control/engage"
+ENGAGE_LAGS = 10  # head poses an engage may be overtaken by, at most
+DRAIN_S = 30.0  # at most this long after the last message sent, for answers and late commands
+QUIET_S = 0.5  # commands have stopped once none came for this long
 TOPIC_TYPES = {"/vr/head/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/pose": "geometry_msgs/PoseStamped",
                "/vr/right_controller/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/joy": "sensor_msgs/Joy",
                "/vr/right_controller/joy": "sensor_msgs/Joy", "/vr_teleop/menu/selection": "std_msgs/String",
@@ -90,7 +94,10 @@ class Collected:
     calls: dict[str, tuple[str, float, dict[str, Any]]] = field(default_factory=dict)  # id -> service, sent, args
     responses: dict[str, tuple[bool, Any, float]] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
-    menu_items: list[str] = field(default_factory=list)  # selectable ids on the server's latched /vr_teleop/menus
+    last_command: float = 0.0  # when the newest joint command arrived
+    started: float = 0.0  # when the first message was sent
+    # the server's latched /vr_teleop/menus: selectable id -> (command, args)
+    menu_items: dict[str, tuple[str, dict[str, Any]]] = field(default_factory=dict)
 
 
 async def _receive(ws: Any, got: Collected) -> None:
@@ -104,10 +111,12 @@ async def _receive(ws: Any, got: Collected) -> None:
             topic = msg["topic"]
             if topic in COMMAND_TOPICS:
                 got.commands[COMMAND_TOPICS[topic]].append((now, msg["msg"]["data"]))
+                got.last_command = now
             elif topic == "/qt_robot/joints/state":
                 got.joint_states.append((now, dict(zip(msg["msg"]["name"], msg["msg"]["position"]))))
             elif topic == MENUS_TOPIC:
-                got.menu_items = [item["id"] for item in msg["msg"]["items"] if item.get("command")]
+                got.menu_items = {item["id"]: (item["command"], json.loads(item.get("args") or "{}"))
+                                  for item in msg["msg"]["items"] if item.get("command")}
             elif topic == CAMERA_TOPIC:
                 stamp = msg["msg"]["header"]["stamp"]
                 secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
@@ -123,8 +132,9 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
     got = Collected()
     async with connect(url, max_size=None, compression=None) as ws:
         subscriptions = [*COMMAND_TOPICS, "/qt_robot/joints/state"] + ([CAMERA_TOPIC] if camera else [])
-        for topic in subscriptions:
-            await ws.send(json.dumps({"op": "subscribe", "topic": topic}))
+        for topic in subscriptions:  # every command and joint state: a backlog, not the newest only
+            queue = 0 if topic == CAMERA_TOPIC else 100_000
+            await ws.send(json.dumps({"op": "subscribe", "topic": topic, "queue_length": queue}))
         await ws.send(json.dumps({"op": "subscribe", "topic": MENUS_TOPIC, "type": "vr_teleop_msgs/Menus"}))
         for topic in sorted({s.topic for s in steps if s.kind == "publish"} & set(TOPIC_TYPES)):
             await ws.send(json.dumps({"op": "advertise", "topic": topic, "type": TOPIC_TYPES[topic]}))
@@ -132,6 +142,7 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
         await asyncio.sleep(0.3)  # let the subscriptions settle
         loop = asyncio.get_running_loop()
         t0 = loop.time()
+        got.started = time.monotonic()
         bar = tqdm(total=len(steps), unit="msg", disable=not progress, file=sys.stderr, desc="replay")
         for i, step in enumerate(steps):
             delay = t0 + step.t / speed - loop.time()
@@ -149,31 +160,41 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
             bar.update(1)
         bar.close()
         elapsed = loop.time() - t0
-        deadline = loop.time() + 10.0  # wait for the last answers (a sentence, a gesture)
-        while loop.time() < deadline and len(got.responses) < len(got.calls):
-            await asyncio.sleep(0.1)
-        await asyncio.sleep(0.3)
+        # Wait for the last answers (a sentence, a gesture) and for the commands a lagging server still owes.
+        deadline = loop.time() + DRAIN_S
+        while loop.time() < deadline and (len(got.responses) < len(got.calls)
+                                          or time.monotonic() - got.last_command < QUIET_S):
+            await asyncio.sleep(0.05)
         receiver.cancel()
     return got, elapsed
 
 
-def _first_after(times: np.ndarray, values: list[Any], sent: float, before: float) -> tuple[float, Any] | None:
-    j = int(np.searchsorted(times, sent))
-    return (float(times[j]), values[j]) if j < len(times) and times[j] < before else None
+def _responses(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tuple[
+        dict[int, dict[str, tuple[float, list[float]]]], str]:
+    """For each head pose sent (by step index), the commands it caused, per part, and how they were paired.
 
-
-def _responses(got: Collected) -> dict[int, dict[str, tuple[float, list[float]]]]:
-    """For each head pose sent (by step index), the commands it caused, per part: the first command of each part
-    received after it and before the next head pose (the server steps on each head pose)."""
-    series = {part: (np.array([c[0] for c in cmds]), [c[1] for c in cmds]) for part, cmds in got.commands.items()}
-    out: dict[int, dict[str, tuple[float, list[float]]]] = {}
-    for k, (sent, index) in enumerate(got.sent_head):
-        before = got.sent_head[k + 1][0] if k + 1 < len(got.sent_head) else float("inf")
-        caused = {part: hit for part, (times, values) in series.items()
-                  if (hit := _first_after(times, values, sent, before)) is not None}
-        if caused:
-            out[index] = caused
-    return out
+    The server steps on each head pose in the order sent and publishes the moving parts' targets. When a part's
+    command count matches the offline mapping's, the n-th command from the end answers the n-th pose from the end
+    that moves that part ("in_order", exact even when the server lags). Otherwise a pose is paired with the first
+    command received after it and before the next pose ("window", right only while the server keeps up)."""
+    out: dict[int, dict[str, tuple[float, list[float]]]] = defaultdict(dict)
+    # Engaging a pose or two apart from the offline guess shifts the count at the start only: align the ends.
+    extra = {part: len(got.commands.get(part, [])) - sum(1 for e in expected.values() if part in e)
+             for part in COMMAND_TOPICS.values()}
+    if all(0 <= n < ENGAGE_LAGS for n in extra.values()):
+        for part in COMMAND_TOPICS.values():
+            causes = sorted(i for i, e in expected.items() if part in e)
+            for index, command in zip(causes, got.commands.get(part, [])[extra[part]:]):
+                out[index][part] = command
+        return dict(out), "in_order"
+    for part, cmds in got.commands.items():
+        times = np.array([c[0] for c in cmds])
+        for k, (sent, index) in enumerate(got.sent_head):
+            before = got.sent_head[k + 1][0] if k + 1 < len(got.sent_head) else float("inf")
+            j = int(np.searchsorted(times, sent))
+            if j < len(cmds) and cmds[j][0] < before:
+                out[index][part] = cmds[j]
+    return dict(out), "window"
 
 
 def _measured_at(got: Collected, t: float) -> dict[str, float] | None:
@@ -181,28 +202,63 @@ def _measured_at(got: Collected, t: float) -> dict[str, float] | None:
     return states[-1] if states else None
 
 
-def expected_commands(steps: list[Step], got: Collected,
-                      settings: TeleopSettings | None = None) -> dict[int, dict[str, list[float]]]:
+def _control_action(step: Step, got: Collected, cid: str) -> tuple[str, bool] | None:
+    """What a successful call did to explicit control: ("engage"|"estop"|"head"|"arms", on), or None.
+    Menu items that reach the control services count too."""
+    response = got.responses.get(cid)
+    if response is None or not response[0]:
+        return None
+    args = got.calls[cid][2]
+    service, data = step.topic, args.get("data")
+    if service == "/vr_teleop/menu/select":
+        command, item_args = got.menu_items.get(args.get("id", ""), ("", {}))
+        extra = json.loads(args.get("args") or "{}")
+        item_args = {**item_args, **extra}
+        service = {"engage": ENGAGE, "estop": "/vr_teleop/control/estop", "set_head_control": "/vr_teleop/control/head",
+                   "set_arms_control": "/vr_teleop/control/arms"}.get(command, "")
+        data = item_args.get("enable", True)
+        if command in ("set_head_control", "set_arms_control") and "enable" not in item_args:
+            on = str(response[1].get("message", "") if isinstance(response[1], dict) else "").endswith(" on")
+            data = on  # a toggle: the answer says which way it went
+    kind = {ENGAGE: "engage", "/vr_teleop/control/estop": "estop", "/vr_teleop/control/head": "head",
+            "/vr_teleop/control/arms": "arms"}.get(service)
+    return (kind, bool(data)) if kind else None
+
+
+def expected_commands(steps: list[Step], got: Collected, settings: TeleopSettings | None = None,
+                      engage_lag: int = 0) -> dict[int, dict[str, list[float]]]:
     """What TeleopMapper gives for each head pose, computed offline from the same messages at the replay's send
-    times, engaged where the server acknowledged an engage call, from the joints the robot reported then."""
+    times. Control calls act where they were sent, except that an engage takes hold `engage_lag` head poses later
+    (the server runs service calls as tasks, so a pose or two may overtake one), from the joints measured then.
+    Where velocity caps bind, the server's own step times (its load) show in the difference."""
     mapper = TeleopMapper(load_qtrobot(), settings)
     send_time = {index: sent for sent, index in got.sent_head}
     expected: dict[int, dict[str, list[float]]] = {}
     last_t = 0.0
+    engage_in: int | None = None
     for i, step in enumerate(steps):
         if step.kind == "call":
-            # The server handles frames in order: an engage acts on the messages sent before it.
-            cid = f"replay:{i}"
-            if step.topic == "/vr_teleop/control/engage" and got.responses.get(cid, (False,))[0]:
-                when = got.calls[cid][1]
-                if got.calls[cid][2].get("data"):
-                    mapper.engage(when, _measured_at(got, when))
-                else:
+            action = _control_action(step, got, f"replay:{i}")
+            if action == ("engage", True):
+                engage_in = engage_lag
+            elif action is not None and action[0] in ("engage", "estop"):
+                engage_in = None
+                if action[0] == "engage":
                     mapper.release()
+                else:
+                    mapper.estop()
+            elif action is not None:
+                for part in ("head",) if action[0] == "head" else ("left_arm", "right_arm"):
+                    mapper.set_part_enabled(part, action[1])
             continue
         t = last_t = send_time.get(i, last_t)
         try:
             if step.topic == "/vr/head/pose":
+                if engage_in == 0:
+                    engage_in = None
+                    mapper.engage(t, _measured_at(got, t))
+                elif engage_in is not None:
+                    engage_in -= 1
                 mapper.on_head_pose(step.payload, t)
                 out = mapper.step(t)
                 if out.commands:
@@ -216,15 +272,44 @@ def expected_commands(steps: list[Step], got: Collected,
     return expected
 
 
-def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
-    duration = steps[-1].t if steps else 0.0
-    caused = _responses(got)
-    sent_at = {index: sent for sent, index in got.sent_head}
-    lat_ms = np.array([(min(t for t, _v in parts.values()) - sent_at[i]) * 1e3 for i, parts in caused.items()])
-    expected = expected_commands(steps, got)
+def _tracking(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tuple[
+        dict[str, np.ndarray], dict[int, dict[str, tuple[float, list[float]]]], str]:
+    caused, pairing = _responses(got, expected)
     errors = {part: np.array([np.abs(np.array(parts[part][1]) - np.array(expected[i][part])).max()
                               for i, parts in caused.items() if part in parts and part in expected.get(i, {})])
               for part in COMMAND_TOPICS.values()}
+    return errors, caused, pairing
+
+
+def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
+    """How many head poses after the engage call the server engaged (not on the wire: the server runs calls as
+    tasks). The lag whose first offline head commands match the first ones received, in order, wins."""
+    received = [c[1] for c in got.commands.get("head", [])]
+    engage = next((i for i, step in enumerate(steps) if step.kind == "call" and step.topic == ENGAGE), None)
+    if engage is None or not received:
+        return 0
+    after = [i for i, step in enumerate(steps) if i > engage and step.topic == "/vr/head/pose"]
+    head = steps[:after[min(poses, len(after)) - 1] + 1] if after else steps
+
+    def miss(lag: int) -> float:
+        expected = expected_commands(head, got, engage_lag=lag)
+        firsts = [e["head"] for _i, e in sorted(expected.items()) if "head" in e][: len(received)]
+        if not firsts:
+            return np.inf
+        return float(np.mean([np.abs(np.array(e) - np.array(r)).max() for e, r in zip(firsts, received)]))
+
+    return min(range(ENGAGE_LAGS), key=miss)
+
+
+def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
+    duration = steps[-1].t if steps else 0.0
+    lag = _engage_lag(steps, got)
+    expected = expected_commands(steps, got, engage_lag=lag)
+    errors, caused, pairing = _tracking(got, expected)
+    sent_at = {index: sent for sent, index in got.sent_head}
+    last = [c[-1][0] for c in got.commands.values() if c]
+    served = max(last) - got.started if last else None
+    lat_ms = np.array([(min(t for t, _v in parts.values()) - sent_at[i]) * 1e3 for i, parts in caused.items()])
     cam_rx = np.array([c[0] for c in got.camera])
     cam_age = np.array([(rx - stamp) * 1e3 for rx, stamp in got.camera])
     menu_ids = [cid for cid, (service, _t, _a) in got.calls.items() if service == "/vr_teleop/menu/select"]
@@ -233,17 +318,26 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> d
     def pct(a: np.ndarray, q: float) -> float | None:
         return round(float(np.percentile(a, q)), 3) if a.size else None
 
+    def stats(e: np.ndarray) -> dict[str, Any]:
+        """Per command: the largest joint difference, in degrees."""
+        return {"n": int(e.size), "mean": round(float(e.mean()), 3) if e.size else None, "p99": pct(e, 99),
+                "max": round(float(e.max()), 3) if e.size else None}
+
     return {
         "session_s": round(duration, 2), "replay_s": round(elapsed, 2), "speed_requested": speed,
         "speed_achieved": round(duration / elapsed, 2) if elapsed > 0 else None,
+        # until the last joint command arrived: how fast the server really went through the session
+        "served_s": round(served, 2) if served else None,
+        "speed_served": round(duration / served, 2) if served else None,
         "messages_sent": sum(1 for s in steps if s.kind == "publish"),
         "calls_sent": len(got.calls), "calls_answered": len(got.responses),
-        "latency_ms": {"n": int(lat_ms.size), "p50": pct(lat_ms, 50), "p99": pct(lat_ms, 99),
+        "latency_ms": {"n": int(lat_ms.size), "pairing": pairing, "p50": pct(lat_ms, 50), "p99": pct(lat_ms, 99),
                        "max": round(float(lat_ms.max()), 3) if lat_ms.size else None},
-        "tracking_error_deg": {part: {"n": int(e.size), "mean": round(float(e.mean()), 3) if e.size else None,
-                                      "p99": pct(e, 99), "max": round(float(e.max()), 3) if e.size else None}
-                               for part, e in errors.items()},
+        "tracking_error_deg": {**stats(np.concatenate(list(errors.values()))),
+                               "by_part": {part: stats(e) for part, e in errors.items()}},
         "commands_received": {part: len(v) for part, v in got.commands.items()},
+        "commands_expected": {part: n for part in COMMAND_TOPICS.values()
+                              if (n := sum(1 for e in expected.values() if part in e))},
         "camera": {"frames": int(cam_rx.size),
                    "fps": round(float((cam_rx.size - 1) / (cam_rx[-1] - cam_rx[0])), 2) if cam_rx.size > 1 else 0.0,
                    "age_ms_p50": pct(cam_age, 50), "age_ms_p99": pct(cam_age, 99)},
