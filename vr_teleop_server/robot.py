@@ -18,6 +18,7 @@ import abc
 import asyncio
 import enum
 import math
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -125,6 +126,63 @@ class MotorStatus:
     voltage_v: float | None
     mode: MotorMode
     source: str  # "measured" (a real robot) or "modelled" (the stand-in's thermal model)
+
+
+class FrameMailbox:
+    """Hands camera frames from a backend's thread to asyncio waiters on any loop, keeping only the newest."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._newest: CameraFrame | None = None
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, int]] = []
+        self.closed = False
+
+    @property
+    def newest(self) -> CameraFrame | None:
+        with self._lock:
+            return self._newest
+
+    def put(self, frame: CameraFrame) -> None:
+        """Any thread: keep `frame` and wake the waiters it is new to."""
+        with self._lock:
+            self._newest = frame
+            ready = [(loop, fut) for loop, fut, after in self._waiters if frame.seq > after]
+        for loop, fut in ready:
+            self._resolve(loop, fut, frame)
+
+    async def next(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
+        """A frame newer than after_seq, or None on timeout or after close()."""
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future = loop.create_future()
+        entry = (loop, fut, after_seq)
+        with self._lock:
+            if self._newest is not None and self._newest.seq > after_seq:
+                return self._newest
+            if self.closed:
+                return None
+            self._waiters.append(entry)
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        except asyncio.TimeoutError:
+            return None
+        finally:
+            with self._lock:
+                if entry in self._waiters:
+                    self._waiters.remove(entry)
+
+    def close(self) -> None:
+        with self._lock:
+            self.closed = True
+            waiters, self._waiters = self._waiters, []
+        for loop, fut, _ in waiters:
+            self._resolve(loop, fut, None)
+
+    @staticmethod
+    def _resolve(loop: asyncio.AbstractEventLoop, fut: asyncio.Future, value: CameraFrame | None) -> None:
+        try:
+            loop.call_soon_threadsafe(lambda: fut.done() or fut.set_result(value))
+        except RuntimeError:  # that loop is closed; its waiter is gone
+            pass
 
 
 @dataclass(frozen=True)

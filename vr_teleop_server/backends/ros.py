@@ -28,6 +28,7 @@ from robot_models import RobotModel, load_qtrobot
 from ..bus import BusError
 from ..robot import (
     CameraFrame,
+    FrameMailbox,
     ClampReport,
     Gesture,
     GestureResult,
@@ -85,9 +86,8 @@ class RosRobot(Robot):
         self._state: JointState | None = None
         self._commanded: dict[str, float] = {}
         self._modes = {n: MotorMode.ON for n in self._model.names}
-        self._frame: CameraFrame | None = None
+        self._frames = FrameMailbox()
         self._frame_seq = 0
-        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, int]] = []
         self._camera_count = 0
         self._gesture_stop: asyncio.Event | None = None
         self._motor_readings: dict[str, tuple[float | None, float | None]] = {}
@@ -312,36 +312,14 @@ class RosRobot(Robot):
         data = msg.get("data", "")
         jpeg = base64.b64decode(data) if isinstance(data, str) else bytes(data)
         width, height = _jpeg_size(jpeg)
-        with self._lock:
-            self._frame_seq += 1
-            frame = self._frame = CameraFrame(jpeg, width, height, self._frame_seq, time.monotonic(), time.time())
-            ready = [(loop, fut) for loop, fut, after in self._waiters if frame.seq > after]
-        for loop, fut in ready:
-            try:
-                loop.call_soon_threadsafe(lambda fut=fut: fut.done() or fut.set_result(frame))
-            except RuntimeError:
-                pass
+        self._frame_seq += 1  # only roslibpy's thread counts
+        self._frames.put(CameraFrame(jpeg, width, height, self._frame_seq, time.monotonic(), time.time()))
 
     def latest_frame(self) -> CameraFrame | None:
-        with self._lock:
-            return self._frame
+        return self._frames.newest
 
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
-        loop = asyncio.get_running_loop()
-        fut: asyncio.Future = loop.create_future()
-        entry = (loop, fut, after_seq)
-        with self._lock:
-            if self._frame is not None and self._frame.seq > after_seq:
-                return self._frame
-            self._waiters.append(entry)
-        try:
-            return await asyncio.wait_for(fut, timeout)
-        except TimeoutError:
-            return None
-        finally:
-            with self._lock:
-                if entry in self._waiters:
-                    self._waiters.remove(entry)
+        return await self._frames.next(after_seq, timeout)
 
     def _stop_reconnecting(self) -> None:
         from twisted.internet import reactor
@@ -349,6 +327,7 @@ class RosRobot(Robot):
         reactor.callFromThread(self._ros.factory.stopTrying)
 
     def close(self) -> None:
+        self._frames.close()
         self._loop = None  # our own closing is no news for the listeners
         self._stop_reconnecting()
         with contextlib.suppress(Exception):  # already gone

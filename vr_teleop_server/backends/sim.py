@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -20,6 +19,7 @@ from sim.standin import CameraFrame as SimFrame
 
 from ..robot import (
     CameraFrame,
+    FrameMailbox,
     ClampReport,
     Gesture,
     GestureResult,
@@ -39,11 +39,6 @@ def _frame(f: SimFrame) -> CameraFrame:
     return CameraFrame(f.jpeg, f.width, f.height, f.seq, f.stamp_monotonic, f.stamp_wall)
 
 
-def _resolve(fut: asyncio.Future, value: Any) -> None:
-    if not fut.done():
-        fut.set_result(value)
-
-
 class SimRobot(Robot):
     """QTrobot played by the MuJoCo stand-in.
 
@@ -60,8 +55,7 @@ class SimRobot(Robot):
         self._standin = standin or StandIn(self._model, **standin_options)
         self._owns_standin = standin is None
         self._wpm = float(words_per_minute)
-        self._waiters_lock = threading.Lock()
-        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Future, int]] = []
+        self._frames = FrameMailbox()
         self._speech_stop: asyncio.Event | None = None
         self._gesture_stop: asyncio.Event | None = None
         self._gesture_joints: tuple[str, ...] = ()
@@ -214,37 +208,11 @@ class SimRobot(Robot):
         return None if f is None else _frame(f)
 
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
-        loop = asyncio.get_running_loop()
-        fut: asyncio.Future = loop.create_future()
-        entry = (loop, fut, after_seq)
-        with self._waiters_lock:
-            self._waiters.append(entry)
-        try:
-            latest = self._standin.latest_frame()  # checked after registering, so no frame slips between
-            if latest is not None and latest.seq > after_seq:
-                return _frame(latest)
-            if self._closed:
-                return None
-            return await asyncio.wait_for(fut, timeout)
-        except TimeoutError:
-            return None
-        finally:
-            with self._waiters_lock:
-                if entry in self._waiters:
-                    self._waiters.remove(entry)
+        return await self._frames.next(after_seq, timeout)
 
     def _on_frame(self, frame: SimFrame) -> None:
-        """Render thread: hand the frame to every asyncio waiter on its own loop."""
-        with self._waiters_lock:
-            ready = [(loop, fut) for loop, fut, after in self._waiters if frame.seq > after]
-        if not ready:
-            return
-        converted = _frame(frame)
-        for loop, fut in ready:
-            try:
-                loop.call_soon_threadsafe(_resolve, fut, converted)
-            except RuntimeError:  # that loop is closed; its waiter is gone
-                pass
+        """Render thread: hand the frame to the asyncio waiters."""
+        self._frames.put(_frame(frame))
 
     # ------------------------------------------------------------------------------------------------ lifecycle
     def close(self) -> None:
@@ -252,13 +220,7 @@ class SimRobot(Robot):
             return
         self._closed = True
         self._standin.remove_frame_listener(self._on_frame)
-        with self._waiters_lock:
-            waiters, self._waiters = self._waiters, []
-        for loop, fut, _ in waiters:
-            try:
-                loop.call_soon_threadsafe(_resolve, fut, None)
-            except RuntimeError:
-                pass
+        self._frames.close()
         if self._owns_standin:
             self._standin.close()
 
