@@ -72,7 +72,10 @@ def test_replay_reports_latency_tracking_camera_and_the_recording_holds_it_all(r
     by_part = result["tracking_error_deg"]["by_part"]
     head, right = by_part["head"], by_part["right_arm"]
     assert head["n"] > 100 and head["mean"] < 0.5, head  # the server runs the mapping offline replay runs
-    assert right["n"] > 50 and right["mean"] < 2.0, right
+    # Arms: the filter and velocity caps integrate the server's own step times, so a loaded machine drifts them
+    # by degrees; a wrong mapping (a side, a sign, an axis) misses by a good part of the wave's whole range.
+    wave = np.array([c[1] for c in got.commands["right_arm"]])
+    assert right["n"] > 50 and right["mean"] < 0.25 * float(np.ptp(wave, axis=0).max()), right
     assert by_part["left_arm"]["n"] == 0  # the wave is one-armed
     assert 1.5 < result["speed_served"] <= 2.2
     assert result["camera"]["frames"] > 5 and result["camera"]["fps"] > 1

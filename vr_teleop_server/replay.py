@@ -42,7 +42,7 @@ MENUS_TOPIC = "/vr_teleop/menus"
 ENGAGE = "/vr_teleop/control/engage"
 ENGAGE_LAGS = 10  # head poses an engage may be overtaken by, at most
 DRAIN_S = 30.0  # at most this long after the last message sent, for answers and late commands
-QUIET_S = 0.5  # commands have stopped once none came for this long
+QUIET_S = 2.0  # commands have stopped once none came for this long (a loaded server pauses)
 TOPIC_TYPES = {"/vr/head/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/pose": "geometry_msgs/PoseStamped",
                "/vr/right_controller/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/joy": "sensor_msgs/Joy",
                "/vr/right_controller/joy": "sensor_msgs/Joy", "/vr_teleop/menu/selection": "std_msgs/String",
@@ -178,13 +178,24 @@ def _responses(got: Collected, expected: dict[int, dict[str, list[float]]]) -> t
     that moves that part ("in_order", exact even when the server lags). Otherwise a pose is paired with the first
     command received after it and before the next pose ("window", right only while the server keeps up)."""
     out: dict[int, dict[str, tuple[float, list[float]]]] = defaultdict(dict)
-    # Engaging a pose or two apart from the offline guess shifts the count at the start only: align the ends.
+    # The server may send a few more: an engage taking hold a pose early, a last step of its watchdog tick when
+    # the stream stops. Those come first or last: skip the offset at the start that fits best.
     extra = {part: len(got.commands.get(part, [])) - sum(1 for e in expected.values() if part in e)
              for part in COMMAND_TOPICS.values()}
     if all(0 <= n < ENGAGE_LAGS for n in extra.values()):
         for part in COMMAND_TOPICS.values():
             causes = sorted(i for i, e in expected.items() if part in e)
-            for index, command in zip(causes, got.commands.get(part, [])[extra[part]:]):
+            cmds = got.commands.get(part, [])
+            if not causes:
+                continue
+            want = np.array([expected[i][part] for i in causes])
+
+            def misfit(skip: int, cmds=cmds, want=want) -> float:
+                have = np.array([c[1] for c in cmds[skip:skip + len(want)]])
+                return float(np.abs(have - want).max(axis=1).mean())
+
+            skip = min(range(extra[part] + 1), key=misfit)
+            for index, command in zip(causes, cmds[skip:]):
                 out[index][part] = command
         return dict(out), "in_order"
     for part, cmds in got.commands.items():
