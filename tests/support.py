@@ -75,7 +75,7 @@ class RunningServer:
 
     def stop(self) -> None:
         if self.server is not None:
-            asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(10)
+            asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(30)  # a loaded 2-core machine
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(10)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import json
 import logging
 import math
 import time
@@ -182,7 +183,19 @@ class Session:
         self.bus.unadvertise(self.name, op.topic)
 
     def _op_publish(self, op: ops.Publish) -> None:
-        self.bus.publish(op.topic, op.msg, latch=op.latch, sender=self.name)
+        topic = self.bus.topics.get(op.topic)
+        text = None
+        if topic is not None and not topic.known:
+            # Relayed as the JSON it came in as, so it must be JSON: not CBOR's bytes, tags or undefined, and no
+            # NaN or Infinity, which strict parsers (JavaScript's JSON.parse) refuse.
+            try:
+                text = json.dumps(op.msg, separators=(",", ":"), allow_nan=False)
+            except (TypeError, ValueError) as exc:
+                raise ProtocolError(f"{op.topic} carries {topic.type}, a type this server does not know, so its "
+                                    f"messages are relayed as JSON, and this one cannot be: {exc}") from None
+        published = self.bus.publish(op.topic, op.msg, latch=op.latch, sender=self.name)
+        if text is not None:
+            published.encoded.setdefault("msg_json", text)
 
     def _op_subscribe(self, op: ops.Subscribe) -> None:
         if op.type:
@@ -444,6 +457,15 @@ class Session:
             return split_fragments("fragment", text, sub.fragment_size, frag_id)
         return [text]
 
+    def _encode_or_drop(self, sub: TopicSubscription, published: Published) -> list[Frame]:
+        """A message that cannot be encoded is dropped and logged: it must not stop this client's stream."""
+        try:
+            return self._encode(sub, published)
+        except Exception:
+            log.exception("%s: a message on %s could not be encoded and was dropped", self.name, sub.topic)
+            self.counters["dropped"] += 1
+            return []
+
     async def next_frames(self) -> list[Frame]:
         """Waits for and returns the frames that may go out now (replies first, then topics, throttles obeyed)."""
         while True:
@@ -458,11 +480,11 @@ class Session:
                     if now < due:
                         wake_at = min(wake_at, due)
                         continue
-                    frames.extend(self._encode(sub, sub.queue.popleft()))
+                    frames.extend(self._encode_or_drop(sub, sub.queue.popleft()))
                     sub.last_sent = now
                 else:
                     while sub.queue:
-                        frames.extend(self._encode(sub, sub.queue.popleft()))
+                        frames.extend(self._encode_or_drop(sub, sub.queue.popleft()))
                 if not sub.queue:
                     del self._pending[topic]
                 elif sub.throttle_s > 0:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import re
 from typing import Any
 
 import cbor2
@@ -42,11 +43,41 @@ def decode_frame(frame: str | bytes) -> dict[str, Any]:
 
 def _loads_json(text: str) -> Any:
     try:
-        return json.loads(text)
+        value = json.loads(text)
     except json.JSONDecodeError as exc:
         raise FrameError(f"invalid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
     except RecursionError:
         raise FrameError("invalid JSON: nested too deeply") from None
+    if _SURROGATE_ESCAPE.search(text) is not None:
+        _refuse_lone_surrogates(value)
+    return value
+
+
+# A \uD800-\uDFFF escape: paired, json.loads joins it into one character; alone, it leaves a string that cannot
+# be sent on as UTF-8, which would stop every subscriber's connection.
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")
+
+
+def _refuse_lone_surrogates(value: Any) -> None:
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            try:
+                item.encode("utf-8")
+            except UnicodeEncodeError:
+                raise FrameError(f"invalid JSON: the string {item[:40]!r} holds a lone UTF-16 surrogate "
+                                 f"(\\u{ord(item[_first_surrogate(item)]):04x}); characters beyond U+FFFF need "
+                                 f"both halves of the pair") from None
+        elif isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+
+
+def _first_surrogate(text: str) -> int:
+    return next(i for i, c in enumerate(text) if 0xD800 <= ord(c) <= 0xDFFF)
 
 
 def _check_envelope(value: Any) -> dict[str, Any]:

@@ -1,0 +1,363 @@
+"""The benchmark suite behind `make bench`: every figure with its same-run baseline and the ratio, in one table.
+
+Servers run as their own processes (`vr-teleop serve`, bench/relay.py); the clients are this process.
+- pose round trip: PoseStamped at 90 Hz from one client to a subscribed other, p50 and p99, against the bare
+  websockets relay (frames passed between the two clients unparsed);
+- sustained msgs/s, publish to subscribe, with 1 and 10 subscribers and a bounded number in flight (every
+  subscriber must have received a message before it counts as delivered), against the relay's fan-out;
+- pose to head command: a head pose in, the joint command explicit control makes of it out, against a bare echo;
+- camera: fps received and frame age on arrival for 1 and 5 subscribers, against the rate asked of the stand-in
+  (30 fps at 640x480) and, for 5, against the 1-subscriber figures;
+- soak: the server's resident memory with one stalled subscriber while a headset streams and a 10 KB topic flows,
+  end against start (`--quick`: 60 s, else 10 minutes), and the reading subscriber's rate against the publish rate;
+- churn: 20 clients connecting and disconnecting (dropping half of their connections) for 20 s (`--quick`) or a
+  minute, in-process so that tasks, bus subscriptions and descriptors can be counted: after against before;
+- replay: the synthesised 5-minute classroom session replayed at x10 against the session's own length / 10
+  (`--quick`: its first 60 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import platform
+import random
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+import websockets
+from websockets.asyncio.client import connect
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path[:0] = [str(HERE), str(ROOT / "tests")]
+
+import roundtrip
+import teleop
+
+CAMERA = "/camera/color/image_raw/compressed"
+
+
+class Row:
+    def __init__(self, figure: str, value: float, baseline: float | None, base_name: str, unit: str,
+                 better: str = "lower") -> None:
+        self.figure, self.value, self.baseline, self.base_name, self.unit, self.better = \
+            figure, value, baseline, base_name, unit, better
+
+    def line(self) -> str:
+        ratio = f"{self.value / self.baseline:6.2f}x" if self.baseline else "     -"
+        base = f"{self.baseline:10.2f}" if self.baseline is not None else "         -"
+        return f"| {self.figure:<44} | {self.value:10.2f} | {base} | {ratio} | {self.unit:<8} | {self.base_name}"
+
+
+def serve(*args: str) -> subprocess.Popen:
+    port = roundtrip.free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port),
+                             "--log-level", "error", *args], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                            env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+    if "listening" not in proc.stdout.readline():
+        proc.kill()
+        raise RuntimeError(f"serve {' '.join(args)} did not start")
+    proc.url = f"ws://127.0.0.1:{port}"  # type: ignore[attr-defined]
+    return proc
+
+
+def stop(proc: subprocess.Popen) -> None:
+    proc.terminate()
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+# ---- publish to subscribe -------------------------------------------------------------------------------------
+async def fan_out(url: str, ours: bool, subscribers: int, duration: float, window: int) -> float:
+    """Messages a second that reached every subscriber, with at most `window` on their way to the slowest."""
+    pub = await connect(url, compression=None, max_size=None)
+    subs = [await connect(url, compression=None, max_size=None) for _ in range(subscribers)]
+    if ours:
+        for s in subs:
+            await s.send(json.dumps({"op": "subscribe", "topic": roundtrip.TOPIC, "type": "geometry_msgs/PoseStamped",
+                                     "queue_length": 10 * window}))
+        await pub.send(json.dumps({"op": "advertise", "topic": roundtrip.TOPIC, "type": "geometry_msgs/PoseStamped"}))
+        await asyncio.sleep(0.5)
+    counts = [0] * subscribers
+    progress = asyncio.Event()
+
+    async def receive(k: int) -> None:
+        async for _ in subs[k]:
+            counts[k] += 1
+            progress.set()
+
+    receivers = [asyncio.create_task(receive(k)) for k in range(subscribers)]
+    frames = [roundtrip.pose(i) for i in range(1000)]
+    sent = 0
+    start = time.perf_counter()
+    stop_at = start + duration
+    while time.perf_counter() < stop_at:
+        while sent - min(counts) >= window:
+            progress.clear()
+            try:
+                await asyncio.wait_for(progress.wait(), 5)
+            except TimeoutError:  # a message was dropped on the way: stop counting here
+                stop_at = 0
+                break
+        await pub.send(frames[sent % 1000])
+        sent += 1
+    elapsed = time.perf_counter() - start
+    delivered = min(counts)
+    await asyncio.gather(*(ws.close() for ws in [pub, *subs]))  # the receivers read on until the close frames
+    for r in receivers:
+        r.cancel()
+    return delivered / elapsed
+
+
+async def pubsub_rows(duration: float, window: int) -> list[Row]:
+    rows = []
+    figures: dict[str, dict] = {}
+    for kind in ("relay", "ours"):
+        server = roundtrip.Server(kind)
+        try:
+            await asyncio.sleep(0.3)
+            lat = await roundtrip.latency(server.url, kind == "ours", duration, 90.0)
+            one = await fan_out(server.url, kind == "ours", 1, duration, window)
+            ten = await fan_out(server.url, kind == "ours", 10, duration, window)
+            figures[kind] = {**lat, "one": one, "ten": ten}
+        finally:
+            server.stop()
+    o, r = figures["ours"], figures["relay"]
+    rows.append(Row("pose round trip p50, 90 Hz", o["p50_ms"], r["p50_ms"], "bare relay", "ms"))
+    rows.append(Row("pose round trip p99, 90 Hz", o["p99_ms"], r["p99_ms"], "bare relay", "ms"))
+    rows.append(Row(f"publish->subscribe, 1 subscriber ({window} in flight)", o["one"], r["one"], "bare relay",
+                    "msg/s", "higher"))
+    rows.append(Row("publish->subscribe, 10 subscribers (each)", o["ten"], r["ten"], "relay fan-out", "msg/s",
+                    "higher"))
+    return rows
+
+
+# ---- explicit control over the wire ---------------------------------------------------------------------------
+def teleop_rows(duration: float) -> list[Row]:
+    ours = serve("--backend", "sim")
+    echo_port = roundtrip.free_port()
+    echo = subprocess.Popen([sys.executable, str(HERE / "relay.py"), "--echo", "--port", str(echo_port)],
+                            stdout=subprocess.PIPE, text=True)
+    echo.stdout.readline()
+    try:
+        base = asyncio.run(teleop.wire_latency(f"ws://127.0.0.1:{echo_port}", False, duration))
+        lat = asyncio.run(teleop.wire_latency(ours.url, True, duration))
+    finally:
+        stop(ours)
+        stop(echo)
+    return [Row("head pose -> head command p50, 90 Hz", float(np.percentile(lat, 50)),
+                float(np.percentile(base, 50)), "bare echo", "ms"),
+            Row("head pose -> head command p99, 90 Hz", float(np.percentile(lat, 99)),
+                float(np.percentile(base, 99)), "bare echo", "ms")]
+
+
+# ---- camera -----------------------------------------------------------------------------------------------------
+async def camera(url: str, subscribers: int, duration: float) -> tuple[float, float]:
+    """Mean fps received per subscriber and the median frame age on arrival (ms)."""
+    subs = [await connect(url, compression=None, max_size=None) for _ in range(subscribers)]
+    for s in subs:
+        await s.send(json.dumps({"op": "subscribe", "topic": CAMERA, "type": "sensor_msgs/CompressedImage"}))
+    for s in subs:
+        await asyncio.wait_for(s.recv(), 20)  # the first frame pays for warm-up
+    arrivals: list[list[float]] = [[] for _ in subs]
+    ages: list[float] = []
+
+    async def receive(k: int) -> None:
+        async for raw in subs[k]:
+            now = time.time()
+            stamp = json.loads(raw)["msg"]["header"]["stamp"]
+            arrivals[k].append(time.monotonic())
+            ages.append((now - (stamp["secs"] + stamp["nsecs"] * 1e-9)) * 1000)
+
+    tasks = [asyncio.create_task(receive(k)) for k in range(subscribers)]
+    await asyncio.sleep(duration)
+    await asyncio.gather(*(s.close() for s in subs))
+    for t in tasks:
+        t.cancel()
+    fps = [(len(a) - 1) / (a[-1] - a[0]) for a in arrivals if len(a) > 1]
+    return float(np.mean(fps)) if fps else 0.0, float(np.median(ages)) if ages else float("nan")
+
+
+def camera_rows(duration: float) -> list[Row]:
+    server = serve("--backend", "sim", "--camera-size", "640x480", "--camera-fps", "30")
+    try:
+        fps1, age1 = asyncio.run(camera(server.url, 1, duration))
+        fps5, age5 = asyncio.run(camera(server.url, 5, duration))
+    finally:
+        stop(server)
+    return [Row("camera 640x480, 1 subscriber: fps", fps1, 30.0, "30 fps asked", "fps", "higher"),
+            Row("camera 640x480, 1 subscriber: frame age p50", age1, None, "-", "ms"),
+            Row("camera 640x480, 5 subscribers: fps (each)", fps5, fps1, "1 subscriber", "fps", "higher"),
+            Row("camera 640x480, 5 subscribers: frame age p50", age5, age1, "1 subscriber", "ms")]
+
+
+# ---- soak with a stalled client ---------------------------------------------------------------------------------
+async def soak(url: str, pid: int, duration: float) -> tuple[float, float, float, float]:
+    """(RSS MiB after warm-up, RSS MiB at the end, messages the reader got, messages published)."""
+    proc = psutil.Process(pid)
+    stalled = await connect(url, compression=None, max_size=None, max_queue=1)
+    reader = await connect(url, compression=None, max_size=None)
+    pub = await connect(url, compression=None, max_size=None)
+    for ws in (stalled, reader):
+        await ws.send(json.dumps({"op": "subscribe", "topic": "/soak/blob", "type": "std_msgs/String"}))
+        await ws.send(json.dumps({"op": "subscribe", "topic": roundtrip.TOPIC, "type": "geometry_msgs/PoseStamped"}))
+    await pub.send(json.dumps({"op": "advertise", "topic": "/soak/blob", "type": "std_msgs/String"}))
+    await asyncio.sleep(0.5)
+    # the stalled client never reads: its socket and queue fill, then the server drops its oldest messages
+    got = 0
+
+    async def read() -> None:
+        nonlocal got
+        async for raw in reader:
+            if '"/soak/blob"' in raw:
+                got += 1
+
+    reading = asyncio.create_task(read())
+    blob = json.dumps({"op": "publish", "topic": "/soak/blob", "msg": {"data": "z" * 10_000}})
+    start = time.monotonic()
+    warm_rss = None
+    published = 0
+    i = 0
+    while time.monotonic() - start < duration:
+        await pub.send(roundtrip.pose(i))
+        if i % 3 == 0:
+            await pub.send(blob)
+            published += 1
+        i += 1
+        if warm_rss is None and time.monotonic() - start > min(30.0, duration / 4):
+            warm_rss, got_at_warm, published_at_warm = proc.memory_info().rss, got, published
+        await asyncio.sleep(max(0.0, start + i / 90 - time.monotonic()))
+    await asyncio.sleep(1.0)
+    end_rss = proc.memory_info().rss
+    reading.cancel()
+    for ws in (reader, pub):
+        await ws.close()
+    stalled.transport.abort()
+    return warm_rss / 2**20, end_rss / 2**20, got - got_at_warm, published - published_at_warm
+
+
+def soak_rows(duration: float) -> list[Row]:
+    server = serve("--backend", "none")
+    try:
+        warm, end, got, published = asyncio.run(soak(server.url, server.pid, duration))
+    finally:
+        stop(server)
+    return [Row(f"soak {duration:g} s, 1 stalled client: server RSS", end, warm, "RSS after warm-up", "MiB"),
+            Row("soak: 10 KB messages the reader got", got, published, "published", "msgs", "higher")]
+
+
+# ---- churn ------------------------------------------------------------------------------------------------------
+def churn_rows(seconds: float) -> list[Row]:
+    from support import RunningServer
+    from test_faults import _owner_counts, _visitor
+
+    from vr_teleop_server.settings import ServerSettings
+
+    server = RunningServer(ServerSettings(port=0, backend="none"))
+    app = server.server
+
+    async def visits(duration: float) -> dict[str, int]:
+        stats = {"visits": 0, "aborted": 0}
+        end = time.monotonic() + duration
+        await asyncio.gather(*(_visitor(server.url, n, end, random.Random(n), stats) for n in range(20)))
+        return stats
+
+    try:
+        asyncio.run(visits(1.0))
+        time.sleep(2.0)
+        before = server.call(lambda: _owner_counts(app))
+        stats = asyncio.run(visits(seconds))
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and server.call(lambda: _owner_counts(app))["sessions"]:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        after = server.call(lambda: _owner_counts(app))
+    finally:
+        server.stop()
+    rows = [Row(f"churn {seconds:g} s, 20 clients: visits", stats["visits"], None, "-", "visits", "higher")]
+    for key, label in (("tasks", "asyncio tasks"), ("subscriptions", "bus subscriptions"),
+                       ("fds", "file descriptors"), ("sessions", "sessions")):
+        rows.append(Row(f"churn: {label} after", after[key], before[key], "before", "count"))
+    return rows
+
+
+# ---- replay -----------------------------------------------------------------------------------------------------
+def replay_rows(quick: bool, speed: float = 10.0) -> list[Row]:
+    from vr_teleop_server.replay import load_steps, report, run_replay
+    from vr_teleop_server.synth import build, write
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "classroom.mcap"
+        write(build("classroom", seed=0), path)
+        steps, _ = load_steps(path)
+        if quick:
+            steps = [s for s in steps if s.t < 60.0]
+        server = serve("--backend", "sim", "--gesture-dir", str(Path(tmp) / "g"), "--audio-dir", str(Path(tmp) / "a"))
+        try:
+            got, elapsed = asyncio.run(run_replay(steps, server.url, speed, camera=True, progress=False))
+            r = report(steps, got, elapsed, speed)
+        finally:
+            stop(server)
+    session = r["session_s"]
+    return [Row(f"replay {session:.0f} s classroom at x{speed:g}: wall time", r["replay_s"], session / speed,
+                f"session / {speed:g}", "s"),
+            Row(f"replay at x{speed:g}: last command served after", r["served_s"] or 0.0, session / speed,
+                f"session / {speed:g}", "s"),
+            Row(f"replay at x{speed:g}: pose->command latency p99", r["latency_ms"]["p99"] or 0.0, None, "-", "ms")]
+
+
+def machine() -> str:
+    import mujoco
+    import pydantic
+
+    cpu = platform.processor() or platform.machine()
+    return (f"{os.cpu_count()} cores ({cpu}), load {os.getloadavg()[0]:.2f}, Python {platform.python_version()}, "
+            f"websockets {websockets.__version__}, pydantic {pydantic.__version__}, mujoco {mujoco.__version__}, "
+            f"{platform.system()} {platform.release()}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="short runs (about 3 minutes in all)")
+    parser.add_argument("--only", nargs="+", choices=["pubsub", "teleop", "camera", "soak", "churn", "replay"])
+    args = parser.parse_args(argv)
+    q = args.quick
+    parts = {
+        "pubsub": lambda: asyncio.run(pubsub_rows(3.0 if q else 10.0, 50)),
+        "teleop": lambda: teleop_rows(5.0 if q else 20.0),
+        "camera": lambda: camera_rows(4.0 if q else 10.0),
+        "soak": lambda: soak_rows(60.0 if q else 600.0),
+        "churn": lambda: churn_rows(20.0 if q else 60.0),
+        "replay": lambda: replay_rows(q),
+    }
+    rows: list[Row] = []
+    failed = []
+    for name in args.only or parts:
+        print(f"running {name}...", file=sys.stderr, flush=True)
+        try:
+            rows += parts[name]()
+        except Exception as exc:  # noqa: BLE001 (one broken figure must not hide the others)
+            failed.append(f"{name}: {type(exc).__name__}: {exc}")
+    print(f"\n# vr-teleop-server benchmarks{' (--quick)' if q else ''}, {time.strftime('%Y-%m-%d %H:%M')}")
+    print(f"# machine: {machine()}")
+    print(f"| {'figure':<44} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")
+    print(f"|{'-' * 46}|{'-' * 12}|{'-' * 12}|{'-' * 9}|{'-' * 10}|{'-' * 20}")
+    for row in rows:
+        print(row.line())
+    for f in failed:
+        print(f"# FAILED {f}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

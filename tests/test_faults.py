@@ -1,0 +1,266 @@
+"""Faults: incomplete fragment sets are collected, a client that stops reading costs bounded memory and slows
+nobody, and clients that come and go leave nothing behind (tasks, subscriptions, services, file descriptors).
+
+Memory is measured with tracemalloc (the server runs in this process, in its own thread): what the server holds
+is the growth of traced memory, which the tests show to be large while fragments wait and small afterwards.
+Durations are short here; `make bench` runs the long versions (bench/soak.py).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+import json
+import os
+import random
+import threading
+import time
+import tracemalloc
+
+import numpy as np
+import pytest
+from support import RawClient, wait_for
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect as sync_connect
+
+MIB = 1024 * 1024
+CHURN_SECONDS = float(os.environ.get("CHURN_SECONDS", "20"))
+
+
+@pytest.fixture
+def traced():
+    tracemalloc.start()
+    yield
+    tracemalloc.stop()
+
+
+def traced_now() -> int:
+    gc.collect()
+    return tracemalloc.get_traced_memory()[0]
+
+
+def fragment_sets(server) -> int:
+    return server.call(lambda: sum(len(s._fragments) for s in server.server.sessions.values()))
+
+
+def test_incomplete_fragment_sets_are_collected_and_memory_does_not_grow(server_factory, traced):
+    server = server_factory(fragment_timeout=2.0)
+    client = RawClient(server.url)
+    client.send({"op": "set_level", "level": "warning"})
+    piece = "x" * 16_000
+    sets = 150
+
+    def round_(n: int) -> tuple[int, int]:
+        before = traced_now()
+        for i in range(sets):  # two pieces of three, never the third
+            for num in (0, 1):
+                client.send({"op": "fragment", "id": f"r{n}-{i}", "data": piece, "num": num, "total": 3})
+        assert wait_for(lambda: fragment_sets(server) == sets, 10), "the server did not hold every set"
+        held = traced_now() - before
+        expired = []
+        while len(expired) < sets:
+            message = client.recv(timeout=10)
+            assert message["op"] == "status" and message["level"] == "warning", message
+            assert "2 of 3 arrived" in message["msg"], message
+            expired.append(message["id"])
+        assert sorted(expired) == sorted(f"r{n}-{i}" for i in range(sets))
+        assert fragment_sets(server) == 0
+        return held, traced_now()
+
+    base = traced_now()
+    results = [round_(n) for n in range(3)]
+    for held, after in results:
+        assert held > 0.8 * sets * 2 * len(piece), f"held only {held} bytes: the measurement does not see the sets"
+        assert after - base < 1 * MIB, f"{(after - base) / MIB:.1f} MiB stayed after the sets expired"
+    assert results[-1][1] - results[0][1] < 0.5 * MIB, "memory grew from round to round"
+    client.alive()
+    client.close()
+
+
+def test_a_client_that_stops_reading_costs_bounded_memory_and_slows_nobody(server_factory, traced):
+    server = server_factory()
+    topic, count, size = "/flood", 2400, 10_000
+    stalled = sync_connect(server.url, compression=None, max_size=None, max_queue=4).__enter__()  # then stops reading
+    stalled.send(json.dumps({"op": "subscribe", "topic": topic, "type": "std_msgs/String"}))
+    watcher = RawClient(server.url)
+    watcher.send({"op": "subscribe", "topic": topic, "type": "std_msgs/String"})
+    publisher = RawClient(server.url)
+    publisher.send({"op": "advertise", "topic": topic, "type": "std_msgs/String"})
+    assert wait_for(lambda: server.call(lambda: len(server.server.bus.topics[topic].subscribers)) == 2)
+
+    received: list[float] = []
+
+    def watch() -> None:
+        while len(received) < count:
+            try:
+                frame = watcher.recv_frame(timeout=10)
+            except TimeoutError:
+                return
+            if json.loads(frame).get("topic") == topic:
+                received.append(time.monotonic())
+
+    reader = threading.Thread(target=watch, daemon=True)
+    reader.start()
+    body = "y" * size
+    base = traced_now()
+    start = time.monotonic()
+    half = 0
+    for i in range(count):  # paced at about 800 messages a second
+        publisher.send({"op": "publish", "topic": topic, "msg": {"data": f"{i:06d}{body}"}})
+        time.sleep(max(0.0, start + i / 800 - time.monotonic()))
+        if i == count // 2:  # by now the socket's buffers and the stalled client's queue are full
+            half = traced_now() - base
+    sent_s = time.monotonic() - start
+    reader.join(30)
+    grown = traced_now() - base
+
+    stalled_session = next(s for s in server.server.sessions.values() if s.subscriptions.get(topic)
+                            and s.counters["dropped"] > 0)
+    queued = server.call(lambda: len(stalled_session.subscriptions[topic].queue))
+    assert queued <= server.settings.queue_bound
+    # What stays is the stalled client's full queue (each message as its value, its JSON and its frame), no more:
+    # the second half of the flood adds nothing.
+    assert grown < 3 * server.settings.queue_bound * size + MIB, f"server memory grew by {grown / MIB:.1f} MiB"
+    assert grown - half < 0.5 * MIB, f"memory kept growing: {half / MIB:.2f} MiB half-way, " \
+                                      f"{grown / MIB:.2f} MiB at the end"
+    assert len(received) == count, f"the reading client got {len(received)} of {count} messages"
+    got_s = received[-1] - received[0]
+    assert got_s < 1.5 * sent_s + 1.0, f"the reader's stream took {got_s:.1f} s for {sent_s:.1f} s of publishing"
+    print(f"{count * size / MIB:.0f} MiB published in {sent_s:.1f} s, the reader's stream took {got_s:.1f} s; "
+          f"server memory grew {half / MIB:.2f} MiB in the first half, {grown / MIB:.2f} MiB in all; the stalled client's queue held {queued}, "
+          f"{stalled_session.counters['dropped']} dropped")
+    watcher.alive()
+    stalled.close()
+
+
+def _owner_counts(app) -> dict[str, int]:
+    bus = app.bus
+    return {"sessions": len(app.sessions),
+            "subscriptions": sum(len(t.subscribers) for t in bus.topics.values()),
+            "publishers": sum(len(t.publishers) for t in bus.topics.values()),
+            "topics": len(bus.topics), "services": len(bus.services), "actions": len(bus.actions),
+            "tasks": len(asyncio.all_tasks()), "fds": len(os.listdir("/proc/self/fd"))}
+
+
+async def _visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict[str, int]) -> None:
+    """Connects, takes up subscriptions, advertisements, a service, pending calls and half a fragment set, then
+    leaves: cleanly or by dropping the TCP connection."""
+    while time.monotonic() < stop:
+        async with connect(url, compression=None, max_size=None, open_timeout=20) as ws:
+            reader = asyncio.create_task(_drain(ws))
+            mine = f"/churn/{n}"
+            frames = [{"op": "subscribe", "id": "s", "topic": "/churn/shared", "type": "std_msgs/String"},
+                      {"op": "subscribe", "id": "s2", "topic": mine, "type": "std_msgs/String",
+                       "throttle_rate": 50, "queue_length": 3},
+                      {"op": "advertise", "topic": "/churn/shared", "type": "std_msgs/String"},
+                      {"op": "advertise_service", "service": f"{mine}/svc", "type": "std_srvs/Trigger"},
+                      {"op": "advertise_action", "action": f"{mine}/act", "type": "fake/Act"},
+                      {"op": "call_service", "id": "t", "service": "/rosapi/get_time"},
+                      # a call to another visitor's service that may never be answered
+                      {"op": "call_service", "id": "x", "service": f"/churn/{(n + 1) % 20}/svc", "timeout": 5},
+                      {"op": "fragment", "id": "half", "data": "{\"op\":", "num": 0, "total": 2}]
+            for frame in frames:
+                await ws.send(json.dumps(frame))
+            for i in range(rng.randrange(1, 20)):
+                await ws.send(json.dumps({"op": "publish", "topic": "/churn/shared", "msg": {"data": str(i)}}))
+            await asyncio.sleep(rng.uniform(0.0, 0.3))
+            if rng.random() < 0.5:
+                ws.transport.abort()  # gone without a closing handshake
+                stats["aborted"] += 1
+            stats["visits"] += 1
+        await reader
+
+
+async def _drain(ws) -> None:
+    try:
+        async for _frame in ws:
+            pass
+    except ConnectionClosed:  # the visitor dropped the connection itself
+        pass
+
+
+def test_clients_coming_and_going_leak_nothing(server):
+    app = server.server
+
+    async def visits(seconds: float) -> dict[str, int]:
+        stats = {"visits": 0, "aborted": 0}
+        rng = random.Random(7)
+        stop = time.monotonic() + seconds
+        await asyncio.gather(*(_visitor(server.url, n, stop, random.Random(rng.random()), stats) for n in range(20)))
+        return stats
+
+    def settled() -> dict[str, int]:
+        return server.call(lambda: _owner_counts(app))
+
+    asyncio.run(visits(1.0))  # warm-up: lazily created things (rosapi topics, loop internals) now exist
+    assert wait_for(lambda: settled()["sessions"] == 0, 20)
+    time.sleep(0.5)
+    before = settled()
+    stats = asyncio.run(visits(CHURN_SECONDS))
+    def same(after: dict[str, int]) -> bool:  # descriptors may only be fewer: the warm-up's may still be closing
+        return {**after, "fds": 0} == {**before, "fds": 0} and after["fds"] <= before["fds"]
+    assert wait_for(lambda: same(settled()), 20), f"before {before}, after {settled()}"
+    assert stats["visits"] >= 2 * CHURN_SECONDS and stats["aborted"] > 0, stats
+    print(f"{stats['visits']} visits by 20 clients in {CHURN_SECONDS:g} s ({stats['aborted']} dropped without "
+          f"closing); after them: {settled()}")
+
+
+def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watchdog_time(server_factory):
+    """The operator's TCP connection vanishes while the head sweeps: the joint targets given to the simulation
+    stop changing within the watchdog time, and the head comes to rest."""
+    from scipy.spatial.transform import Rotation
+
+    server = server_factory(backend="sim")
+    standin = server.server.robot.standin
+    watchdog = server.settings.teleop.watchdog_timeout_s
+    targets: list[tuple[float, float]] = []  # (when, HeadYaw target)
+    original = standin.set_targets
+
+    def recorded(t):
+        if "HeadYaw" in t:
+            targets.append((time.monotonic(), float(t["HeadYaw"])))
+        return original(t)
+
+    standin.set_targets = recorded
+
+    def head(seq: int) -> str:
+        yaw = 30 * np.sin(2 * np.pi * 0.5 * seq / 90)  # a sweep of +-30 degrees at 0.5 Hz
+        q = Rotation.from_euler("Y", -yaw, degrees=True).as_quat()
+        return json.dumps({"op": "publish", "topic": "/vr/head/pose", "msg": {
+            "header": {"frame_id": "unity"}, "pose": {"position": {"x": 0, "y": 1.6, "z": 0},
+                                                      "orientation": dict(zip("xyzw", map(float, q)))}}})
+
+    async def operate() -> float:
+        ws = await connect(server.url, compression=None, max_size=None)
+        reader = asyncio.create_task(_drain(ws))
+        seq = 0
+        start = time.monotonic()
+        engaged = False
+        while True:
+            await ws.send(head(seq))
+            seq += 1
+            if seq == 20:
+                await ws.send(json.dumps({"op": "call_service", "id": "e", "service": "/vr_teleop/control/engage",
+                                          "args": {"data": True}}))
+                engaged = True
+            moving = [v for when, v in targets if when > start + 1.0]
+            if engaged and len(moving) > 30 and max(moving) - min(moving) > 5:  # mid-sweep
+                dropped = time.monotonic()
+                ws.transport.abort()
+                await reader
+                return dropped
+            assert time.monotonic() - start < 20, f"the head never followed: {targets[-5:]}"
+            await asyncio.sleep(max(0.0, start + seq / 90 - time.monotonic()))
+
+    dropped = asyncio.run(operate())
+    time.sleep(1.5)
+    after = [(when, v) for when, v in targets if when > dropped]
+    before = [v for when, v in targets if when <= dropped]
+    changes = [when for (when, v), (_w, prev) in zip(after, [(0, before[-1])] + after) if abs(v - prev) > 1e-6]
+    last_change = (changes[-1] - dropped) if changes else 0.0
+    assert last_change <= watchdog + 0.3, f"targets still changed {last_change:.2f} s after the drop"
+    first = standin.joint_positions()["HeadYaw"]
+    time.sleep(0.3)
+    assert abs(standin.joint_positions()["HeadYaw"] - first) < 0.5, "the head is still moving"
+    print(f"last head target change {1000 * last_change:.0f} ms after the drop (watchdog {watchdog:g} s)")
