@@ -97,6 +97,41 @@ MESSAGES: dict[str, str] = {
         "Header header\nstring[] name\nfloat64[] value\nfloat64[] min\nfloat64[] max\nbool[] has_low\n"
         "float64[] low\nbool[] has_high\nfloat64[] high\nstring[] level"
     ),
+    # the HRI study framework (vr_teleop_server/study)
+    "vr_teleop_msgs/StateUpdate": (
+        "# A robot or human action in a study trial, on /study/state_updates: published when it starts\n"
+        "# (finished false) and again when it stops (finished true, same id). Times are seconds since the trial\n"
+        "# started. agent: robot or human. source: action (the robot's action module), label (the experimenter's\n"
+        "# labels), or the name of whatever else reported it. detail: the primitive and its target, as JSON.\n"
+        "Header header\nstring trial\nuint32 id\nstring agent\nstring action\nfloat64 start\nbool finished\n"
+        "float64 stop\nbool succeeded\nstring source\nstring detail"
+    ),
+    "vr_teleop_msgs/Intervention": (
+        "# A human stepping in where the trial's design says the system acts, on /study/interventions.\n"
+        "# kind: override (the experimenter marked an action done or failed), takeover, preempt.\n"
+        "# subtask: the robot subtask it affected (empty: none). Times are seconds since the trial started.\n"
+        "Header header\nstring trial\nstring kind\nstring subtask\nfloat64 start\nfloat64 stop\nstring note"
+    ),
+    "vr_teleop_msgs/TrialState": (
+        "# A study trial as the runner sees it, on the latched /study/trial (on every change).\n"
+        "# state: running, completed, preempted or failed. perception/decision/action: the implementations.\n"
+        "# current: the subtask running or awaited. planned_subtasks: robot subtasks in the plan.\n"
+        "Header header\nstring study\nstring trial\nstring state\nstring perception\nstring decision\n"
+        "string action\nfloat64 elapsed\nstring current\nuint32 planned_subtasks\nstring message"
+    ),
+    "vr_teleop_msgs/FluencyMetrics": (
+        "# Live fluency metrics of the running trial, on /study/metrics (1 Hz, and once with final true).\n"
+        "# Fractions of the elapsed time; defined false while the trial has lasted no time. effectiveness is\n"
+        "# -1 until known. detail: the same JSON document `vr-teleop metrics --json` writes.\n"
+        "Header header\nstring trial\nbool final\nbool defined\nfloat64 elapsed\nfloat64 h_idle\n"
+        "float64 r_idle\nfloat64 c_act\nfloat64 f_del\nfloat64 both_idle\nfloat64 effectiveness\n"
+        "uint32 human_actions\nuint32 robot_actions\nuint32 unfinished\nstring detail"
+    ),
+    "vr_teleop_msgs/Face": "# A face in a camera image, pixels\nint32 x\nint32 y\nint32 width\nint32 height",
+    "vr_teleop_msgs/Faces": (
+        "# Faces found in one head-camera frame, on /perception/faces. detector: what found them.\n"
+        "Header header\nuint32 frame_seq\nuint32 image_width\nuint32 image_height\nstring detector\nFace[] faces"
+    ),
     # rosapi's own message
     "rosapi/TypeDef": (
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
@@ -130,6 +165,28 @@ SERVICES: dict[str, str] = {
     "vr_teleop_msgs/MotivationChange": (
         "# name: a motivation variable (reset: empty = all); value: the increment or the new value\n"
         "string name\nfloat64 value\n---\nbool success\nstring message\nfloat64 value"
+    ),
+    "vr_teleop_msgs/PerceptionQuery": (
+        "# The pose of an object's query point (empty: the object's own frame) as a tracking system sees it\n"
+        "# (empty tracker: the trial's), in the robot's base frame, metres.\n"
+        "string object\nstring tracker\nstring query_point\n---\nbool success\nstring message\n"
+        "geometry_msgs/PoseStamped pose\nfloat64 age"
+    ),
+    "vr_teleop_msgs/DecisionCommand": (
+        "# Wizard of Oz: run the study's named robot action on a named object (\"pick\" on \"side_left\").\n"
+        "string object\nstring action\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/DecisionOverride": (
+        "# The experimenter ends the running (or awaited) robot action: succeeded or failed, and the plan moves on.\n"
+        "bool succeeded\nstring note\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/LabelAction": (
+        "# The experimenter's label for a human action: start it now, or stop it now (empty action: the newest).\n"
+        "string action\n---\nbool success\nstring message\nfloat64 time"
+    ),
+    "vr_teleop_msgs/AddLabel": (
+        "# A whole action the plan did not foresee, seconds since the trial started (stop < 0: still running).\n"
+        "string agent\nstring action\nfloat64 start\nfloat64 stop\n---\nbool success\nstring message"
     ),
     # rosapi, as client libraries (roslibpy, roslibjs, ROS#) call it
     "rosapi/Topics": "---\nstring[] topics\nstring[] types",

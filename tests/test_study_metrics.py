@@ -456,7 +456,7 @@ def test_file_level_errors(tmp_path: Path) -> None:
     with pytest.raises(MetricsInputError, match="file not found"):
         read_trial(tmp_path / "missing.csv")
     (tmp_path / "rec.mcap").write_bytes(b"\x89MCAP0\r\n")
-    with pytest.raises(MetricsInputError, match="MCAP reading arrives with session recording"):
+    with pytest.raises(MetricsInputError, match="cannot read the recording"):
         read_trial(tmp_path / "rec.mcap")
     (tmp_path / "t.xlsx").write_bytes(b"")
     with pytest.raises(MetricsInputError, match="unknown trial file type '.xlsx'"):
@@ -557,7 +557,7 @@ def test_cli_end_to_end_real_executable(tmp_path: Path) -> None:
     proc = subprocess.run([str(VR_TELEOP), "metrics", str(mcap)], capture_output=True, text=True, timeout=60,
                           env=env, cwd=tmp_path)
     assert proc.returncode == 2
-    assert "MCAP reading arrives with session recording" in proc.stderr and "Traceback" not in proc.stderr
+    assert "cannot read the recording" in proc.stderr and "Traceback" not in proc.stderr
 
 
 # ---- Gantt chart -----------------------------------------------------------------------------------------

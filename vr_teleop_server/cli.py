@@ -15,6 +15,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "vr_teleop_server.replay_cli",
     "vr_teleop_server.questionnaires.cli",
     "vr_teleop_server.study.metrics.cli",
+    "vr_teleop_server.study.cli",
 )
 
 

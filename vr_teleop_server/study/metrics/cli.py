@@ -17,7 +17,8 @@ input formats:
         an empty stop marks an action still running at the end (clipped to T1, reported as unfinished).
   JSON  a list of {"agent", "action", "start", "stop"} objects (stop may be null), or an object
         {"updates": [...], "interventions": [...], "planned_subtasks": N}.
-  MCAP  session recordings: reading arrives with session recording.
+  MCAP  session recordings (serve --record, study run): the trial's /study/state_updates, /study/interventions
+        and /study/trial; the window is the trial's clock [0, T1] unless --t0/--t1 say otherwise.
 
 T0 defaults to the earliest start, T1 to the latest stop (or an unfinished action's start, if later).
 Effectiveness is computed only when interventions are known (--interventions, or "interventions" in a JSON
@@ -31,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Compute Hoffman's fluency metrics and team efficiency/effectiveness from a trial's "
                     "state updates; print a summary, and optionally write JSON and a Gantt chart.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("input", type=Path, metavar="INPUT", help="trial file: .csv or .json (see below)")
+    p.add_argument("input", type=Path, metavar="INPUT", help="trial file: .csv, .json or .mcap (see below)")
+    p.add_argument("--trial", metavar="NAME", help="in a recording holding several trials, the one to compute")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the metrics as JSON here ('-' for stdout)")
     p.add_argument("--plot", type=Path, metavar="PNG", help="write a Gantt chart of the trial here")
     p.add_argument("--t0", type=float, metavar="S", help="task start T0 in seconds (default: earliest start)")
@@ -48,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        trial = read_trial(args.input)
+        trial = read_trial(args.input, args.trial)
         interventions = trial.interventions
         if args.interventions is not None:
             if interventions is not None:
@@ -58,7 +60,9 @@ def run(args: argparse.Namespace) -> int:
         if not trial.updates:
             raise MetricsInputError(args.input, "no state updates", "add rows agent,action,start,stop")
         planned = args.planned_subtasks if args.planned_subtasks is not None else trial.planned_subtasks
-        result = compute_metrics(trial.updates, t0=args.t0, t1=args.t1, fdel_direction=args.fdel,
+        t0 = args.t0 if args.t0 is not None else trial.t0
+        t1 = args.t1 if args.t1 is not None else trial.t1
+        result = compute_metrics(trial.updates, t0=t0, t1=t1, fdel_direction=args.fdel,
                                  interventions=interventions, planned_subtasks=planned)
     except ValueError as exc:  # MetricsInputError included
         print(f"vr-teleop metrics: error: {exc}", file=sys.stderr)

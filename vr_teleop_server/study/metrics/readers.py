@@ -9,7 +9,7 @@ Formats (chosen by file extension in `read_trial`):
 - Interventions on their own (`read_interventions`, the CLI's --interventions): a CSV with header
   `start,stop,subtask,note` (stop, subtask and note optional columns and cells) or a JSON list of objects
   with those keys (only start required).
-MCAP session recordings will be one more reader function and one more case in `read_trial`.
+- MCAP session recordings: mcap_reader.py (the study's channels; `trial` picks one of several).
 """
 
 from __future__ import annotations
@@ -57,10 +57,12 @@ class TrialData:
     updates: list[StateUpdate]
     interventions: list[Intervention] | None = None  # None: not known, so no effectiveness
     planned_subtasks: int | None = None
+    t0: float | None = None  # the window, where the input knows it (a recorded trial); None: the defaults
+    t1: float | None = None
 
 
-def read_trial(path: Path | str) -> TrialData:
-    """Read a trial in whichever supported format its extension names."""
+def read_trial(path: Path | str, trial: str | None = None) -> TrialData:
+    """Read a trial in whichever supported format its extension names (`trial`: which one, in a recording)."""
     path = Path(path)
     match path.suffix.lower():
         case ".csv":
@@ -68,10 +70,9 @@ def read_trial(path: Path | str) -> TrialData:
         case ".json":
             return read_trial_json(path)
         case ".mcap":
-            raise MetricsInputError(
-                path, "MCAP recordings cannot be read yet: MCAP reading arrives with session recording",
-                "export the trial's state updates as CSV (agent,action,start,stop) or JSON and pass that file",
-            )
+            from .mcap_reader import read_trial_mcap
+
+            return read_trial_mcap(path, trial)
         case _:
             raise MetricsInputError(path, f"unknown trial file type {path.suffix or '(no extension)'!r}",
                                     "pass a .csv or .json file (see `vr-teleop metrics --help`)")

@@ -1,0 +1,169 @@
+"""The simulated people of a trial, each an ordinary rosbridge client of the server:
+
+- the human participant, who acts on the study file's human script, and whose actions the experimenter labels
+  as they happen (/study/label/start and /study/label/stop);
+- the operator of the Wizard-of-Oz trials, replaying the study file's operator script on /decision/teleop;
+- the experimenter's scripted overrides (/decision/override).
+
+Each step waits until every event it names ("agent:action:start|stop", seen on /study/state_updates) has
+happened, then for a reaction time drawn from the script's range; human actions last a duration drawn from
+theirs. Draws come from a generator seeded by the study's seed and the trial's name, so a trial replays alike.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import json
+import random
+import zlib
+from typing import Any
+
+from websockets.asyncio.client import ClientConnection, connect
+
+from .studyfile import Script, Study
+
+BUSY_RETRY_S = 0.3
+
+
+class RosbridgeClient:
+    """Just enough rosbridge v2 for the simulated people: subscribe and call services."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.ws: ClientConnection | None = None
+        self._ids = itertools.count(1)
+        self._calls: dict[str, asyncio.Future[dict[str, Any]]] = {}
+        self._subs: dict[str, list[Any]] = {}
+        self._reader: asyncio.Task[None] | None = None
+
+    async def connect(self) -> None:
+        self.ws = await connect(self.url, max_size=None)
+        self._reader = asyncio.ensure_future(self._read())
+
+    async def close(self) -> None:
+        if self._reader is not None:
+            self._reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._reader
+        if self.ws is not None:
+            await self.ws.close()
+
+    async def subscribe(self, topic: str, type_name: str, callback: Any) -> None:
+        assert self.ws is not None
+        self._subs.setdefault(topic, []).append(callback)
+        await self.ws.send(json.dumps({"op": "subscribe", "topic": topic, "type": type_name}))
+
+    async def call(self, service: str, args: dict[str, Any], timeout: float = 10.0) -> dict[str, Any]:
+        """The service's response values; raises RuntimeError with the server's message when it refuses."""
+        assert self.ws is not None
+        call_id = f"call:{next(self._ids)}"
+        fut: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._calls[call_id] = fut
+        await self.ws.send(json.dumps({"op": "call_service", "id": call_id, "service": service, "args": args}))
+        try:
+            reply = await asyncio.wait_for(fut, timeout)
+        finally:
+            self._calls.pop(call_id, None)
+        if not reply.get("result", False):
+            raise RuntimeError(str(reply.get("values")))
+        return reply.get("values") or {}
+
+    async def _read(self) -> None:
+        assert self.ws is not None
+        async for raw in self.ws:
+            frame = json.loads(raw)
+            if frame.get("op") == "service_response":
+                fut = self._calls.get(frame.get("id", ""))
+                if fut is not None and not fut.done():
+                    fut.set_result(frame)
+            elif frame.get("op") == "publish":
+                for cb in self._subs.get(frame.get("topic", ""), []):
+                    cb(frame["msg"])
+
+
+class SimulatedPeople:
+    def __init__(self, url: str, study: Study, trial: str, *, operator: bool, seed: int | None = None) -> None:
+        self.study = study
+        self.trial = trial
+        self.spec = study.trials[trial]
+        self.operator = operator
+        self.rng = random.Random(seed if seed is not None else study.seed * 1_000_003 + zlib.crc32(trial.encode()))
+        self.client = RosbridgeClient(url)
+        self.events: set[str] = set()
+        self._changed = asyncio.Event()
+        self.refusals: list[str] = []  # commands the server refused for a reason other than "busy"
+
+    async def connect(self) -> None:
+        await self.client.connect()
+        await self.client.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", self._on_update)
+        await asyncio.sleep(0.1)  # the subscription is in place before the trial's first update
+
+    async def close(self) -> None:
+        await self.client.close()
+
+    def _on_update(self, msg: dict[str, Any]) -> None:
+        if msg.get("trial") != self.trial:
+            return
+        self.events.add(f"{msg['agent']}:{msg['action']}:{'stop' if msg['finished'] else 'start'}")
+        self._changed.set()
+        self._changed = asyncio.Event()
+
+    async def _until(self, events: list[str]) -> None:
+        while not all(e in self.events for e in events):
+            await self._changed.wait()
+
+    def _steps(self, script: Script) -> list[tuple[str, list[str], tuple[float, float], int]]:
+        out = []
+        for i, part in enumerate(self.study.parts):
+            for step in script.steps:
+                if not self.study.applies(step.when, part):
+                    continue
+                name = self.study.fill(step.action, i)
+                if name is None:
+                    continue
+                after = [e for e in (self.study.fill(a, i) for a in step.after) if e is not None]
+                out.append((name, after, step.duration_s, i))
+        return out
+
+    async def run(self) -> None:
+        tasks = [self._human()]
+        if self.operator:
+            tasks.append(self._operate())
+        tasks.extend(self._override(o.action, o.delay_s, o.succeeded, o.note) for o in self.spec.overrides)
+        await asyncio.gather(*tasks)
+
+    async def _human(self) -> None:
+        script = self.study.human
+        for name, after, (lo, hi), _ in self._steps(script):
+            await self._until(after)
+            await asyncio.sleep(self.rng.uniform(*script.reaction_s))
+            await self.client.call("/study/label/start", {"action": name})
+            await asyncio.sleep(self.rng.uniform(lo, hi))
+            await self.client.call("/study/label/stop", {"action": name})
+
+    async def _operate(self) -> None:
+        script = self.study.operator
+        # Under the semi-autonomous module the operator commands only the plan's teleoperated steps.
+        commanded = {s.robot for s in self.study.plan if s.teleop} if self.spec.decision == "semi" else None
+        for action, after, _, i in self._steps(script):
+            if commanded is not None and action not in commanded:
+                continue
+            part = self.study.parts[i].name
+            await self._until(after)
+            await asyncio.sleep(self.rng.uniform(*script.reaction_s))
+            while True:
+                try:
+                    await self.client.call("/decision/teleop", {"object": part, "action": action})
+                    break
+                except RuntimeError as exc:
+                    if "busy" not in str(exc) and "not waiting" not in str(exc):
+                        self.refusals.append(str(exc))
+                        break
+                    await asyncio.sleep(BUSY_RETRY_S)
+
+    async def _override(self, subtask: str, delay_s: float, succeeded: bool, note: str) -> None:
+        await self._until([f"robot:{subtask}:start"])
+        await asyncio.sleep(delay_s)
+        await self.client.call("/decision/override", {"succeeded": succeeded, "note": note or "scripted override"})
