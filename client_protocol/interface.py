@@ -181,6 +181,15 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "intervention; detail JSON {action, wall_time}); recorded with the session.", "on label",
              {"header": _stamp(), "source": "experimenter", "kind": "human_action_start", "level": "info",
               "detail": "{\"action\": \"hand_over_cup\", \"wall_time\": 1700000000.0}"}),
+    Endpoint("/perception/faces", "vr_teleop_msgs/Faces", "subscribe",
+             "Bystanders' faces found in the head camera's frames (OpenCV's frontal-face cascade), boxes in the "
+             "frame's pixels; frame_seq is the camera frame's header.seq. Searched only while someone subscribes.",
+             "up to 5 Hz",
+             {"header": {"seq": 42, "stamp": {"secs": 1700000000, "nsecs": 0},
+                         "frame_id": "camera_color_optical_frame"},
+              "frame_seq": 42, "image_width": 640, "image_height": 480, "detector":
+              "opencv-haar:haarcascade_frontalface_default", "faces": [{"x": 301, "y": 170, "width": 44,
+                                                                        "height": 44}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

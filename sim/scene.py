@@ -210,17 +210,19 @@ def build_classroom(robot: RobotModel | None = None, *, shadows: bool = False, a
                       rgba=list(skin))
         body.add_geom(name=f"{name}_hair", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
                       size=[head_r * 1.02, head_r * 1.04, head_r * 0.75],
-                      pos=[-0.02 * head_r, 0, head_z + 0.35 * head_r],
-                      rgba=list(hair))
+                      pos=[-0.25 * head_r, 0, head_z + 0.45 * head_r], rgba=list(hair))
+        # Dark brows and eyes over lighter cheeks: the contrast a face detector (and a child) reads as a face.
+        def on_face(yaw: float, z: float, out: float = 1.0) -> list[float]:
+            c = np.sqrt(1.0 - z * z)
+            return [out * c * np.cos(yaw) * head_r, out * c * np.sin(yaw) * head_r, head_z + z * head_r]
         for side in (-1, 1):
-            eye = np.array([np.cos(0.3), side * np.sin(0.3), 0.25]) * head_r * 0.93
-            body.add_geom(name=f"{name}_eye_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.17 * head_r, 0, 0],
-                          pos=[eye[0], eye[1], head_z + eye[2]], rgba=[0.97, 0.97, 0.97, 1])
-            body.add_geom(name=f"{name}_pupil_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.09 * head_r, 0, 0],
-                          pos=[eye[0] + 0.12 * head_r, eye[1], head_z + eye[2]], rgba=[0.08, 0.06, 0.05, 1])
-        body.add_geom(name=f"{name}_mouth", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.05 * head_r, 0, 0],
-                      fromto=[0.93 * head_r, -0.3 * head_r, head_z - 0.4 * head_r,
-                              0.93 * head_r, 0.3 * head_r, head_z - 0.4 * head_r], rgba=[0.7, 0.25, 0.25, 1])
+            body.add_geom(name=f"{name}_eye_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.14 * head_r, 0, 0],
+                          pos=on_face(side * 0.36, 0.08, 0.93), rgba=[0.1, 0.08, 0.07, 1])
+            body.add_geom(name=f"{name}_brow_{side}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.06 * head_r, 0, 0],
+                          fromto=on_face(side * 0.15, 0.33, 0.99) + on_face(side * 0.6, 0.36, 0.97),
+                          rgba=list(hair))
+        body.add_geom(name=f"{name}_mouth", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.07 * head_r, 0, 0],
+                      fromto=on_face(-0.3, -0.45, 0.97) + on_face(0.3, -0.45, 0.97), rgba=[0.55, 0.2, 0.2, 1])
 
     # Lights: a key light from above the table and a fill from behind the robot; no shadows unless asked.
     world.add_light(name="key", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[1.0, 0.5, 3.0],

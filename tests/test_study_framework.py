@@ -20,6 +20,7 @@ from support import RawClient, RunningServer, wait_for
 from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.study.people import RosbridgeClient, SimulatedPeople
 from vr_teleop_server.study.perception import ArucoTracker
+from vr_teleop_server.study.perception.faces import FaceDetector
 from vr_teleop_server.study.runner import recorded_metrics
 from vr_teleop_server.study.runtime import TrialResult, TrialRuntime
 from vr_teleop_server.study.studyfile import Study, StudyFileError, load_study
@@ -141,6 +142,77 @@ def test_aruco_tracker_finds_the_stand_ins_markers_where_the_scene_puts_them(ser
             assert np.linalg.norm(pose[:3, 3] - np.array(spec.static_pose.xyz)) < 0.03, name
     finally:
         on_loop(server, tracker.stop())
+
+
+def test_the_face_detector_finds_the_face_in_a_portrait():
+    """A real photograph (Grace Hopper's portrait, shipped with matplotlib): one face, where her face is."""
+    import matplotlib
+
+    path = Path(matplotlib.get_data_path()) / "sample_data" / "grace_hopper.jpg"
+    faces, (width, height) = FaceDetector().detect_jpeg(path.read_bytes())
+    assert (width, height) == (512, 600)
+    assert len(faces) == 1, faces
+    f = faces[0]
+    # Her face spans about x 160-370 and y 165-310 (hat brim to chin) in this image: the box is centred on it
+    # and about its size.
+    cx, cy = f.x + f.width / 2, f.y + f.height / 2
+    assert 225 < cx < 305 and 180 < cy < 280 and 150 < f.width < 280, f
+
+
+def _bystanders_in_view(robot, width: int, height: int) -> dict[str, tuple[float, float]]:
+    """Where each bystander's head centre falls in the head camera's image (pixels), from the scene and the
+    forward kinematics at the current joint state."""
+    import mujoco
+
+    from robot_models.kinematics import forward_kinematics
+    from vr_teleop_server.study.perception.aruco import camera_matrix
+
+    standin = robot.standin
+    scene, model = standin.scene, robot.model
+    data = mujoco.MjData(standin.model)
+    mujoco.mj_forward(standin.model, data)
+    base_from_camera = forward_kinematics(model, {**model.home_pose(), **robot.joint_state().as_dict()})["camera"]
+    camera_from_world = np.linalg.inv(scene.robot_base_world @ base_from_camera)
+    k = camera_matrix(model, width, height)
+    seen = {}
+    for name in scene.bystanders:
+        head = data.geom_xpos[mujoco.mj_name2id(standin.model, mujoco.mjtObj.mjOBJ_GEOM, f"{name}_head")]
+        p = camera_from_world @ np.append(head, 1.0)
+        u, v, _ = k @ (p[:3] / p[2])
+        if p[2] > 0 and 0 <= u < width and 0 <= v < height:
+            seen[name] = (u, v)
+    return seen
+
+
+def test_bystanders_faces_are_published_from_the_camera_frames_while_watched(server):
+    robot = server.server.robot
+    server.call(lambda: robot.set_joint_targets({"HeadYaw": 0.0, "HeadPitch": 0.0}))
+    head = lambda: robot.joint_state().as_dict()  # noqa: E731
+    assert wait_for(lambda: abs(head()["HeadPitch"]) < 0.3 and abs(head()["HeadYaw"]) < 0.3, 10)
+    watchers_before = server.call(lambda: robot.standin.camera_subscribers)
+    client = RawClient(server.url)
+    try:
+        client.send({"op": "subscribe", "topic": "/perception/faces", "type": "vr_teleop_msgs/Faces"})
+        messages = [client.expect("publish", timeout=10, topic="/perception/faces")["msg"] for _ in range(4)]
+    finally:
+        client.close()
+    first = messages[0]
+    width, height = first["image_width"], first["image_height"]
+    assert (width, height) == (robot.standin.camera_width, robot.standin.camera_height)
+    assert first["detector"].startswith("opencv-haar") and first["header"]["frame_id"]
+    assert [m["frame_seq"] for m in messages] == sorted(set(m["frame_seq"] for m in messages)), "frames repeat"
+    heads = _bystanders_in_view(robot, width, height)
+    assert len(heads) == 3, heads  # the scene puts all three in view of the head at rest
+    found = set()
+    for m in messages:
+        for f in m["faces"]:
+            inside = [n for n, (u, v) in heads.items()
+                      if f["x"] <= u <= f["x"] + f["width"] and f["y"] <= v <= f["y"] + f["height"]]
+            assert inside, f"a face box {f} holds no bystander's head {heads}"
+            found.update(inside)
+    assert len(found) >= 2, f"found {found} of {sorted(heads)}"
+    # Unwatched, detection stops and gives the camera back.
+    assert wait_for(lambda: server.call(lambda: robot.standin.camera_subscribers) == watchers_before, 10)
 
 
 def test_perception_query_over_the_protocol(server):

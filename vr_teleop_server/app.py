@@ -24,6 +24,7 @@ from .session import Session
 from .settings import ServerSettings
 from .speech import OperatorAudioLog, Speaker, default_audio_dir
 from .status import StatusPublisher
+from .study.perception.faces import FacePublisher
 from .transport import WebSocketTransport
 
 log = logging.getLogger(__name__)
@@ -47,6 +48,7 @@ class TeleopServer:
         self.operator_audio: OperatorAudioLog | None = None
         self.status: StatusPublisher | None = None
         self.motivation: Motivation | None = None
+        self.faces: FacePublisher | None = None
         self.menu: MenuService | None = None
         self.recorder: Recorder | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
@@ -127,6 +129,8 @@ class TeleopServer:
         self.status.start()
         self.motivation = Motivation(self.bus, self.motivation_config)
         self.motivation.start()
+        self.faces = FacePublisher(self.bus, self.robot)
+        self.faces.start()
         panels = {"hardware": self.status.hardware, "motors": self.status.motors, "dialog": self.status.dialog,
                   "motivation": self.motivation.message}
         self.menu = MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
@@ -159,7 +163,7 @@ class TeleopServer:
             self.recorder = None
 
     async def _stop_robot(self) -> None:
-        for part in (self.motivation, self.status, self.control):
+        for part in (self.faces, self.motivation, self.status, self.control):
             if part is not None:
                 await part.stop()
         if self.operator_audio is not None:

@@ -170,7 +170,8 @@ class LuxaiApi:
             self._camera_watchers = 0
 
     async def _pump_camera(self) -> None:
-        seq = 0
+        latest = self.robot.latest_frame()
+        seq = latest.seq if latest is not None else 0  # the newest kept frame is from when the camera last ran
         while True:
             frame = await self.robot.next_frame(after_seq=seq, timeout=1.0)
             if frame is None:

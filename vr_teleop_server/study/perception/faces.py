@@ -1,0 +1,124 @@
+"""Bystanders' faces in the head camera's frames, published on /perception/faces while anyone listens.
+
+The detector is OpenCV's frontal-face Haar cascade, which ships inside the opencv-python wheels (cv2.data), so
+nothing is downloaded. Faces across a classroom are small (30-60 px at 640x480), below what the cascade finds
+reliably at its native 24 px window, so frames are searched at twice their size; boxes are reported in the
+frame's own pixels. Detection runs in a worker thread and only while /perception/faces has subscribers: the
+camera is rendered (or relayed) only then.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ...bus import Bus
+from ...luxai_api import CAMERA_FRAME_ID
+from ...robot import Robot
+
+log = logging.getLogger(__name__)
+
+FACES_TOPIC = "/perception/faces"
+CASCADE = "haarcascade_frontalface_default.xml"
+
+
+@dataclass(frozen=True)
+class FaceBox:
+    x: int
+    y: int
+    width: int
+    height: int
+
+
+class FaceDetector:
+    name = f"opencv-haar:{CASCADE.removesuffix('.xml')}"
+
+    def __init__(self, *, upscale: float = 2.0, min_size_px: int = 20, min_neighbors: int = 3) -> None:
+        path = cv2.data.haarcascades + CASCADE
+        self._cascade = cv2.CascadeClassifier(path)
+        if self._cascade.empty():
+            raise RuntimeError(f"OpenCV's face cascade could not be loaded from {path}")
+        self.upscale = upscale
+        self.min_size_px = min_size_px
+        self.min_neighbors = min_neighbors
+
+    def detect(self, gray: np.ndarray) -> list[FaceBox]:
+        """Faces in a grayscale image, in its pixels."""
+        k = self.upscale
+        big = cv2.resize(gray, None, fx=k, fy=k, interpolation=cv2.INTER_LINEAR) if k != 1 else gray
+        side = int(self.min_size_px * k)
+        found = self._cascade.detectMultiScale(big, scaleFactor=1.05, minNeighbors=self.min_neighbors,
+                                               minSize=(side, side))
+        return [FaceBox(int(round(x / k)), int(round(y / k)), int(round(w / k)), int(round(h / k)))
+                for x, y, w, h in (found if len(found) else [])]
+
+    def detect_jpeg(self, jpeg: bytes) -> tuple[list[FaceBox], tuple[int, int]] | None:
+        gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if gray is None:
+            return None
+        return self.detect(gray), (gray.shape[1], gray.shape[0])
+
+
+class FacePublisher:
+    """Searches the newest camera frame at up to `rate_hz` while /perception/faces is watched."""
+
+    def __init__(self, bus: Bus, robot: Robot, *, rate_hz: float = 5.0, detector: FaceDetector | None = None) -> None:
+        self.bus = bus
+        self.robot = robot
+        self.detector = detector or FaceDetector()
+        self._period = 1.0 / rate_hz
+        self._task: asyncio.Task[None] | None = None
+
+    def start(self) -> None:
+        topic = self.bus.declare_topic(FACES_TOPIC, "vr_teleop_msgs/Faces", persistent=True)
+        topic.on_subscriber_count = self._on_watchers
+
+    async def stop(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    def _on_watchers(self, count: int) -> None:
+        if count and self._task is None:
+            self._task = asyncio.ensure_future(self._loop())
+        elif not count and self._task is not None:
+            self._task.cancel()  # its finally gives the camera back
+            self._task = None
+
+    async def _loop(self) -> None:
+        self.robot.add_camera_subscriber()
+        started = time.monotonic()
+        try:
+            seq = 0
+            while True:
+                frame = await self.robot.next_frame(seq, timeout=2.0)
+                if frame is None:
+                    continue
+                seq = frame.seq
+                if frame.stamp_monotonic < started:
+                    continue  # kept from when the camera last ran: not what the robot sees now
+                try:
+                    found = await asyncio.to_thread(self.detector.detect_jpeg, frame.jpeg)
+                except Exception:  # a bad frame must not end detection
+                    log.exception("face detection failed on frame %d", frame.seq)
+                    found = None
+                if found is not None:
+                    faces, (width, height) = found
+                    secs = int(frame.stamp_wall)
+                    self.bus.publish(FACES_TOPIC, {
+                        "header": {"seq": frame.seq % 2**32, "frame_id": CAMERA_FRAME_ID,
+                                   "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
+                        "frame_seq": frame.seq % 2**32, "image_width": width, "image_height": height,
+                        "detector": self.detector.name,
+                        "faces": [{"x": f.x, "y": f.y, "width": f.width, "height": f.height} for f in faces]})
+                await asyncio.sleep(max(0.0, self._period - (time.monotonic() - frame.stamp_monotonic)))
+        finally:
+            self.robot.remove_camera_subscriber()
