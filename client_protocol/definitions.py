@@ -127,7 +127,11 @@ MESSAGES: dict[str, str] = {
         "float64 r_idle\nfloat64 c_act\nfloat64 f_del\nfloat64 both_idle\nfloat64 effectiveness\n"
         "uint32 human_actions\nuint32 robot_actions\nuint32 unfinished\nstring detail"
     ),
-    "vr_teleop_msgs/Face": "# A face in a camera image, pixels\nint32 x\nint32 y\nint32 width\nint32 height",
+    "vr_teleop_msgs/Face": (
+        "# A face in a camera image: its box in pixels, and the detector's score (higher is surer; the\n"
+        "# server's floor is 1.5, real faces score about 2.5-8)\n"
+        "int32 x\nint32 y\nint32 width\nint32 height\nfloat32 confidence"
+    ),
     "vr_teleop_msgs/Faces": (
         "# Faces found in one head-camera frame, on /perception/faces. detector: what found them.\n"
         "Header header\nuint32 frame_seq\nuint32 image_width\nuint32 image_height\nstring detector\nFace[] faces"

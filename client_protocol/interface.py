@@ -189,7 +189,7 @@ ENDPOINTS: tuple[Endpoint, ...] = (
                          "frame_id": "camera_color_optical_frame"},
               "frame_seq": 42, "image_width": 640, "image_height": 480, "detector":
               "opencv-haar:haarcascade_frontalface_default", "faces": [{"x": 301, "y": 170, "width": 44,
-                                                                        "height": 44}]}),
+                                                                        "height": 44, "confidence": 3.4}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

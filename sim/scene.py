@@ -196,7 +196,8 @@ def build_classroom(robot: RobotModel | None = None, *, shadows: bool = False, a
     for name, (x, y), height, shirt, skin, hair in figures:
         head_r = 0.085 if height < 1.5 else 0.1
         head_z = height - head_r
-        body = world.add_body(name=name, pos=[x, y, 0.0], quat=_quat(_yaw(180.0)))  # local +x faces the robot
+        facing = np.degrees(np.arctan2(-y, -x))  # local +x turned towards the robot: they watch it
+        body = world.add_body(name=name, pos=[x, y, 0.0], quat=_quat(_yaw(facing)))
         body.add_geom(name=f"{name}_legs", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.07, 0, 0],
                       fromto=[0, 0, 0.07, 0, 0, 0.47 * height], rgba=[0.2, 0.22, 0.3, 1])
         body.add_geom(name=f"{name}_torso", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.12 * height / 1.5, 0, 0],
