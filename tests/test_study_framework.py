@@ -5,7 +5,6 @@ modules, labels, and metrics from the recording equal to the live ones."""
 from __future__ import annotations
 
 import asyncio
-import copy
 import json
 import subprocess
 import sys
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from study_support import EXAMPLE, on_loop, prepared, small_study
 from support import RawClient, RunningServer, wait_for
 
 from vr_teleop_server.settings import ServerSettings
@@ -25,23 +25,6 @@ from vr_teleop_server.study.runner import recorded_metrics
 from vr_teleop_server.study.runtime import TrialResult, TrialRuntime
 from vr_teleop_server.study.studyfile import Study, StudyFileError, load_study
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "toolbox.yaml"
-
-
-def small_study(**trial_changes: dict) -> Study:
-    """The shipped study cut to two parts (one held), with quick people, so a trial lasts about ten seconds."""
-    doc = yaml.safe_load(EXAMPLE.read_text())
-    doc["parts"] = [{"name": "bottom", "bin": "red_bin", "hold": True}, {"name": "front", "bin": "blue_bin"}]
-    doc["human"]["reaction_s"] = [0.05, 0.15]
-    for step in doc["human"]["steps"]:
-        step["duration_s"] = [0.3, 0.5]
-    doc["operator"]["reaction_s"] = [0.1, 0.2]
-    doc["trials"]["teleoperated"]["stalls"] = []
-    doc["trials"]["teleoperated"]["overrides"] = []
-    for name, change in trial_changes.items():
-        doc["trials"][name] = {**doc["trials"].get(name, {}), **copy.deepcopy(change)}
-    return Study.model_validate(doc)
-
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory):
@@ -50,25 +33,6 @@ def server(tmp_path_factory: pytest.TempPathFactory):
                                      record=tmp / "session.mcap", record_camera_fps=0.0))
     yield s
     s.stop()
-
-
-def on_loop(server: RunningServer, coro, timeout: float = 60.0):
-    return asyncio.run_coroutine_threadsafe(coro, server.loop).result(timeout)
-
-
-def prepared(server: RunningServer, study: Study, trial: str) -> TrialRuntime:
-    robot = server.server.robot
-    server.call(lambda: robot.home())
-    def home() -> bool:
-        here = robot.joint_state().as_dict()
-        return all(abs(here[n] - robot.model.joint(n).home) < 2 for n in robot.model.names)
-    assert wait_for(home, 10)
-
-    async def make() -> TrialRuntime:
-        runtime = TrialRuntime(server.server.bus, robot, study, trial, server.server.luxai.gestures)
-        await runtime.prepare()
-        return runtime
-    return on_loop(server, make())
 
 
 def run_with_people(server: RunningServer, runtime: TrialRuntime, *, people: bool = True, during=None,

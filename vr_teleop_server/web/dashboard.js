@@ -84,7 +84,10 @@ function setup() {
 }
 ros.onopen = setup;
 ros.onclose = () => { $("connection").textContent = "disconnected"; $("connection").className = "badge off"; };
-ros.onstatus = (msg) => logLine($("events"), `server: ${msg.msg}`, msg.level);
+ros.onstatus = (msg) => {
+  logLine($("events"), `server: ${msg.msg}`, msg.level);
+  if (/\/study\/|\/decision\/|label/.test(msg.msg)) logLine($("labels"), msg.msg, msg.level);  // where it was asked
+};
 
 // ---- camera -----------------------------------------------------------------------------------------------------
 let lastStamp = null;
@@ -214,21 +217,74 @@ $("estop").onclick = estop;
 $("release").onclick = () => ros.call("/vr_teleop/control/engage", {data: false})
   .then((r) => logLine($("events"), r.message)).catch((err) => logLine($("events"), err.message, "error"));
 
-// ---- study labels: published as events, so recordings and the metrics see them -----------------------------------
+// ---- study: the trial, its live metrics, the experimenter's labels, overrides and preempt -------------------------
+// Labels are published as events on /study/labels, trial or not, so that the session recording holds them; a running
+// trial takes them as the start and stop of human actions and answers with a state update (or a warning).
+const studyLog = (text, level) => logLine($("labels"), text, level);
+const fixed = (x) => (x === null || x === undefined) ? "–" : x.toFixed(2);
+let awaitedHuman = "";
+let trialName = null;
+let interventions = 0;
+ros.subscribe("/study/trial", "vr_teleop_msgs/TrialState", (t) => {
+  if (t.trial !== trialName) {  // a new trial: its own counts
+    trialName = t.trial;
+    interventions = 0;
+    $("m-interventions").textContent = "0";
+  }
+  const ended = {completed: "ended", preempted: "stopped", failed: "stopped"}[t.state];
+  $("trial-badge").textContent = `${t.trial}: ${t.state}`;
+  $("trial-badge").className = `badge ${ended || (t.state === "running" ? "running" : "")}`;
+  $("trial-name").textContent = `${t.study} / ${t.trial}`;
+  $("trial-modules").textContent = `${t.perception} / ${t.decision} / ${t.action}`;
+  $("trial-current").textContent = t.current || "–";
+  $("trial-elapsed").textContent = `${t.elapsed.toFixed(1)} s`;
+  const human = (t.current || "").match(/^awaiting human: (.+)$/);
+  if (human && human[1] !== awaitedHuman && document.activeElement !== $("label-action")) $("label-action").value = human[1];
+  awaitedHuman = human ? human[1] : "";
+});
+ros.subscribe("/study/metrics", "vr_teleop_msgs/FluencyMetrics", (m) => {
+  for (const key of ["h_idle", "r_idle", "c_act", "f_del"]) $(`m-${key}`).textContent = m.defined ? fixed(m[key]) : "–";
+  $("m-effectiveness").textContent = m.effectiveness < 0 ? "–" : fixed(m.effectiveness);
+  $("m-efficiency").textContent = m.final ? `${m.elapsed.toFixed(1)} s` : `(${m.elapsed.toFixed(0)} s)`;
+  $("m-actions").textContent = `${m.human_actions} / ${m.robot_actions}`;
+  $("trial-elapsed").textContent = `${m.elapsed.toFixed(1)} s`;
+});
+ros.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", (u) => {
+  const what = u.finished ? `stopped at ${u.stop.toFixed(2)} s${u.succeeded ? "" : " (failed)"}` : `started at ${u.start.toFixed(2)} s`;
+  logLine($("updates"), `${u.agent} ${u.action} ${what} [${u.source}]`, u.finished && !u.succeeded ? "warning" : "info");
+});
+ros.subscribe("/study/interventions", "vr_teleop_msgs/Intervention", (i) => {
+  $("m-interventions").textContent = String(++interventions);
+  logLine($("updates"), `intervention (${i.kind}) ${i.subtask || ""} at ${i.stop.toFixed(2)} s ${i.note}`, "warning");
+});
 function label(kind) {
   const action = $("label-action").value.trim() || "human_action";
   const detail = JSON.stringify({action, wall_time: Date.now() / 1000});
   ros.publish("/study/labels", "vr_teleop_msgs/Event",
               {header: {}, source: "experimenter", kind, level: "info", detail});
-  logLine($("labels"), `${kind} ${action}`);
+  studyLog(`${kind.replaceAll("_", " ")}: ${action}`);
+}
+function override(succeeded) {
+  ros.call("/decision/override", {succeeded, note: "marked on the dashboard"})
+    .then((r) => studyLog(`override: ${r.message}`, r.success ? "info" : "error"))
+    .catch((err) => studyLog(`override refused: ${err.message}`, "error"));
+}
+function preempt() {
+  if (!confirm("Preempt the trial? The participant stops the study and the robot holds.")) return;
+  ros.call("/decision/preempt")
+    .then((r) => studyLog(`preempt: ${r.message}`, r.success ? "warning" : "error"))
+    .catch((err) => studyLog(`preempt refused: ${err.message}`, "error"));
 }
 $("label-start").onclick = () => label("human_action_start");
 $("label-stop").onclick = () => label("human_action_stop");
 $("label-intervention").onclick = () => label("intervention");
+$("override-ok").onclick = () => override(true);
+$("override-failed").onclick = () => override(false);
+$("preempt").onclick = preempt;
+const KEYS = {h: () => label("human_action_start"), j: () => label("human_action_stop"), i: () => label("intervention"),
+              o: () => override(true), f: () => override(false)};
 document.addEventListener("keydown", (event) => {
-  if (event.target.tagName === "INPUT") { if (event.key === "Escape") estop(); return; }
-  if (event.key === "Escape") estop();
-  else if (event.key === "h" || event.key === "H") label("human_action_start");
-  else if (event.key === "j" || event.key === "J") label("human_action_stop");
-  else if (event.key === "i" || event.key === "I") label("intervention");
+  if (event.key === "Escape") { estop(); return; }
+  if (event.target.tagName === "INPUT" || event.ctrlKey || event.metaKey || event.altKey) return;
+  KEYS[event.key.toLowerCase()]?.();
 });
