@@ -106,8 +106,11 @@ def message_json(published: Published) -> str:
     """The message's JSON text, made once per message."""
     text = published.encoded.get("msg_json")
     if text is None:
-        value = published.value
-        text = value.model_dump_json(by_alias=True) if published.known else dumps(value)
+        if published.plain is not None:
+            text = published.codec.to_json(published.plain)
+        else:
+            value = published.value
+            text = value.model_dump_json(by_alias=True) if published.known else dumps(value)
         published.encoded["msg_json"] = text
     return text
 
