@@ -72,7 +72,8 @@ def seq_of(frame: str | bytes) -> int:
     return json.loads(frame)["msg"]["header"]["seq"]
 
 
-async def latency(url: str, ours: bool, duration: float, rate: float) -> dict[str, float]:
+async def latency(url: str, ours: bool, duration: float, rate: float, samples: bool = False):
+    """Percentiles of the publish-to-receive delay (ms), or with `samples` the delays themselves."""
     pub, sub = await setup(url, ours)
     sent: dict[int, float] = {}
     delays: list[float] = []
@@ -93,6 +94,8 @@ async def latency(url: str, ours: bool, duration: float, rate: float) -> dict[st
     await pub.close()
     await sub.close()
     ms = np.array(delays) * 1000
+    if samples:
+        return list(ms)
     return {"p50_ms": float(np.percentile(ms, 50)), "p99_ms": float(np.percentile(ms, 99)), "max_ms": float(ms.max()),
             "n": len(ms)}
 

@@ -3,7 +3,6 @@ with the stand-in; and roles over real sockets."""
 
 from __future__ import annotations
 
-import shutil
 import time
 import urllib.request
 from pathlib import Path
@@ -14,7 +13,6 @@ from support import RawClient, RunningServer, wait_for
 from vr_teleop_server.recording import read_recording
 from vr_teleop_server.settings import ServerSettings
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 TOKENS = {"operator": "op-secret-1", "supervisor": "sup-secret-2", "spectator": "spec-secret-3"}
 SCREENSHOTS = Path(__file__).resolve().parent.parent / ".pytest_cache" / "screenshots"
 
@@ -28,18 +26,6 @@ def dashboard_server(tmp_path_factory):
         spectator_token=TOKENS["spectator"]))
     yield server
     server.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    if CHROMIUM is None:
-        pytest.fail("Chromium is not installed: `make test` installs it (scripts/install-system-packages.sh)")
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        yield b
-        b.close()
 
 
 def open_page(browser, server: RunningServer, role: str):

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from study_support import on_loop, prepared, small_study
 from support import RunningServer, wait_for
-from test_dashboard import SCREENSHOTS, TOKENS, browser, open_page  # noqa: F401  (browser is a fixture)
+from test_dashboard import SCREENSHOTS, TOKENS, open_page
 
 from vr_teleop_server.recording import read_recording
 from vr_teleop_server.settings import ServerSettings

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 from pydantic import BaseModel, ValidationError
 
-from client_protocol.registry import TypeRegistry, describe_validation_error, normalize_type_name
+from client_protocol.registry import PlainCodec, TypeRegistry, describe_validation_error, normalize_type_name
 
 log = logging.getLogger(__name__)
 
@@ -30,15 +30,27 @@ class BusError(Exception):
 class Published:
     """One message as published, with its wire encodings computed once and shared by every subscriber."""
 
-    __slots__ = ("topic", "type", "value", "known", "sender", "encoded")
+    __slots__ = ("topic", "type", "_value", "known", "sender", "encoded", "plain", "codec")
 
-    def __init__(self, topic: str, type_name: str, value: Any, known: bool, sender: str) -> None:
+    def __init__(self, topic: str, type_name: str, value: Any, known: bool, sender: str,
+                 plain: dict[str, Any] | None = None, codec: PlainCodec | None = None) -> None:
         self.topic = topic
         self.sender = sender  # the owner that published it: a client session's name, or a feature's
         self.type = type_name
-        self.value = value  # a pydantic model for known types, the JSON value as sent for the others
+        self._value = value
         self.known = known
         self.encoded: dict[str, Any] = {}
+        # A known type's message as validated plain data, when a client published it: subscribers that only pass
+        # it on never need the model (see PlainCodec).
+        self.plain = plain
+        self.codec = codec
+
+    @property
+    def value(self) -> Any:
+        """A pydantic model for known types, the JSON value as sent for the others."""
+        if self._value is None and self.plain is not None:
+            self._value = self.codec.to_model(self.plain)
+        return self._value
 
 
 Subscriber = Callable[[Published], None]
@@ -56,6 +68,7 @@ class Topic:
     persistent: bool = False  # created by the server itself: kept when no client uses it
     queue_bound: int | None = None  # per-subscriber queue when the subscriber asks for none (1: newest only)
     on_subscriber_count: Callable[[int], None] | None = None  # a feature that works only while watched
+    codec: PlainCodec | None = None  # the known type's validation, looked up once rather than per message
 
 
 @dataclass
@@ -146,6 +159,8 @@ class Bus:
         if topic is None:
             topic = Topic(name, type_name, self.registry.is_known_message(type_name), latched, persistent=persistent,
                           queue_bound=queue_bound)
+            if topic.known:
+                topic.codec = self.registry.codec(type_name)
             self.topics[name] = topic
         elif topic.type != type_name:
             raise BusError(f"topic {name} has type {topic.type}, not {type_name}")
@@ -196,22 +211,25 @@ class Bus:
         if not topic.persistent and not topic.publishers and not topic.subscribers and topic.last is None:
             self.topics.pop(topic.name, None)
 
-    def validate_message(self, topic: Topic, msg: Any) -> Any:
-        if not topic.known:
-            return msg
-        try:
-            return self.registry.validate(topic.type, msg)
-        except ValidationError as exc:
-            raise BusError(f"message does not fit {topic.type} on {topic.name}: "
-                           f"{describe_validation_error(exc, 'msg')}") from None
-
     def publish(self, name: str, msg: Any, *, latch: bool = False, sender: str = SERVER_NODE) -> Published:
         """Validates `msg` against the topic's type and hands it to every subscriber. Never blocks."""
         topic = self.topics.get(name)
         if topic is None:
             raise BusError(f"topic {name} does not exist: advertise it with a type before publishing")
-        value = msg if isinstance(msg, BaseModel) else self.validate_message(topic, msg)
-        published = Published(name, topic.type, value, topic.known, sender)
+        if isinstance(msg, BaseModel) or not topic.known:
+            published = Published(name, topic.type, msg, topic.known, sender)
+        else:
+            try:
+                published = Published(name, topic.type, None, True, sender, topic.codec.validate(msg), topic.codec)
+            except ValidationError:
+                # The model decides what the plain path refuses: it also takes model instances inside the
+                # message (a feature's header stamped with registry.now()), and it words the error.
+                try:
+                    value = topic.codec.model.model_validate({} if msg is None else msg)
+                except ValidationError as exc:
+                    raise BusError(f"message does not fit {topic.type} on {topic.name}: "
+                                   f"{describe_validation_error(exc, 'msg')}") from None
+                published = Published(name, topic.type, value, True, sender)
         if topic.latched or latch:
             topic.latched = True
             topic.last = published
