@@ -96,7 +96,9 @@ def test_message_in_unity_frame_is_converted_and_ros_frame_passes_through():
     ([0, 0, 0, 1.02], "pose.orientation", "norm 1.02"),
     ([float("nan"), 0, 0, 1], "pose.orientation", "NaN"),
     ([0, 0, float("inf"), 1], "pose.orientation", "infinity"),
+    ([1e200, 0, 0, 1], "pose.orientation", "norm inf"),  # finite, but its norm overflows
 ])
+@pytest.mark.filterwarnings("error")
 def test_bad_quaternions_are_rejected_naming_the_field(quat, field, words):
     with pytest.raises(ValueError) as exc:
         pose_from_message(stamped("unity", [0, 0, 0], quat))

@@ -76,7 +76,8 @@ def check_vector(values: Any, field: str, size: int) -> np.ndarray:
 def check_quaternion(xyzw: Any, field: str, tolerance: float = DEFAULT_QUATERNION_NORM_TOLERANCE) -> np.ndarray:
     """A finite quaternion whose norm is 1 within `tolerance`, renormalised; else a ValueError naming `field`."""
     q = check_vector(xyzw, field, 4)
-    norm = float(np.linalg.norm(q))
+    with np.errstate(over="ignore"):  # a huge component overflows to an infinite norm, refused below
+        norm = float(np.linalg.norm(q))
     if norm == 0.0:
         raise ValueError(f"{field}: the zero quaternion is not a rotation; send a unit quaternion (w=1 for none)")
     if abs(norm - 1.0) > tolerance:
