@@ -7,6 +7,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import asyncio
+import contextlib
 import time
 
 import cv2
@@ -223,3 +224,19 @@ async def test_camera_frames_only_while_subscribed(robot):
     await asyncio.sleep(0.2)
     last = robot.latest_frame()
     assert await robot.next_frame(last.seq, timeout=0.3) is None
+
+
+async def test_live_frames_start_after_the_kept_frame_and_give_the_camera_back(robot):
+    robot.add_camera_subscriber()  # leave a kept frame from an earlier run of the camera
+    try:
+        assert await robot.next_frame(0, timeout=3.0) is not None
+    finally:
+        robot.remove_camera_subscriber()
+    await asyncio.sleep(0.2)
+    kept = robot.latest_frame()
+    watchers = robot.standin.camera_subscribers
+    async with contextlib.aclosing(robot.live_frames()) as frames:
+        first = await anext(frames)
+        assert robot.standin.camera_subscribers == watchers + 1
+    assert first.seq > kept.seq and first.stamp_monotonic > kept.stamp_monotonic
+    assert robot.standin.camera_subscribers == watchers

@@ -48,7 +48,6 @@ class LuxaiApi:
         self._tasks: set[asyncio.Task[Any]] = set()
         self._joint_task: asyncio.Task[None] | None = None
         self._camera_task: asyncio.Task[None] | None = None
-        self._camera_watchers = 0
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -88,9 +87,6 @@ class LuxaiApi:
         for task in tasks:
             with contextlib.suppress(asyncio.CancelledError):
                 await task
-        if self._camera_watchers:
-            self.robot.remove_camera_subscriber()
-            self._camera_watchers = 0
 
     def _spawn(self, coro: Any) -> None:
         task = asyncio.ensure_future(coro)
@@ -160,28 +156,19 @@ class LuxaiApi:
     def _on_camera_watchers(self, count: int) -> None:
         """Frames are rendered only while someone watches."""
         if count > 0 and self._camera_task is None:
-            self.robot.add_camera_subscriber()
-            self._camera_watchers = 1
             self._camera_task = asyncio.ensure_future(self._pump_camera())
         elif count == 0 and self._camera_task is not None:
-            self._camera_task.cancel()
+            self._camera_task.cancel()  # its live_frames() gives the camera back
             self._camera_task = None
-            self.robot.remove_camera_subscriber()
-            self._camera_watchers = 0
 
     async def _pump_camera(self) -> None:
-        latest = self.robot.latest_frame()
-        seq = latest.seq if latest is not None else 0  # the newest kept frame is from when the camera last ran
-        while True:
-            frame = await self.robot.next_frame(after_seq=seq, timeout=1.0)
-            if frame is None:
-                continue
-            seq = frame.seq
-            secs = int(frame.stamp_wall)
-            self.bus.publish(CAMERA_TOPIC, {
-                "header": {"seq": frame.seq % 2**32, "frame_id": CAMERA_FRAME_ID,
-                           "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
-                "format": "jpeg", "data": frame.jpeg})
+        async with contextlib.aclosing(self.robot.live_frames()) as frames:
+            async for frame in frames:
+                secs = int(frame.stamp_wall)
+                self.bus.publish(CAMERA_TOPIC, {
+                    "header": {"seq": frame.seq % 2**32, "frame_id": CAMERA_FRAME_ID,
+                               "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
+                    "format": "jpeg", "data": frame.jpeg})
 
     # ---- face, speech, gestures ---------------------------------------------------------------------------------
     def _show(self, name: str) -> None:

@@ -19,7 +19,7 @@ import asyncio
 import enum
 import math
 import threading
-from collections.abc import Mapping, Sequence
+from collections.abc import AsyncIterator, Mapping, Sequence
 from dataclasses import dataclass
 
 from robot_models import RobotModel
@@ -324,6 +324,24 @@ class Robot(abc.ABC):
     @abc.abstractmethod
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
         """Wait (without blocking the loop) for a frame newer than after_seq; None on timeout."""
+
+    async def live_frames(self) -> AsyncIterator[CameraFrame]:
+        """Each new frame, watching the camera for as long as the iteration lasts.
+
+        The newest kept frame is skipped: it may be from when the camera last ran, not what the robot sees now.
+        Iterate inside contextlib.aclosing() so that the camera is given back as soon as the loop ends.
+        """
+        latest = self.latest_frame()
+        seq = latest.seq if latest is not None else 0
+        self.add_camera_subscriber()
+        try:
+            while True:
+                frame = await self.next_frame(seq, timeout=1.0)
+                if frame is not None:
+                    seq = frame.seq
+                    yield frame
+        finally:
+            self.remove_camera_subscriber()
 
     # ------------------------------------------------------------------------------------------------ lifecycle
     @abc.abstractmethod

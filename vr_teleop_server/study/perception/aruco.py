@@ -86,7 +86,6 @@ class ArucoTracker:
         return self._poses.get(obj)
 
     async def start(self) -> None:
-        self.robot.add_camera_subscriber()
         self._task = asyncio.ensure_future(self._loop())
 
     async def stop(self) -> None:
@@ -95,26 +94,21 @@ class ArucoTracker:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
-            self.robot.remove_camera_subscriber()
 
     async def _loop(self) -> None:
-        seq = 0
-        while True:
-            frame = await self.robot.next_frame(seq, timeout=2.0)
-            if frame is None:
-                continue
-            seq = frame.seq
-            state = self.robot.joint_state()
-            head = [state.velocities[state.names.index(n)] for n in self.model.part_joints("head")]
-            if max(abs(v) for v in head) <= self._max_head_speed:
-                try:
-                    found = await asyncio.to_thread(self._search, frame.jpeg, state.as_dict())
-                except Exception:  # a bad frame must not end tracking
-                    log.exception("ArUco search failed")
-                    found = {}
-                for name, pose in found.items():
-                    self._poses[name] = (pose, frame.stamp_monotonic)
-            await asyncio.sleep(max(0.0, self._period - (time.monotonic() - frame.stamp_monotonic)))
+        async with contextlib.aclosing(self.robot.live_frames()) as frames:
+            async for frame in frames:
+                state = self.robot.joint_state()
+                head = [state.velocities[state.names.index(n)] for n in self.model.part_joints("head")]
+                if max(abs(v) for v in head) <= self._max_head_speed:
+                    try:
+                        found = await asyncio.to_thread(self._search, frame.jpeg, state.as_dict())
+                    except Exception:  # a bad frame must not end tracking
+                        log.exception("ArUco search failed")
+                        found = {}
+                    for name, pose in found.items():
+                        self._poses[name] = (pose, frame.stamp_monotonic)
+                await asyncio.sleep(max(0.0, self._period - (time.monotonic() - frame.stamp_monotonic)))
 
     def _search(self, jpeg: bytes, angles: dict[str, float]) -> dict[str, np.ndarray]:
         gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)

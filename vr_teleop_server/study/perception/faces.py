@@ -111,17 +111,8 @@ class FacePublisher:
             self._task = None
 
     async def _loop(self) -> None:
-        self.robot.add_camera_subscriber()
-        started = time.monotonic()
-        try:
-            seq = 0
-            while True:
-                frame = await self.robot.next_frame(seq, timeout=2.0)
-                if frame is None:
-                    continue
-                seq = frame.seq
-                if frame.stamp_monotonic < started:
-                    continue  # kept from when the camera last ran: not what the robot sees now
+        async with contextlib.aclosing(self.robot.live_frames()) as frames:
+            async for frame in frames:
                 try:
                     found = await asyncio.to_thread(self.detector.detect_jpeg, frame.jpeg)
                 except Exception:  # a bad frame must not end detection
@@ -138,5 +129,3 @@ class FacePublisher:
                         "faces": [{"x": f.x, "y": f.y, "width": f.width, "height": f.height,
                                    "confidence": f.confidence} for f in faces]})
                 await asyncio.sleep(max(0.0, self._period - (time.monotonic() - frame.stamp_monotonic)))
-        finally:
-            self.robot.remove_camera_subscriber()
