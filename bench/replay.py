@@ -17,8 +17,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from vr_teleop_server.replay import load_steps, report, run_replay
-from vr_teleop_server.synth import build, write
+from vr_teleop_server.tools.replay import load_steps, report, run_replay
+from vr_teleop_server.tools.synth import build, write
 
 ROOT = Path(__file__).resolve().parent.parent
 EXE = str(Path(sys.executable).with_name("vr-teleop"))

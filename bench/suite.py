@@ -299,8 +299,8 @@ def churn_rows(seconds: float) -> list[Row]:
 
 # ---- replay -----------------------------------------------------------------------------------------------------
 def replay_rows(quick: bool, speed: float = 10.0) -> list[Row]:
-    from vr_teleop_server.replay import load_steps, report, run_replay
-    from vr_teleop_server.synth import build, write
+    from vr_teleop_server.tools.replay import load_steps, report, run_replay
+    from vr_teleop_server.tools.synth import build, write
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "classroom.mcap"

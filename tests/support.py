@@ -249,7 +249,7 @@ def engage(ros: roslibpy.Ros) -> None:
 def wait_subscribed(server: RunningServer, topic: str, clients: int = 1, timeout: float = 5.0) -> bool:
     """Waits until `clients` clients (not the server's own features) subscribe to `topic`: roslibpy's subscribe
     returns before the server has it, and a message published in between would be missed."""
-    from vr_teleop_server.bus import SERVER_NODE
+    from vr_teleop_server.core.bus import SERVER_NODE
 
     def count() -> int:
         t = server.server.bus.topics.get(topic)

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from robot_models import load_qtrobot
-from vr_teleop_server.backends.sim import SimRobot
-from vr_teleop_server.robot import Gesture, MotorMode, Robot, Waypoint
+from vr_teleop_server.robot.backends.sim import SimRobot
+from vr_teleop_server.robot.interface import Gesture, MotorMode, Robot, Waypoint
 
 MODEL = load_qtrobot()
 

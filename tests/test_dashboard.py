@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from support import RawClient, RunningServer, wait_for
-from vr_teleop_server.recording import read_recording
+from vr_teleop_server.recording.format import read_recording
 from vr_teleop_server.settings import ServerSettings
 
 TOKENS = {"operator": "op-secret-1", "supervisor": "sup-secret-2", "spectator": "spec-secret-3"}

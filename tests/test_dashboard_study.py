@@ -13,7 +13,7 @@ from study_support import on_loop, prepared, small_study
 from support import RunningServer, wait_for
 from test_dashboard import SCREENSHOTS, TOKENS, open_page
 
-from vr_teleop_server.recording import read_recording
+from vr_teleop_server.recording.format import read_recording
 from vr_teleop_server.settings import ServerSettings
 
 

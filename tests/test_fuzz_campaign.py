@@ -45,7 +45,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
 from robot_models import load_qtrobot
-from vr_teleop_server.bus import SERVER_NODE
+from vr_teleop_server.core.bus import SERVER_NODE
 from vr_teleop_server.settings import ServerSettings
 
 FIXED_SEED = 20261123

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from robot_models import forward_kinematics, load_qtrobot
 from robot_models.gestures import GESTURE_DIR, make_gestures
-from vr_teleop_server.gestures import (
+from vr_teleop_server.robot.gestures import (
     GestureFormatError,
     GestureFormatWarning,
     GestureLibrary,
@@ -29,7 +29,7 @@ from vr_teleop_server.gestures import (
     parse_gesture_document,
     parse_gesture_xml,
 )
-from vr_teleop_server.robot import Gesture, JointState, Waypoint
+from vr_teleop_server.robot.interface import Gesture, JointState, Waypoint
 
 MODEL = load_qtrobot()
 
@@ -428,7 +428,7 @@ async def _play_and_sample(robot, g: Gesture, speed: float):
 
 
 async def test_record_save_reload_and_replay_on_the_stand_in(tmp_path):
-    from vr_teleop_server.backends.sim import SimRobot
+    from vr_teleop_server.robot.backends.sim import SimRobot
 
     robot = await SimRobot.create(MODEL)
     try:

@@ -16,8 +16,8 @@ import roslibpy
 
 from sim.face import draw_face
 from support import Headset, RawClient, Watch, call, engage, joints, unity_yaw_pitch, wait_for
-from vr_teleop_server.gestures import parse_gesture_xml
-from vr_teleop_server.speech import TextToSpeech
+from vr_teleop_server.robot.gestures import parse_gesture_xml
+from vr_teleop_server.features.speech import TextToSpeech
 
 
 def select(ros: roslibpy.Ros, item: str, args: dict | None = None) -> dict:

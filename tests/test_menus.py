@@ -10,7 +10,7 @@ import pytest
 
 from menus import COMMANDS, MenuError, load_menus, walk
 from robot_models import load_qtrobot
-from vr_teleop_server.menu_service import MenuService
+from vr_teleop_server.features.menu_service import MenuService
 
 ROOT = Path(__file__).resolve().parent.parent
 

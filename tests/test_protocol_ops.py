@@ -11,7 +11,7 @@ import time
 import cbor2
 import pytest
 
-from vr_teleop_server.wire import png_unpack
+from vr_teleop_server.core.wire import png_unpack
 
 POSE = {"header": {"seq": 3, "stamp": {"secs": 10, "nsecs": 20}, "frame_id": "unity"},
         "pose": {"position": {"x": 0.1, "y": 1.6, "z": 0.3}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}

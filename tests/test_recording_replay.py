@@ -16,8 +16,8 @@ import pytest
 from mcap.reader import make_reader
 
 from support import Headset, RawClient, RunningServer, call, engage, unity_yaw_pitch, wait_for
-from vr_teleop_server import synth
-from vr_teleop_server.recording import read_recording
+from vr_teleop_server.tools import synth
+from vr_teleop_server.recording.format import read_recording
 from vr_teleop_server.settings import ServerSettings
 
 ROOT = Path(__file__).resolve().parent.parent

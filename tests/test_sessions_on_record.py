@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from support import RunningServer
 
-from vr_teleop_server.recording import read_recording
-from vr_teleop_server.replay import load_steps, plot, report, run_replay
+from vr_teleop_server.recording.format import read_recording
+from vr_teleop_server.tools.replay import load_steps, plot, report, run_replay
 from vr_teleop_server.settings import ServerSettings
-from vr_teleop_server.synth import build, menu_tour, write
+from vr_teleop_server.tools.synth import build, menu_tour, write
 
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
 

@@ -20,8 +20,8 @@ from support import RawClient, RunningServer, wait_for
 from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.study.people import RosbridgeClient, SimulatedPeople
 from vr_teleop_server.study.perception import ArucoTracker
-from vr_teleop_server.study.perception.faces import FaceDetector
-from vr_teleop_server.study.runner import recorded_metrics
+from vr_teleop_server.features.faces import FaceDetector
+from vr_teleop_server.tools.study_runner import recorded_metrics
 from vr_teleop_server.study.runtime import TrialResult, TrialRuntime
 from vr_teleop_server.study.studyfile import Study, StudyFileError, load_study
 

@@ -9,23 +9,23 @@ from client_protocol.registry import TypeRegistry
 from menus import load_menus
 from robot_models import load_qtrobot
 
-from .access import AccessPolicy, Role, is_loopback, tokens_from
-from .bus import Bus
-from .explicit_control import ExplicitControl, publish_event
-from .gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
-from .luxai_api import LuxaiApi
-from .menu_service import MenuService, check_commands_implemented
-from .motivation import Motivation
-from .motivation import load_config as load_motivation_config
-from .recording import Recorder
-from .robot import Robot
-from .rosapi import RosApi
-from .session import Session
+from .core.access import AccessPolicy, Role, is_loopback, tokens_from
+from .core.bus import Bus
+from .features.explicit_control import ExplicitControl, publish_event
+from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
+from .features.luxai_api import LuxaiApi
+from .features.menu_service import MenuService, check_commands_implemented
+from .features.motivation import Motivation
+from .features.motivation import load_config as load_motivation_config
+from .recording.recorder import Recorder
+from .robot.interface import Robot
+from .core.rosapi import RosApi
+from .core.session.session import Session
 from .settings import ServerSettings
-from .speech import OperatorAudioLog, Speaker, default_audio_dir
-from .status import StatusPublisher
-from .study.perception.faces import FacePublisher
-from .transport import WebSocketTransport
+from .features.speech import OperatorAudioLog, Speaker, default_audio_dir
+from .features.status import StatusPublisher
+from .features.faces import FacePublisher
+from .core.transport import WebSocketTransport
 
 log = logging.getLogger(__name__)
 DESCRIPTION_TOPIC = "/vr_teleop/robot_description"
@@ -103,14 +103,14 @@ class TeleopServer:
         if s.backend == "none":
             return
         if s.backend == "ros":
-            from .backends.ros import RosRobot
+            from .robot.backends.ros import RosRobot
 
             self.robot = robot = await RosRobot.create(s.robot_url, self.model)
             robot.connection_changed.append(lambda up: publish_event(
                 self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",
                 {"robot_url": s.robot_url}))
         else:
-            from .backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
+            from .robot.backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
 
             self.robot = await SimRobot.create(self.model, camera_width=s.camera_width,
                                                camera_height=s.camera_height, camera_fps=s.camera_fps)

@@ -1,7 +1,7 @@
 """QTrobot gestures shipped as data (LuxAI's gesture XML), and the one writer of that file format.
 
 The writer lives here rather than in the server so that `make_gestures.py`, which generates the shipped files,
-and `vr_teleop_server.gestures.gesture_to_xml`, which saves recordings, cannot drift apart: robot_models
+and `vr_teleop_server.robot.gestures.gesture_to_xml`, which saves recordings, cannot drift apart: robot_models
 depends on nothing of ours, the server depends on robot_models. Parsing and validation live in the server.
 
 Format (as LuxAI's gesture files): degrees written with 2 decimals, waypoint times as integer nanoseconds from

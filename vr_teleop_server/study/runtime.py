@@ -12,9 +12,9 @@ import asyncio
 import time
 from dataclasses import dataclass
 
-from ..bus import Bus
-from ..gestures import GestureLibrary
-from ..robot import Robot
+from ..core.bus import Bus
+from ..robot.gestures import GestureLibrary
+from ..robot.interface import Robot
 from .action import ActionModule
 from .decision import MODULES, DecisionContext, DecisionHost
 from .metrics import FluencyResult

@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..bus import SERVER_NODE, Bus, BusError, Published
+from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from .metrics import FluencyResult, Intervention, LiveMetrics, StateUpdate
 
 log = logging.getLogger(__name__)

@@ -23,9 +23,9 @@ import numpy as np
 
 from robot_models.kinematics import arm_ik, forward_kinematics
 
-from ...bus import BusError
-from ...gestures import GestureLibrary
-from ...robot import Robot
+from ...core.bus import BusError
+from ...robot.gestures import GestureLibrary
+from ...robot.interface import Robot
 from ..perception import Perception
 from ..studyfile import ActionSpec, MotionKind, Study
 from ..trial import TrialLog

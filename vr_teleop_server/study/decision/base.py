@@ -12,7 +12,7 @@ import asyncio
 import contextlib
 from dataclasses import dataclass, field
 
-from ...bus import SERVER_NODE, Bus, BusError
+from ...core.bus import SERVER_NODE, Bus, BusError
 from ..action import ActionModule
 from ..studyfile import Study
 from ..trial import TrialLog

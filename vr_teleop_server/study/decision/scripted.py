@@ -13,7 +13,7 @@ import asyncio
 import py_trees
 from py_trees.common import Status
 
-from ...bus import BusError
+from ...core.bus import BusError
 from .base import Decision, DecisionContext
 
 TICK_S = 0.05

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 
-from ...bus import BusError
+from ...core.bus import BusError
 from .base import Decision
 
 

@@ -2,8 +2,8 @@
 
 from .fluency import compute_metrics
 from .live import LiveMetrics
-from .model import Counts, FluencyResult, Intervention, StateUpdate, UnfinishedAction
-from .readers import MetricsInputError, TrialData, read_interventions, read_trial
+from .model import Counts, FluencyResult, Intervention, MetricsInputError, StateUpdate, TrialData, UnfinishedAction
+from .readers import read_interventions, read_trial
 
 __all__ = [
     "Counts",

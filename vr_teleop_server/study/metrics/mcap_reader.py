@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .model import Intervention, StateUpdate
-from .readers import MetricsInputError, TrialData
+from ...recording.format import read_recording
+from .model import Intervention, MetricsInputError, StateUpdate, TrialData
 
 UPDATES = "/study/state_updates"
 INTERVENTIONS = "/study/interventions"
@@ -23,8 +23,6 @@ FINAL_STATES = ("completed", "preempted", "failed")
 
 
 def read_trial_mcap(path: Path | str, trial: str | None = None) -> TrialData:
-    from ...recording import read_recording  # the recording module owns the file layout
-
     path = Path(path)
     if not path.is_file():
         raise MetricsInputError(path, "file not found", "check the path")

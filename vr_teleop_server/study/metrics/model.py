@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -129,3 +131,26 @@ class FluencyResult(BaseModel):
         out["t1"] = self.t1
         out["unfinished"] = [u.model_dump() for u in self.unfinished]
         return out
+
+
+class MetricsInputError(ValueError):
+    """A trial file that cannot be read; says where (file, row, column) and how to fix it."""
+
+    def __init__(self, path: Path | str, problem: str, fix: str, row: int | str | None = None,
+                 column: str | None = None) -> None:
+        self.path, self.problem, self.fix, self.row, self.column = Path(path), problem, fix, row, column
+        where = [str(path)]
+        if row is not None:
+            where.append(f"row {row}" if isinstance(row, int) else str(row))
+        if column is not None:
+            where.append(f"column {column!r}")
+        super().__init__(f"{', '.join(where)}: {problem}; fix: {fix}")
+
+
+@dataclass(frozen=True)
+class TrialData:
+    updates: list[StateUpdate]
+    interventions: list[Intervention] | None = None  # None: not known, so no effectiveness
+    planned_subtasks: int | None = None
+    t0: float | None = None  # the window, where the input knows it (a recorded trial); None: the defaults
+    t1: float | None = None

@@ -17,14 +17,14 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from .model import AGENTS, Intervention, StateUpdate
+from .mcap_reader import read_trial_mcap
+from .model import AGENTS, Intervention, MetricsInputError, StateUpdate, TrialData
 
 UPDATE_COLUMNS = ("agent", "action", "start", "stop")
 INTERVENTION_COLUMNS = ("start", "stop", "subtask", "note")
@@ -38,29 +38,6 @@ _FIXES = MappingProxyType({
 })
 
 
-class MetricsInputError(ValueError):
-    """A trial file that cannot be read; says where (file, row, column) and how to fix it."""
-
-    def __init__(self, path: Path | str, problem: str, fix: str, row: int | str | None = None,
-                 column: str | None = None) -> None:
-        self.path, self.problem, self.fix, self.row, self.column = Path(path), problem, fix, row, column
-        where = [str(path)]
-        if row is not None:
-            where.append(f"row {row}" if isinstance(row, int) else str(row))
-        if column is not None:
-            where.append(f"column {column!r}")
-        super().__init__(f"{', '.join(where)}: {problem}; fix: {fix}")
-
-
-@dataclass(frozen=True)
-class TrialData:
-    updates: list[StateUpdate]
-    interventions: list[Intervention] | None = None  # None: not known, so no effectiveness
-    planned_subtasks: int | None = None
-    t0: float | None = None  # the window, where the input knows it (a recorded trial); None: the defaults
-    t1: float | None = None
-
-
 def read_trial(path: Path | str, trial: str | None = None) -> TrialData:
     """Read a trial in whichever supported format its extension names (`trial`: which one, in a recording)."""
     path = Path(path)
@@ -70,8 +47,6 @@ def read_trial(path: Path | str, trial: str | None = None) -> TrialData:
         case ".json":
             return read_trial_json(path)
         case ".mcap":
-            from .mcap_reader import read_trial_mcap
-
             return read_trial_mcap(path, trial)
         case _:
             raise MetricsInputError(path, f"unknown trial file type {path.suffix or '(no extension)'!r}",

@@ -20,7 +20,7 @@ import numpy as np
 from robot_models import RobotModel
 from robot_models.kinematics import forward_kinematics
 
-from ...robot import Robot
+from ...robot.interface import Robot
 from ..studyfile import ObjectSpec
 
 log = logging.getLogger(__name__)

@@ -9,7 +9,7 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ...bus import SERVER_NODE, Bus, BusError
+from ...core.bus import SERVER_NODE, Bus, BusError
 from ..studyfile import ObjectSpec
 
 QUERY_SERVICE = "/perception/query"

@@ -26,10 +26,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from .bus import SERVER_NODE, Bus, BusError, Published
+from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from .luxai_api import PART_TOPICS
-from .robot import Robot
-from .teleop import TeleopError, TeleopMapper, TeleopOutput, TeleopSettings, WatchdogState
+from ..robot.interface import Robot
+from ..teleop import TeleopError, TeleopMapper, TeleopOutput, TeleopSettings, WatchdogState
 
 log = logging.getLogger(__name__)
 

@@ -24,10 +24,10 @@ from pydantic import BaseModel, ValidationError
 from client_protocol import ops
 from client_protocol.registry import describe_validation_error
 
-from .access import AccessDenied, AccessPolicy, Role
-from .bus import GOAL_STATUS_ABORTED, Bus, BusError, GoalHandle, Published
-from .settings import ServerSettings
-from .wire import FrameError, decode_frame, dumps, encode_for_client, png_pack, publish_cbor, publish_text, \
+from ..access import AccessDenied, AccessPolicy, Role
+from ..bus import GOAL_STATUS_ABORTED, Bus, BusError, GoalHandle, Published
+from ..settings import CoreSettings
+from ..wire import FrameError, decode_frame, dumps, encode_for_client, png_pack, publish_cbor, publish_text, \
     split_fragments
 
 log = logging.getLogger(__name__)
@@ -115,7 +115,7 @@ class FragmentSet:
 
 
 class Session:
-    def __init__(self, name: str, bus: Bus, settings: ServerSettings, peer: str = "") -> None:
+    def __init__(self, name: str, bus: Bus, settings: CoreSettings, peer: str = "") -> None:
         self.name = name
         self.peer = peer
         self.bus = bus

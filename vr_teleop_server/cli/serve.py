@@ -15,10 +15,10 @@ from pydantic import ValidationError
 
 from client_protocol.registry import describe_validation_error
 
-from .app import TeleopServer
-from .settings import ServerSettings
-from .access import ROLES, generate_tokens
-from .teleop import TeleopSettings
+from ..app import TeleopServer
+from ..settings import ServerSettings
+from ..core.access import ROLES, generate_tokens
+from ..teleop import TeleopSettings
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .bus import SERVER_NODE, Bus, BusError, Published
-from .robot import Robot, SpeechResult
+from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..robot.interface import Robot, SpeechResult
 
 log = logging.getLogger(__name__)
 

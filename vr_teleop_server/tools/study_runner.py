@@ -13,10 +13,10 @@ from pathlib import Path
 
 from ..app import TeleopServer
 from ..settings import ServerSettings
-from .metrics import FluencyResult, compute_metrics, read_trial
-from .people import SimulatedPeople
-from .runtime import TrialRuntime
-from .studyfile import Study
+from ..study.metrics import FluencyResult, compute_metrics, read_trial
+from ..study.people import SimulatedPeople
+from ..study.runtime import TrialRuntime
+from ..study.studyfile import Study
 
 log = logging.getLogger(__name__)
 

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from client_protocol.registry import describe_validation_error
 
-from .bus import SERVER_NODE, Bus, BusError, Published
+from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from .explicit_control import EVENT_TOPIC, STATE_TOPIC, declare_event_topic, publish_event
 
 DEFAULT_CONFIG = Path(__file__).with_name("motivation.yaml")

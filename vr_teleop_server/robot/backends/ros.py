@@ -25,8 +25,8 @@ from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
 
 from robot_models import RobotModel, load_qtrobot
 
-from ..bus import BusError
-from ..robot import (
+from ...core.bus import BusError
+from ..interface import (
     CameraFrame,
     FrameMailbox,
     ClampReport,

@@ -17,10 +17,10 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from . import godspeed, plots, qam, sus, tables, tlx
-from .definitions import DefinitionError, data_file
-from .sheets import SheetError, ValueColumn, read_sheet, write_template
-from .stats import DEFAULT_MIN_NONZERO
+from ..questionnaires import godspeed, plots, qam, sus, tables, tlx
+from ..questionnaires.definitions import DefinitionError, data_file
+from ..questionnaires.sheets import SheetError, ValueColumn, read_sheet, write_template
+from ..questionnaires.stats import DEFAULT_MIN_NONZERO
 
 EXAMPLE_NAME = "qam_paper_table1.csv"
 EXIT_USAGE = 2

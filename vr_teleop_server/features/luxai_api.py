@@ -15,9 +15,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from .bus import SERVER_NODE, Bus, BusError, Published
-from .gestures import GestureLibrary, GestureRecorder, check_save_name
-from .robot import ClampReport, Gesture, MotorMode, Robot
+from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
+from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
 from .speech import Speaker
 
 log = logging.getLogger(__name__)

@@ -31,8 +31,8 @@ from websockets.asyncio.client import connect
 
 from robot_models import load_qtrobot
 
-from .recording import read_recording
-from .teleop import TeleopError, TeleopMapper, TeleopSettings
+from ..recording.format import read_recording
+from ..teleop import TeleopError, TeleopMapper, TeleopSettings
 
 REPLAYED_TOPIC_PREFIXES = ("/vr/", "/vr_teleop/menu/selection", "/vr_teleop/audio/operator")
 COMMAND_TOPICS = {"/qt_robot/head_position/command": "head", "/qt_robot/left_arm_position/command": "left_arm",

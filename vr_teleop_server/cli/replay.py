@@ -1,4 +1,4 @@
-"""`vr-teleop synth NAME --out FILE` and `vr-teleop replay FILE --server URL [--speed S] [--report R] [--plot P]`."""
+"""`vr-teleop replay FILE --server URL [--speed S] [--report R] [--plot P]`."""
 
 from __future__ import annotations
 
@@ -10,16 +10,6 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from .synth import SCENARIOS
-
-    p = subparsers.add_parser("synth", help="write a synthesised 90 Hz headset session as a recording",
-                              description="Synthesise a headset session (human-like motion, sensor noise) as an "
-                                          "MCAP recording that `vr-teleop replay` plays.")
-    p.add_argument("name", choices=SCENARIOS)
-    p.add_argument("--out", type=Path, required=True, metavar="FILE.mcap")
-    p.add_argument("--seed", type=int, default=0)
-    p.set_defaults(func=run_synth)
-
     r = subparsers.add_parser("replay", help="replay a session's headset messages against a server and report",
                               description="Replay the operator's messages of a recording (ours or synthesised) "
                                           "against a server, as a real rosbridge client, and report latency, "
@@ -36,17 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.set_defaults(func=run_replay)
 
 
-def run_synth(args: argparse.Namespace) -> int:
-    from .synth import build, write
-
-    ticks = write(build(args.name, args.seed), args.out, seed=args.seed)
-    print(f"vr-teleop synth: {args.name}: {ticks} headset frames ({ticks / 90:.1f} s at 90 Hz) -> {args.out}")
-    return 0
-
-
 def run_replay(args: argparse.Namespace) -> int:
-    from .replay import load_steps, plot, report
-    from .replay import run_replay as replay
+    from ..tools.replay import load_steps, plot, report
+    from ..tools.replay import run_replay as replay
 
     if not args.speed > 0:
         print("vr-teleop replay: --speed must be above 0", file=sys.stderr)

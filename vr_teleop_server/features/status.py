@@ -15,8 +15,8 @@ from typing import Any
 
 import psutil
 
-from .bus import SERVER_NODE, Bus, Published
-from .robot import MotorMode, Robot
+from ..core.bus import SERVER_NODE, Bus, Published
+from ..robot.interface import MotorMode, Robot
 
 RATE_HZ = 2.0
 HARDWARE_TOPIC = "/vr_teleop/status/hardware"

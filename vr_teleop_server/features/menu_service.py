@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from menus import COMMANDS, Item, LoadedMenu, read_sentences, walk
 
-from .bus import SERVER_NODE, Bus, BusError, Published
+from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from .explicit_control import declare_event_topic, publish_event
 
 log = logging.getLogger(__name__)

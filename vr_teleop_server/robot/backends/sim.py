@@ -17,7 +17,7 @@ from sim import MotorMode as SimMotorMode
 from sim import StandIn
 from sim.standin import CameraFrame as SimFrame
 
-from ..robot import (
+from ..interface import (
     CameraFrame,
     FrameMailbox,
     ClampReport,

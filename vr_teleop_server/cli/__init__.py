@@ -10,12 +10,13 @@ import sys
 # Each module here exposes `register(subparsers)`, which adds its subcommands and sets `func` on them.
 # `func(args)` returns the process exit code.
 SUBCOMMAND_MODULES: tuple[str, ...] = (
-    "vr_teleop_server.serve_cli",
-    "vr_teleop_server.schema_cli",
-    "vr_teleop_server.replay_cli",
-    "vr_teleop_server.questionnaires.cli",
-    "vr_teleop_server.study.metrics.cli",
-    "vr_teleop_server.study.cli",
+    "vr_teleop_server.cli.serve",
+    "vr_teleop_server.cli.schema",
+    "vr_teleop_server.cli.synth",
+    "vr_teleop_server.cli.replay",
+    "vr_teleop_server.cli.questionnaires",
+    "vr_teleop_server.cli.metrics",
+    "vr_teleop_server.cli.study",
 )
 
 

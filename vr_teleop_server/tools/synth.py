@@ -26,10 +26,10 @@ from client_protocol.registry import TypeRegistry
 from menus import load_menus
 from robot_models import load_qtrobot
 
-from .bus import SERVER_NODE, Bus
-from .gestures import GestureLibrary, packaged_gesture_dir
-from .menu_service import MENUS_TOPIC, MenuService
-from .recording import Recorder
+from ..core.bus import SERVER_NODE, Bus
+from ..robot.gestures import GestureLibrary, packaged_gesture_dir
+from ..features.menu_service import MENUS_TOPIC, MenuService
+from ..recording.recorder import Recorder
 
 RATE = 90.0
 JOY_EVERY = 3  # Joy at 30 Hz

@@ -7,9 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from .fluency import compute_metrics
-from .model import FDEL_DIRECTIONS, FluencyResult
-from .readers import MetricsInputError, read_interventions, read_trial
+from ..study.metrics.fluency import compute_metrics
+from ..study.metrics.model import FDEL_DIRECTIONS, FluencyResult
+from ..study.metrics.model import MetricsInputError
+from ..study.metrics.readers import read_interventions, read_trial
 
 _EPILOG = """\
 input formats:
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             args.json.write_text(text + "\n", encoding="utf-8")
             print(f"wrote {args.json}")
     if args.plot is not None:
-        from .gantt import plot_gantt  # matplotlib only when a chart is asked for
+        from ..study.metrics.gantt import plot_gantt  # matplotlib only when a chart is asked for
 
         plot_gantt(trial.updates, args.plot, result=result, title=args.input.name)
         print(f"wrote {args.plot}")

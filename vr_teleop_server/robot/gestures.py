@@ -43,7 +43,7 @@ from pathlib import Path
 from robot_models import RobotModel, load_qtrobot
 from robot_models.gestures import GESTURE_DIR, format_gesture_xml
 
-from .robot import Gesture, JointState, Waypoint
+from .interface import Gesture, JointState, Waypoint
 
 log = logging.getLogger(__name__)
 

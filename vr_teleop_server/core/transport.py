@@ -20,15 +20,15 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
-from .session import Session
-from .settings import ServerSettings
+from .session.session import Session
+from .settings import CoreSettings
 
 log = logging.getLogger(__name__)
-WEB_ROOT = Path(__file__).with_name("web")
+WEB_ROOT = Path(__file__).parent.parent / "web"
 
 
 class WebSocketTransport:
-    def __init__(self, settings: ServerSettings, open_session: Callable[[str, str], Session],
+    def __init__(self, settings: CoreSettings, open_session: Callable[[str, str], Session],
                  close_session: Callable[[Session], None]) -> None:
         self.settings = settings
         self._open_session = open_session

@@ -8,9 +8,9 @@ import json
 import sys
 from pathlib import Path
 
-from .metrics.cli import summary
-from .runner import run_trial, table
-from .studyfile import StudyFileError, load_study
+from .metrics import summary
+from ..tools.study_runner import run_trial, table
+from ..study.studyfile import StudyFileError, load_study
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ...bus import Bus
-from ...luxai_api import CAMERA_FRAME_ID
-from ...robot import Robot
+from ..core.bus import Bus
+from .luxai_api import CAMERA_FRAME_ID
+from ..robot.interface import Robot
 
 log = logging.getLogger(__name__)
 

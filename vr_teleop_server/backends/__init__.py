@@ -1,1 +1,0 @@
-"""Robot backends: implementations of vr_teleop_server.robot.Robot (the MuJoCo stand-in; the real robot later)."""

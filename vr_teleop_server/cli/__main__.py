@@ -1,0 +1,7 @@
+"""`python -m vr_teleop_server.cli`."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,5 @@
+"""One client's rosbridge session."""
+
+from .session import Session
+
+__all__ = ["Session"]

@@ -1,0 +1,1 @@
+"""Session recordings: the MCAP format and its reader (no bus dependency), and the recorder that taps the bus."""
