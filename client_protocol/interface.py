@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
+from . import names
+
 UNITY_HEAD_POSE = {
     "header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity"},
     "pose": {"position": {"x": 0.0, "y": 1.62, "z": 0.0},
@@ -56,53 +58,53 @@ def _stamp() -> dict[str, Any]:
 
 ENDPOINTS: tuple[Endpoint, ...] = (
     # ---- explicit control: the headset's streams ----
-    Endpoint("/vr/head/pose", "geometry_msgs/PoseStamped", "publish", "The headset's pose. " + POSE_DOC, "90 Hz",
+    Endpoint(names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped", "publish", "The headset's pose. " + POSE_DOC, "90 Hz",
              UNITY_HEAD_POSE),
-    Endpoint("/vr/left_controller/pose", "geometry_msgs/PoseStamped", "publish",
+    Endpoint(names.CONTROLLER_POSE_TOPICS["left"], "geometry_msgs/PoseStamped", "publish",
              "The left Touch controller's pose. " + POSE_DOC, "90 Hz", _hand(-0.2)),
-    Endpoint("/vr/right_controller/pose", "geometry_msgs/PoseStamped", "publish",
+    Endpoint(names.CONTROLLER_POSE_TOPICS["right"], "geometry_msgs/PoseStamped", "publish",
              "The right Touch controller's pose. " + POSE_DOC, "90 Hz", _hand(0.2)),
-    Endpoint("/vr/left_controller/joy", "sensor_msgs/Joy", "publish", JOY_DOC, "on change, or 30+ Hz",
+    Endpoint(names.JOY_TOPICS["left"], "sensor_msgs/Joy", "publish", JOY_DOC, "on change, or 30+ Hz",
              {"header": _stamp(), "axes": [0.0, 0.0, 0.0, 1.0], "buttons": [0, 0, 0, 0]}),
-    Endpoint("/vr/right_controller/joy", "sensor_msgs/Joy", "publish", JOY_DOC, "on change, or 30+ Hz",
+    Endpoint(names.JOY_TOPICS["right"], "sensor_msgs/Joy", "publish", JOY_DOC, "on change, or 30+ Hz",
              {"header": _stamp(), "axes": [0.1, -0.3, 0.0, 0.85], "buttons": [1, 0, 0, 0]}),
     # ---- explicit control: the server's services and telemetry ----
-    Endpoint("/vr_teleop/control/engage", "std_srvs/SetBool", "call",
+    Endpoint(names.ENGAGE_SERVICE, "std_srvs/SetBool", "call",
              "data true: take control (needs a fresh head pose from the caller; the current head orientation "
              "becomes the robot's head zero). data false: release it; the robot keeps its pose. Refused while "
              "another client holds control.", example={"data": True}),
-    Endpoint("/vr_teleop/control/calibrate", "std_srvs/Trigger", "call",
+    Endpoint(names.CALIBRATE_SERVICE, "std_srvs/Trigger", "call",
              "Measure the operator's shoulders and arm length from a T-pose (arms straight out to the sides), "
              "holding the headset and both controllers tracked. The reply's message holds the measurements as "
              "JSON."),
-    Endpoint("/vr_teleop/control/head", "std_srvs/SetBool", "call",
+    Endpoint(names.HEAD_SERVICE, "std_srvs/SetBool", "call",
              "Whether the robot's head follows the operator's head (true by default).", example={"data": False}),
-    Endpoint("/vr_teleop/control/arms", "std_srvs/SetBool", "call",
+    Endpoint(names.ARMS_SERVICE, "std_srvs/SetBool", "call",
              "Whether the robot's arms may follow the controllers (true by default; each arm still needs its "
              "grip).", example={"data": True}),
-    Endpoint("/vr_teleop/control/estop", "std_srvs/Trigger", "call",
+    Endpoint(names.ESTOP_SERVICE, "std_srvs/Trigger", "call",
              "Emergency stop: the robot holds where it is and control is released. Anyone may call it; engaging "
              "again resumes."),
-    Endpoint("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", "subscribe",
+    Endpoint(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", "subscribe",
              "Explicit control as the server sees it (see the type's comments for the states).",
              "30 Hz and on every change",
              {"header": _stamp(), "engaged": True, "state": "active", "holder": "client_3_127.0.0.1:50312",
               "head_following": True, "left_arm_following": False, "right_arm_following": True,
               "clamped": ["HeadYaw"], "velocity_limited": [], "pose_age": 0.004, "left_pose_age": 0.006,
               "right_pose_age": 0.005, "robot_connected": True}),
-    Endpoint("/vr_teleop/events", "vr_teleop_msgs/Event", "subscribe",
+    Endpoint(names.EVENT_TOPIC, "vr_teleop_msgs/Event", "subscribe",
              "Server events: engage, release, calibrate, head_on/off, arms_on/off, estop, watchdog_stalled, "
              "watchdog_active, watchdog_disconnected, robot_lost, robot_back, and others' features' events.",
              "on event",
              {"header": _stamp(), "source": "teleop", "kind": "watchdog_stalled", "level": "warning",
               "detail": "{\"holder\": \"client_3_127.0.0.1:50312\"}"}),
-    Endpoint("/vr_teleop/clamps", "vr_teleop_msgs/Clamp", "subscribe",
+    Endpoint(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", "subscribe",
              "A joint command that did not apply as sent: clamped to a limit, or ignored (motor not on).",
              "on clamp",
-             {"header": _stamp(), "source": "/qt_robot/head_position/command", "joints": ["HeadYaw"],
+             {"header": _stamp(), "source": names.HEAD_COMMAND_TOPIC, "joints": ["HeadYaw"],
               "requested": [80.0], "applied": [60.0], "ignored": []}),
     # ---- implicit control: menus, speech, audio, status, motivation ----
-    Endpoint("/vr_teleop/menus", "vr_teleop_msgs/Menus", "subscribe",
+    Endpoint(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", "subscribe",
              "Every radial menu tree, flattened (items name their parent), latched: draw the menus from it. "
              "Published again when the gesture list changes.", "latched, on change",
              {"header": _stamp(), "menus": [{"id": "status", "label": "Status", "controller": "left", "button": "X",
@@ -110,78 +112,78 @@ ENDPOINTS: tuple[Endpoint, ...] = (
               "items": [{"id": "status.hardware", "menu": "status", "parent": "status", "label": "Hardware",
                          "slot": "left", "position": 0, "icon": "cpu", "command": "show_status",
                          "args": "{\"which\": \"hardware\"}"}]}),
-    Endpoint("/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", "call",
+    Endpoint(names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", "call",
              "Run a menu item by id, as the selecting client. args (a JSON object, may be empty) is merged over "
              "the item's own. The reply says what happened; unknown ids and failed commands are errors.",
              example={"id": "speech.sentences.well_done", "args": ""}),
-    Endpoint("/vr_teleop/menu/selection", "std_msgs/String", "publish",
+    Endpoint(names.MENU_SELECTION_TOPIC, "std_msgs/String", "publish",
              "The same as /vr_teleop/menu/select by item id, without a reply (errors come as status messages).",
              "on selection", {"data": "emotion.happy"}),
-    Endpoint("/vr_teleop/audio/robot", "audio_common_msgs/AudioData", "subscribe",
+    Endpoint(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", "subscribe",
              "What the robot says, as raw PCM chunks of 100 ms, sent in real time (300 ms ahead). Format on "
              "/vr_teleop/audio/robot/info.", "10 Hz while speaking", {"data": "AAABAAIA"}),
-    Endpoint("/vr_teleop/audio/robot/info", "audio_common_msgs/AudioInfo", "subscribe",
+    Endpoint(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", "subscribe",
              "The robot audio's format (latched).", "latched",
              {"channels": 1, "sample_rate": 22050, "sample_format": "S16LE", "bitrate": 352800,
               "coding_format": "pcm"}),
-    Endpoint("/vr_teleop/audio/operator", "audio_common_msgs/AudioData", "publish",
+    Endpoint(names.OPERATOR_AUDIO_TOPIC, "audio_common_msgs/AudioData", "publish",
              "The operator's voice for the robot's speaker: raw PCM S16LE chunks, mono 16 kHz unless "
              "/vr_teleop/audio/operator/info says otherwise. Logged as one WAV per client (serve --audio-dir).",
              "e.g. 10 Hz", {"data": "AAABAAIA"}),
-    Endpoint("/vr_teleop/audio/operator/info", "audio_common_msgs/AudioInfo", "publish",
+    Endpoint(names.OPERATOR_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", "publish",
              "The format of the operator's chunks (S16LE, 1 or 2 channels), before sending them.", "once",
              {"channels": 1, "sample_rate": 48000, "sample_format": "S16LE", "bitrate": 768000,
               "coding_format": "pcm"}),
-    Endpoint("/qt_robot/speech/config", "qt_robot_interface/speech_config", "call",
+    Endpoint(names.SPEECH_CONFIG_SERVICE, "qt_robot_interface/speech_config", "call",
              "Voice language (espeak-ng: en, en-gb, fr...), pitch (1..100, 50 normal) and speed (percent of "
              "normal); 0 or empty keeps the current.", example={"language": "en-gb", "pitch": 50, "speed": 90}),
-    Endpoint("/qt_robot/gesture/record", "qt_gesture_controller/gesture_record", "call",
+    Endpoint(names.GESTURE_RECORD_SERVICE, "qt_gesture_controller/gesture_record", "call",
              "Start recording the parts' joints while the operator moves the robot (idleParts is ignored: the "
              "parts stay powered for explicit control). wait: seconds before starting; timeout: seconds at most "
              "(0: until /qt_robot/gesture/stop or save).",
              example={"parts": ["right_arm"], "idleParts": False, "wait": 0, "timeout": 0}),
-    Endpoint("/qt_robot/gesture/save", "qt_gesture_controller/gesture_save", "call",
+    Endpoint(names.GESTURE_SAVE_SERVICE, "qt_gesture_controller/gesture_save", "call",
              "Save the recording (stopping it) as a LuxAI gesture file named name in the server's gesture "
              "directory; path must be empty.", example={"name": "my_wave", "path": ""}),
-    Endpoint("/vr_teleop/status/hardware", "vr_teleop_msgs/HardwareStatus", "subscribe",
+    Endpoint(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", "subscribe",
              "The server machine's CPU, memory and temperature.", "2 Hz",
              {"header": _stamp(), "cpu_percent": 23.5, "memory_percent": 41.0, "memory_used_mb": 3300.0,
               "has_temperature": True, "temperature_c": 52.0, "load_1min": 0.8}),
-    Endpoint("/vr_teleop/status/motors", "vr_teleop_msgs/MotorsStatus", "subscribe",
+    Endpoint(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", "subscribe",
              "Each motor once: position, position within its range (0..1), temperature, voltage, mode.", "2 Hz",
              {"header": _stamp(), "name": ["HeadYaw"], "position": [30.0], "position_normalized": [0.75],
               "temperature": [36.5], "voltage": [12.1], "mode": ["on"]}),
-    Endpoint("/vr_teleop/status/dialog", "vr_teleop_msgs/DialogState", "subscribe",
+    Endpoint(names.DIALOG_STATUS_TOPIC, "vr_teleop_msgs/DialogState", "subscribe",
              "The dialog system's newest state.", "2 Hz and on change",
              {"header": _stamp(), "question": "What colour is the sky?", "mode": "quiz", "answer": "blue",
               "candidates": ["blue", "green"], "optionals": [], "chosen": "blue"}),
-    Endpoint("/vr_teleop/dialog/update", "vr_teleop_msgs/DialogState", "publish",
+    Endpoint(names.DIALOG_UPDATE_TOPIC, "vr_teleop_msgs/DialogState", "publish",
              "A dialog system reports its state here; the status menu shows it.", "on change",
              {"header": _stamp(), "question": "Shall we sing?", "mode": "yes_no", "answer": "", "candidates":
               ["yes", "no"], "optionals": [], "chosen": ""}),
-    Endpoint("/vr_teleop/status/motivation", "vr_teleop_msgs/Motivation", "subscribe",
+    Endpoint(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", "subscribe",
              "The motivation variables with their limits and levels.", "2 Hz and on change",
              {"header": _stamp(), "name": ["frustration"], "value": [82.0], "min": [0.0], "max": [90.0],
               "has_low": [False], "low": [0.0], "has_high": [True], "high": [80.0], "level": ["high"]}),
-    Endpoint("/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange", "call",
+    Endpoint(names.MOTIVATION_INCREMENT_SERVICE, "vr_teleop_msgs/MotivationChange", "call",
              "Add value to a variable (clamped to its min..max); the reply holds the new value.",
              example={"name": "curiosity", "value": 5.0}),
-    Endpoint("/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange", "call",
+    Endpoint(names.MOTIVATION_SET_SERVICE, "vr_teleop_msgs/MotivationChange", "call",
              "Set a variable (clamped to its min..max).", example={"name": "pain", "value": 2.0}),
-    Endpoint("/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", "call",
+    Endpoint(names.MOTIVATION_RESET_SERVICE, "vr_teleop_msgs/MotivationChange", "call",
              "Back to the initial value; an empty name resets every variable.", example={"name": "", "value": 0.0}),
     # ---- the dashboard's own needs ----
-    Endpoint("/vr_teleop/robot_description", "std_msgs/String", "subscribe",
+    Endpoint(names.DESCRIPTION_TOPIC, "std_msgs/String", "subscribe",
              "The robot's joints as JSON: {robot, joints: [{name, part, lower, upper, home, max_velocity}]}, "
              "latched, so that clients draw gauges without hard-coding limits.", "latched",
              {"data": "{\"robot\": \"QTrobot\", \"joints\": [{\"name\": \"HeadYaw\", \"part\": \"head\", "
                       "\"lower\": -60.0, \"upper\": 60.0, \"home\": 0.0, \"max_velocity\": 60.0}]}"}),
-    Endpoint("/study/labels", "vr_teleop_msgs/Event", "publish",
+    Endpoint(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", "publish",
              "The experimenter's labels (source experimenter; kind human_action_start, human_action_stop or "
              "intervention; detail JSON {action, wall_time}); recorded with the session.", "on label",
              {"header": _stamp(), "source": "experimenter", "kind": "human_action_start", "level": "info",
               "detail": "{\"action\": \"hand_over_cup\", \"wall_time\": 1700000000.0}"}),
-    Endpoint("/perception/faces", "vr_teleop_msgs/Faces", "subscribe",
+    Endpoint(names.FACES_TOPIC, "vr_teleop_msgs/Faces", "subscribe",
              "Bystanders' faces found in the head camera's frames (OpenCV's frontal-face cascade), boxes in the "
              "frame's pixels; frame_seq is the camera frame's header.seq. Searched only while someone subscribes.",
              "up to 5 Hz",
@@ -191,23 +193,23 @@ ENDPOINTS: tuple[Endpoint, ...] = (
               "opencv-haar:haarcascade_frontalface_default", "faces": [{"x": 301, "y": 170, "width": 44,
                                                                         "height": 44, "confidence": 3.4}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
-    Endpoint("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", "publish",
+    Endpoint(names.HEAD_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "
              "publishes here too, so subscribing shows its commands.", "as needed", {"data": [30.0, -5.0]}),
-    Endpoint("/qt_robot/left_arm_position/command", "std_msgs/Float64MultiArray", "publish",
+    Endpoint(names.LEFT_ARM_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[LeftShoulderPitch, LeftShoulderRoll, LeftElbowRoll] in degrees.", "as needed",
              {"data": [90.0, -60.0, -30.0]}),
-    Endpoint("/qt_robot/right_arm_position/command", "std_msgs/Float64MultiArray", "publish",
+    Endpoint(names.RIGHT_ARM_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[RightShoulderPitch, RightShoulderRoll, RightElbowRoll] in degrees.", "as needed",
              {"data": [-90.0, -60.0, -30.0]}),
-    Endpoint("/qt_robot/joints/state", "sensor_msgs/JointState", "subscribe",
+    Endpoint(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", "subscribe",
              "All joints, alphabetical, positions in degrees.", "30 Hz",
              {"header": _stamp(), "name": ["HeadPitch", "HeadYaw"], "position": [0.0, 12.5], "velocity": [0.0, 3.1],
               "effort": [0.0, 0.0]}),
-    Endpoint("/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage", "subscribe",
+    Endpoint(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", "subscribe",
              "The head camera as JPEG, rendered only while someone subscribes.", "30 Hz (serve --camera-fps)",
              {"header": {"seq": 1, "stamp": {"secs": 1700000000, "nsecs": 0},
-                         "frame_id": "camera_color_optical_frame"}, "format": "jpeg", "data": "/9j/4AAQSkZJRg=="}),
+                         "frame_id": names.CAMERA_FRAME_ID}, "format": "jpeg", "data": "/9j/4AAQSkZJRg=="}),
 )
 
 

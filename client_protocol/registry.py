@@ -316,10 +316,6 @@ class TypeRegistry:
         return self.model(name).model_validate({} if data is None else data)
 
     # ---- encodings ------------------------------------------------------------------------------------------
-    @staticmethod
-    def to_json_value(message: BaseModel) -> dict[str, Any]:
-        return message.model_dump(mode="json", by_alias=True)
-
     def to_cbor_value(self, name: str, message: BaseModel) -> dict[str, Any]:
         """The message as CBOR wants it: bytes stay bytes, numeric arrays become typed-array tags."""
         return self._cbor_walk(self.spec(name), message.model_dump(mode="python", by_alias=True))

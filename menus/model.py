@@ -17,11 +17,13 @@ once per level) or list (drawn in file order). Item ids are unique across every 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from client_protocol.files import load_model_file
 
 from .commands import COMMANDS
 
@@ -120,10 +122,12 @@ class LoadedMenu:
         self.items = data.items
 
 
-def _describe(exc: ValidationError, doc: Any) -> tuple[str, str]:
-    """(where, problem) of the first error: the item's id (found in the raw document) and the field."""
-    err = exc.errors()[0]
-    loc = list(err["loc"])
+def _item_place(doc: Any) -> Callable[[tuple[Any, ...]], str]:
+    """How an error's location reads in this menu file: the item's id (found in the raw document), then the field."""
+    return lambda loc: _place(doc, list(loc))
+
+
+def _place(doc: Any, loc: list[Any]) -> str:
     node, where, rest, previous = doc, "", loc, None
     for i, key in enumerate(loc):
         try:
@@ -137,20 +141,11 @@ def _describe(exc: ValidationError, doc: Any) -> tuple[str, str]:
             where, rest = "menu", loc[1:]
         previous = key
     field = ".".join(str(k) for k in rest if not str(k).startswith("function-after"))
-    message = err["msg"].removeprefix("Value error, ")
-    return where or "file", f"{field}: {message}" if field else message
+    return f"{where or 'file'}: {field}" if field else where or "file"
 
 
 def load_menu_file(path: Path) -> LoadedMenu:
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise MenuError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = MenuFile.model_validate(doc)
-    except ValidationError as exc:
-        where, problem = _describe(exc, doc)
-        raise MenuError(f"{path}: {where}: {problem}") from None
+    data = load_model_file(MenuFile, path, error=MenuError, place=_item_place)
     for _parent, _pos, item in walk(data.items, data.menu.id):
         if item.source is not None:
             source = path.parent / item.source

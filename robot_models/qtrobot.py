@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
+from client_protocol.files import read_document
 
 PARTS = ("head", "right_arm", "left_arm")
 
@@ -215,12 +215,10 @@ def _parse(doc: Mapping[str, Any], source: str) -> RobotModel:
 def load_qtrobot(path: str | Path | None = None) -> RobotModel:
     """Load QTrobot's description; `path` overrides the packaged robot_models/data/qtrobot.yaml."""
     if path is None:
-        text = resources.files("robot_models").joinpath("data/qtrobot.yaml").read_text(encoding="utf-8")
-        source = "robot_models/data/qtrobot.yaml"
+        file, source = resources.files("robot_models").joinpath("data/qtrobot.yaml"), "robot_models/data/qtrobot.yaml"
     else:
-        text = Path(path).read_text(encoding="utf-8")
-        source = str(path)
-    doc = yaml.safe_load(text)
+        file, source = Path(path), str(path)
+    doc = read_document(file, shown=source)
     if not isinstance(doc, Mapping):
         raise ValueError(f"{source}: expected a mapping at top level")
     return _parse(doc, source)

@@ -13,7 +13,6 @@ Three kinds of thread touch it:
 from __future__ import annotations
 
 import collections
-import enum
 import logging
 import math
 import threading
@@ -28,34 +27,12 @@ import numpy as np
 
 from robot_models import RobotModel, load_qtrobot
 from robot_models.mjcf import FACE_TEXTURE, HEAD_CAMERA
+from robot_models.types import CameraFrame, MotorMode
 
 from .face import draw_face, normalise_emotion
 from .scene import ClassroomScene, build_classroom
 
 log = logging.getLogger(__name__)
-
-
-class MotorMode(enum.IntEnum):
-    """LuxAI's /qt_robot/motors/setControlMode values."""
-
-    ON = 0  # M_ON: the servo follows commands
-    OFF = 1  # M_OFF: no torque, the link hangs under gravity
-    BRAKE = 2  # M_BREAK: hold the current position, ignore commands
-
-
-@dataclass(frozen=True)
-class CameraFrame:
-    """One encoded head-camera frame; only the newest is kept."""
-
-    jpeg: bytes
-    width: int
-    height: int
-    seq: int
-    stamp_monotonic: float  # time.monotonic() when the state was sampled
-    stamp_wall: float  # time.time() at the same moment, for message headers
-    sim_time: float
-    render_ms: float
-    encode_ms: float
 
 
 @dataclass(frozen=True)
@@ -266,10 +243,6 @@ class StandIn:
     def joint_positions(self) -> dict[str, float]:
         s = self.joint_state()
         return dict(zip(s.names, s.positions))
-
-    def joint_velocities(self) -> dict[str, float]:
-        s = self.joint_state()
-        return dict(zip(s.names, s.velocities))
 
     def targets(self) -> dict[str, float]:
         with self._lock:

@@ -41,7 +41,7 @@ def traced_now() -> int:
 
 
 def fragment_sets(server) -> int:
-    return server.call(lambda: sum(len(s._fragments) for s in server.server.sessions.values()))
+    return server.call(lambda: sum(len(s.fragments) for s in server.server.sessions.values()))
 
 
 def test_incomplete_fragment_sets_are_collected_and_memory_does_not_grow(server_factory, traced):

@@ -18,7 +18,7 @@ from pydantic import ValidationError
 
 from client_protocol.ops import Publish
 from client_protocol.registry import TypeRegistry
-from vr_teleop_server.core.session.session import _well_formed_publish
+from vr_teleop_server.core.session.topics import _well_formed_publish
 from vr_teleop_server.core.wire import FrameError, _loads_json
 
 scalars = (st.none() | st.booleans() | st.integers() | st.integers(min_value=2**63, max_value=2**80)

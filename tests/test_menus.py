@@ -59,7 +59,7 @@ BAD_FILES = [
     ("- {id: a, label: A, submenu: [{id: b, label: B, command: say, args: {}}]}\n", "item 'b'", "text"),
     ("- {id: a, label: A, generate: sentences, source: missing.txt}\n", "item 'a'", "cannot read sentences"),
     ("- {id: a, label: A, command: estop}\n- {id: a, label: B, command: estop}\n", "item 'a'", "duplicate id"),
-    ("- {id: a, label: A, command: estop\n", "", "cannot read"),
+    ("- {id: a, label: A, command: estop\n", "", "not valid YAML"),  # as every data file (client_protocol/files)
     ("- {label: A, command: estop}\n", "item #1", "id: Field required"),
 ]
 

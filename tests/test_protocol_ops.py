@@ -211,7 +211,7 @@ def test_incomplete_fragments_are_discarded_after_the_timeout(server_factory, co
     c.send({"op": "fragment", "id": "lost", "data": "{\"op\":", "num": 0, "total": 2})
     status = c.expect("status", level="warning", id="lost", timeout=2)
     assert "1 of 2 arrived" in status["msg"]
-    assert srv.call(lambda: sum(len(s._fragments) for s in srv.server.sessions.values())) == 0
+    assert srv.call(lambda: sum(len(s.fragments) for s in srv.server.sessions.values())) == 0
 
 
 def test_png_compression_round_trips(client):

@@ -517,12 +517,12 @@ def test_cli_json_object_form_and_conflict(tmp_path: Path, capsys: pytest.Captur
     robot = [{"agent": "robot", "action": f"s{i}", "start": i, "stop": i + 0.5} for i in range(20)]
     trial.write_text(json.dumps({"updates": robot, "interventions": [{"start": 3.1, "subtask": "s3"}]}))
     assert main_cli.main(["metrics", str(trial), "--json", "-"]) == 0
-    printed = capsys.readouterr().out
-    data = json.loads(printed[printed.index("{"):])
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)  # `--json -`: stdout holds the JSON and nothing else
     assert data["effectiveness"] == pytest.approx(0.95)
+    assert "H-IDLE" in captured.err  # the summary went to stderr
     assert main_cli.main(["metrics", str(trial), "--json", "-", "--planned-subtasks", "10"]) == 0
-    printed = capsys.readouterr().out
-    assert json.loads(printed[printed.index("{"):])["effectiveness"] == pytest.approx(0.9)
+    assert json.loads(capsys.readouterr().out)["effectiveness"] == pytest.approx(0.9)
     assert main_cli.main(["metrics", str(trial), "--planned-subtasks", "-1"]) == 2
     assert "planned subtasks must be >= 0" in capsys.readouterr().err
     assert main_cli.main(["metrics", str(trial), "--interventions", str(EXAMPLE_INTERVENTIONS)]) == 2
@@ -576,3 +576,10 @@ def test_gantt_png_is_valid_and_shows_both_agents(tmp_path: Path) -> None:
         assert (np.abs(img - rgb).max(axis=-1) < 0.02).sum() > 1000, colour
     plain = plot_gantt(ups, tmp_path / "plain.png", shade=False)
     assert plain.stat().st_size > 10_000 and plain.read_bytes() != raw
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main_cli.main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.startswith("vr-teleop ")

@@ -5,51 +5,45 @@ from __future__ import annotations
 import json
 import logging
 
+from client_protocol import names
 from client_protocol.registry import TypeRegistry
 from menus import load_menus
 from robot_models import load_qtrobot
 
 from .core.access import AccessPolicy, Role, is_loopback, tokens_from
 from .core.bus import Bus
-from .features.explicit_control import ExplicitControl, publish_event
-from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
+from .core.events import publish_event
+from .core.rosapi import RosApi
+from .core.session import Session
+from .core.transport import WebSocketTransport
+from .features import Feature
+from .features.explicit_control import ExplicitControl
+from .features.faces import FacePublisher
 from .features.luxai_api import LuxaiApi
 from .features.menu_service import MenuService, check_commands_implemented
 from .features.motivation import Motivation
 from .features.motivation import load_config as load_motivation_config
-from .recording.recorder import Recorder
-from .robot.interface import Robot
-from .core.rosapi import RosApi
-from .core.session.session import Session
-from .settings import ServerSettings
 from .features.speech import OperatorAudioLog, Speaker, default_audio_dir
 from .features.status import StatusPublisher
-from .features.faces import FacePublisher
-from .core.transport import WebSocketTransport
+from .recording.recorder import Recorder
+from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
+from .robot.interface import Robot
+from .settings import ServerSettings
 
 log = logging.getLogger(__name__)
-DESCRIPTION_TOPIC = "/vr_teleop/robot_description"
-LABELS_TOPIC = "/study/labels"
 
 
 class TeleopServer:
     def __init__(self, settings: ServerSettings) -> None:
         self.settings = settings
         self.registry = TypeRegistry(time_style=settings.time_style)
-        self.bus = Bus(self.registry)
-        self.bus.reporter = self._report
+        self.bus = Bus(self.registry, reporter=self._report)
         self.model = load_qtrobot()
         self.sessions: dict[str, Session] = {}
-        self.rosapi = RosApi(self.bus)
+        self.features: list[Feature] = []  # in the order started; stopped in reverse
         self.robot: Robot | None = None
-        self.luxai: LuxaiApi | None = None
+        self.luxai: LuxaiApi | None = None  # the parts tests and tools reach into
         self.control: ExplicitControl | None = None
-        self.speaker: Speaker | None = None
-        self.operator_audio: OperatorAudioLog | None = None
-        self.status: StatusPublisher | None = None
-        self.motivation: Motivation | None = None
-        self.faces: FacePublisher | None = None
-        self.menu: MenuService | None = None
         self.recorder: Recorder | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
@@ -65,12 +59,12 @@ class TeleopServer:
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session)
 
     def _open_session(self, name: str, peer: str) -> Session:
-        session = Session(name, self.bus, self.settings, peer)
-        session.policy = self.access
+        recorder = self.recorder
+        session = Session(name, self.bus, self.settings, peer, policy=self.access,
+                          tap=recorder.on_frame if recorder is not None else None)
         self.sessions[name] = session
-        if self.recorder is not None:
-            session.tap = self.recorder.on_frame
-            self.recorder.on_connection(name, "connect", peer)
+        if recorder is not None:
+            recorder.on_connection(name, "connect", peer)
         return session
 
     def _close_session(self, session: Session) -> None:
@@ -85,11 +79,12 @@ class TeleopServer:
 
     def _publish_description(self) -> None:
         """The robot's joints and limits, latched, so that clients (the dashboard's gauges) hard-code none."""
-        self.bus.declare_topic(DESCRIPTION_TOPIC, "std_msgs/String", latched=True, persistent=True)
+        self.bus.declare_topic(names.DESCRIPTION_TOPIC, "std_msgs/String", latched=True, persistent=True)
         joints = [{"name": n, "part": part, "lower": self.model.joint(n).lower, "upper": self.model.joint(n).upper,
                    "home": self.model.joint(n).home, "max_velocity": self.model.joint(n).max_velocity}
-                  for part, names in self.model.parts.items() for n in names]
-        self.bus.publish(DESCRIPTION_TOPIC, {"data": json.dumps({"robot": "QTrobot", "joints": joints})}, latch=True)
+                  for part, joint_names in self.model.parts.items() for n in joint_names]
+        self.bus.publish(names.DESCRIPTION_TOPIC, {"data": json.dumps({"robot": "QTrobot", "joints": joints})},
+                         latch=True)
 
     def _report(self, owner: str, level: str, text: str) -> None:
         session = self.sessions.get(owner)
@@ -97,6 +92,10 @@ class TeleopServer:
             session.status(level, text)
         else:
             log.log(logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text)
+
+    def _start(self, feature: Feature) -> None:
+        feature.start()
+        self.features.append(feature)
 
     async def _start_robot(self) -> None:
         s = self.settings
@@ -114,66 +113,58 @@ class TeleopServer:
 
             self.robot = await SimRobot.create(self.model, camera_width=s.camera_width,
                                                camera_height=s.camera_height, camera_fps=s.camera_fps)
+        robot = self.robot
         gestures = GestureLibrary([packaged_gesture_dir()], self.model,
                                   user_dir=s.gesture_dir or default_user_gesture_dir())
         audio_dir = s.audio_dir or default_audio_dir()
-        self.speaker = Speaker(self.bus, self.robot, audio_dir)
-        self.luxai = LuxaiApi(self.bus, self.robot, gestures, self.speaker)
-        self.luxai.start()
-        self.control = ExplicitControl(self.bus, self.robot, s.teleop)
-        self.control.may_override = lambda caller: self.access.may_override_control(self._role(caller))
-        self.control.start()
-        self.operator_audio = OperatorAudioLog(self.bus, audio_dir)
-        self.operator_audio.start()
-        self.status = StatusPublisher(self.bus, self.robot)
-        self.status.start()
-        self.motivation = Motivation(self.bus, self.motivation_config)
-        self.motivation.start()
-        self.faces = FacePublisher(self.bus, self.robot)
-        self.faces.start()
-        panels = {"hardware": self.status.hardware, "motors": self.status.motors, "dialog": self.status.dialog,
-                  "motivation": self.motivation.message}
-        self.menu = MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
-                                status=lambda which: panels[which](), recorder=self.luxai)
-        self.luxai.gestures_changed.append(self.menu.publish)
-        self.menu.start()
+        speaker = Speaker(self.bus, robot, audio_dir)
+        self._start(speaker)
+        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker)
+        self._start(self.luxai)
+        self.control = ExplicitControl(
+            self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)))
+        self._start(self.control)
+        self._start(OperatorAudioLog(self.bus, audio_dir))
+        status = StatusPublisher(self.bus, robot)
+        self._start(status)
+        motivation = Motivation(self.bus, self.motivation_config)
+        self._start(motivation)
+        self._start(FacePublisher(self.bus, robot))
+        panels = {"hardware": status.hardware, "motors": status.motors, "dialog": status.dialog,
+                  "motivation": motivation.message}
+        self._start(MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
+                                status=lambda which: panels[which](), luxai=self.luxai))
 
     async def start(self) -> None:
-        if self.settings.record is not None:
-            self.recorder = Recorder(self.settings.record, self.registry, self.settings.record_camera_fps)
-            self.recorder.attach(self.bus)
-            log.info("recording to %s", self.settings.record)
-        self.rosapi.start()
-        self._publish_description()
-        self.bus.declare_topic(LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)  # the experimenter's labels
-        await self._start_robot()
         try:
+            if self.settings.record is not None:
+                self.recorder = Recorder(self.settings.record, self.registry, self.settings.record_camera_fps,
+                                         bus=self.bus)
+                self._start(self.recorder)
+                log.info("recording to %s", self.settings.record)
+            self._start(RosApi(self.bus))
+            self._publish_description()
+            # the experimenter's labels
+            self.bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
+            await self._start_robot()
             await self.transport.start()
         except BaseException:
-            await self._stop_robot()
+            await self._stop_parts()
             raise
 
     async def stop(self) -> None:
         await self.transport.stop()
         for session in list(self.sessions.values()):
             self._close_session(session)
-        await self._stop_robot()
-        if self.recorder is not None:
-            await self.recorder.close(self.bus)
-            self.recorder = None
+        await self._stop_parts()
 
-    async def _stop_robot(self) -> None:
-        for part in (self.faces, self.motivation, self.status, self.control):
-            if part is not None:
-                await part.stop()
-        if self.operator_audio is not None:
-            self.operator_audio.close()
-        if self.speaker is not None:
-            self.speaker.close()
-        if self.luxai is not None:
-            await self.luxai.stop()
+    async def _stop_parts(self) -> None:
+        """Every started feature in reverse order (the recorder, started first, goes last), then the robot."""
+        while self.features:
+            await self.features.pop().stop()
         if self.robot is not None:
             await self.robot.aclose()
+        self.recorder = None
 
     @property
     def url(self) -> str:

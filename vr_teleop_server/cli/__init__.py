@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import os
 import sys
 
@@ -20,11 +21,19 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
 )
 
 
+def _version() -> str:
+    try:
+        return importlib.metadata.version("vr-teleop-server")
+    except importlib.metadata.PackageNotFoundError:  # a source tree that was never installed
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vr-teleop",
         description="VR telepresence server for QTrobot (rosbridge v2 over WebSocket) and HRI study tools.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in SUBCOMMAND_MODULES:
         importlib.import_module(name).register(subparsers)

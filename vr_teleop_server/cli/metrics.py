@@ -69,19 +69,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"vr-teleop metrics: error: {exc}", file=sys.stderr)
         return 2
 
-    print(summary(args.input.name, result))
+    to_stdout = args.json is not None and str(args.json) == "-"
+    notes = sys.stderr if to_stdout else sys.stdout  # `--json -`: stdout holds the JSON and nothing else
+    print(summary(args.input.name, result), file=notes)
     if args.json is not None:
         text = json.dumps(result.to_json_dict(), indent=2)
-        if str(args.json) == "-":
+        if to_stdout:
             print(text)
         else:
             args.json.write_text(text + "\n", encoding="utf-8")
-            print(f"wrote {args.json}")
+            print(f"wrote {args.json}", file=notes)
     if args.plot is not None:
         from ..study.metrics.gantt import plot_gantt  # matplotlib only when a chart is asked for
 
         plot_gantt(trial.updates, args.plot, result=result, title=args.input.name)
-        print(f"wrote {args.plot}")
+        print(f"wrote {args.plot}", file=notes)
     return 0
 
 

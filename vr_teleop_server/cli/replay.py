@@ -17,7 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("file", type=Path)
     r.add_argument("--server", default="ws://127.0.0.1:9090", metavar="ws://HOST:PORT")
     r.add_argument("--speed", type=float, default=1.0, help="times faster than recorded (default 1)")
-    r.add_argument("--report", type=Path, default=None, metavar="report.json")
+    r.add_argument("--json", "--report", dest="json", type=Path, default=None, metavar="OUT",
+                   help="write the report as JSON here ('-' for stdout, which then holds only the JSON); without "
+                        "it the report is printed")
     r.add_argument("--plot", type=Path, default=None, metavar="out.png",
                    help="commanded against measured joint angles over time")
     r.add_argument("--client", default=None, help="whose messages to replay (default: whoever sent most poses)")
@@ -47,9 +49,9 @@ def run_replay(args: argparse.Namespace) -> int:
     result = {"file": str(args.file), "client": client, "server": args.server, **report(steps, got, elapsed,
                                                                                           args.speed)}
     text = json.dumps(result, indent=2)
-    if args.report:
-        args.report.write_text(text + "\n")
+    if args.json is not None and str(args.json) != "-":
+        args.json.write_text(text + "\n")
     if args.plot:
         plot(got, args.plot)
-    print(text)
+    print(text)  # stdout holds the report and nothing else (progress goes to stderr)
     return 0

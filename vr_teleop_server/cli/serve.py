@@ -10,9 +10,9 @@ import signal
 import sys
 from pathlib import Path
 
-import yaml
 from pydantic import ValidationError
 
+from client_protocol.files import describe_problems, read_document
 from client_protocol.registry import describe_validation_error
 
 from ..app import TeleopServer
@@ -111,7 +111,7 @@ def _teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     """The --teleop-config file, then the flags on top; errors name the file and the key."""
     values: dict = {}
     if args.teleop_config is not None:
-        loaded = yaml.safe_load(args.teleop_config.read_text(encoding="utf-8"))  # JSON is YAML too
+        loaded = read_document(args.teleop_config)  # JSON is YAML too
         if not isinstance(loaded, dict):
             raise ValueError(f"{args.teleop_config}: expected a mapping of teleop settings")
         values.update(loaded)
@@ -123,7 +123,7 @@ def _teleop_settings(args: argparse.Namespace) -> TeleopSettings:
         return TeleopSettings(**values)
     except ValidationError as exc:
         where = args.teleop_config or "teleop settings"
-        raise ValueError(f"{where}: {describe_validation_error(exc)}") from None
+        raise ValueError(f"{where}: {describe_problems(exc)}") from None
 
 
 async def _serve(settings: ServerSettings) -> int:

@@ -17,14 +17,16 @@ import secrets
 from dataclasses import dataclass
 from typing import Literal
 
+from client_protocol import names
+
 Role = Literal["operator", "supervisor", "spectator"]
 ROLES: tuple[Role, ...] = ("operator", "supervisor", "spectator")
 ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
 # What a spectator may call: services that only read.
 READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
-READ_ONLY_SERVICES = {"/qt_robot/gesture/list"}
+READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE}
 # What only a supervisor may do on top of an operator.
-SUPERVISOR_ONLY_SERVICES = {"/vr_teleop/motivation/set", "/vr_teleop/motivation/reset"}
+SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE}
 READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}
 
 
@@ -57,7 +59,8 @@ class AccessPolicy:
         if role == "supervisor" or op in READ_OPS:
             return
         if role == "spectator":
-            if op == "call_service" and (target in READ_ONLY_SERVICES or target.startswith(READ_ONLY_SERVICES_PREFIXES)):
+            if op == "call_service" and (target in READ_ONLY_SERVICES
+                                         or target.startswith(READ_ONLY_SERVICES_PREFIXES)):
                 return
             raise AccessDenied(f"role spectator may not {op.replace('_', ' ')}{' ' + target if target else ''}: "
                                "spectators only watch")

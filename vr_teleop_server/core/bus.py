@@ -18,12 +18,13 @@ from typing import Any, Protocol
 
 from pydantic import BaseModel, ValidationError
 
+from client_protocol.errors import Refusal
 from client_protocol.registry import PlainCodec, TypeRegistry, describe_validation_error, normalize_type_name
 
 log = logging.getLogger(__name__)
 
 
-class BusError(Exception):
+class BusError(Refusal):
     """A request the bus refuses; the message is shown to the client as it is."""
 
 
@@ -126,16 +127,17 @@ GOAL_STATUS_ABORTED = 6
 
 
 class Bus:
-    def __init__(self, registry: TypeRegistry) -> None:
+    def __init__(self, registry: TypeRegistry, reporter: Callable[[str, str, str], None] | None = None) -> None:
         self.registry = registry
         self.topics: dict[str, Topic] = {}
         self.services: dict[str, Service] = {}
         self.actions: dict[str, Action] = {}
         self._tokens = itertools.count(1)
         self._goal_ids = itertools.count(1)
-        # How features tell the client that sent a message about a problem with it; set by the server.
-        self.reporter: Callable[[str, str, str], None] = lambda owner, level, text: log.log(
-            logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text)
+        # How features tell the client that sent a message about a problem with it (the server passes one that
+        # finds the session); without one, the problem is logged.
+        self.reporter: Callable[[str, str, str], None] = reporter or (lambda owner, level, text: log.log(
+            logging.ERROR if level == "error" else logging.WARNING, "%s: %s", owner, text))
         # Called with the owner's name after a client has gone and everything it held was dropped.
         self.owner_dropped: list[Callable[[str], None]] = []
         # Called with every message published, before its subscribers (e.g. a session recording).
@@ -301,6 +303,8 @@ class Bus:
             raise BusError(f"service {name} did not answer within {timeout:g} s") from None
         except BusError:
             raise
+        except Refusal as exc:  # refused below the bus (the robot away): the reason reaches the client as it is
+            raise BusError(str(exc)) from None
         except Exception as exc:
             log.exception("service %s failed", name)
             raise BusError(f"service {name} failed: {exc}") from None

@@ -46,6 +46,9 @@ class RosApi:
         for name, (type_name, handler) in handlers.items():
             bus.advertise_service(ROSAPI_NODE, f"/rosapi/{name}", type_name, self._wrap(handler))
 
+    async def stop(self) -> None:
+        """Nothing runs in the background; the services go with the bus."""
+
     @staticmethod
     def _wrap(handler):
         async def provider(request: Any, _timeout: float) -> Any:

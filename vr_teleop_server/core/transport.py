@@ -20,7 +20,7 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
-from .session.session import Session
+from .session import Session
 from .settings import CoreSettings
 
 log = logging.getLogger(__name__)

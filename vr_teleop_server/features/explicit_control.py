@@ -19,49 +19,30 @@ Rules the client can rely on (README "Explicit control"):
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import logging
 import time
 from collections.abc import Callable
 from typing import Any
 
+from client_protocol import names
+
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
-from .luxai_api import PART_TOPICS
+from ..core.events import declare_event_topic, publish_event
+from ..core.tasks import cancel_and_wait
 from ..robot.interface import Robot
 from ..teleop import TeleopError, TeleopMapper, TeleopOutput, TeleopSettings, WatchdogState
 
 log = logging.getLogger(__name__)
 
-HEAD_POSE_TOPIC = "/vr/head/pose"
-CONTROLLER_POSE_TOPICS = {"left": "/vr/left_controller/pose", "right": "/vr/right_controller/pose"}
-JOY_TOPICS = {"left": "/vr/left_controller/joy", "right": "/vr/right_controller/joy"}
-STATE_TOPIC = "/vr_teleop/teleop_state"
-EVENT_TOPIC = "/vr_teleop/events"
-ENGAGE_SERVICE = "/vr_teleop/control/engage"
-CALIBRATE_SERVICE = "/vr_teleop/control/calibrate"
-HEAD_SERVICE = "/vr_teleop/control/head"
-ARMS_SERVICE = "/vr_teleop/control/arms"
-ESTOP_SERVICE = "/vr_teleop/control/estop"
-COMMAND_TOPICS = {part: topic for topic, part in PART_TOPICS.items()}
 STATE_RATE_HZ = 30.0
 REFUSAL_INTERVAL_S = 1.0  # a refused client hears about it at most this often, not 90 times a second
 
 
-def declare_event_topic(bus: Bus) -> None:
-    bus.declare_topic(EVENT_TOPIC, "vr_teleop_msgs/Event", persistent=True)
-
-
-def publish_event(bus: Bus, source: str, kind: str, level: str = "info", detail: Any = "") -> None:
-    """Puts a server event on /vr_teleop/events (recordings, the dashboard and logs all read it there)."""
-    text = detail if isinstance(detail, str) else json.dumps(detail, sort_keys=True)
-    bus.publish(EVENT_TOPIC, {"header": {"stamp": bus.registry.now()}, "source": source, "kind": kind,
-                              "level": level, "detail": text})
-
-
 class ExplicitControl:
     def __init__(self, bus: Bus, robot: Robot, settings: TeleopSettings | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 may_override: Callable[[str], bool] = lambda caller: False) -> None:
         self.bus = bus
         self.robot = robot
         self.mapper = TeleopMapper(robot.model, settings)
@@ -74,37 +55,34 @@ class ExplicitControl:
         self._last_refusal: dict[str, float] = {}
         self._robot_connected = True
         self._tick_task: asyncio.Task[None] | None = None
-        self.may_override: Callable[[str], bool] = lambda caller: False  # may take control from its holder
+        self.may_override = may_override  # whether a caller may take control from its holder
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
         bus = self.bus
         declare_event_topic(bus)
-        bus.declare_topic(STATE_TOPIC, "vr_teleop_msgs/TeleopState", persistent=True)
-        bus.declare_topic(HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped", persistent=True)
-        bus.subscribe(SERVER_NODE, HEAD_POSE_TOPIC, None, self._on_head_pose)
+        bus.declare_topic(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", persistent=True)
+        bus.declare_topic(names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped", persistent=True)
+        bus.subscribe(SERVER_NODE, names.HEAD_POSE_TOPIC, None, self._on_head_pose)
         for side in ("left", "right"):
-            bus.declare_topic(CONTROLLER_POSE_TOPICS[side], "geometry_msgs/PoseStamped", persistent=True)
-            bus.subscribe(SERVER_NODE, CONTROLLER_POSE_TOPICS[side], None,
+            bus.declare_topic(names.CONTROLLER_POSE_TOPICS[side], "geometry_msgs/PoseStamped", persistent=True)
+            bus.subscribe(SERVER_NODE, names.CONTROLLER_POSE_TOPICS[side], None,
                           lambda p, side=side: self._on_controller_pose(side, p))
-            bus.declare_topic(JOY_TOPICS[side], "sensor_msgs/Joy", persistent=True)
-            bus.subscribe(SERVER_NODE, JOY_TOPICS[side], None, lambda p, side=side: self._on_joy(side, p))
-        bus.provide(ENGAGE_SERVICE, "std_srvs/SetBool", self._engage_service)
-        bus.provide(CALIBRATE_SERVICE, "std_srvs/Trigger", self._calibrate_service)
-        bus.provide(HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("head",), r))
-        bus.provide(ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("left_arm", "right_arm"), r))
-        bus.provide(ESTOP_SERVICE, "std_srvs/Trigger", self._estop_service)
+            bus.declare_topic(names.JOY_TOPICS[side], "sensor_msgs/Joy", persistent=True)
+            bus.subscribe(SERVER_NODE, names.JOY_TOPICS[side], None, lambda p, side=side: self._on_joy(side, p))
+        bus.provide(names.ENGAGE_SERVICE, "std_srvs/SetBool", self._engage_service)
+        bus.provide(names.CALIBRATE_SERVICE, "std_srvs/Trigger", self._calibrate_service)
+        bus.provide(names.HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("head",), r))
+        bus.provide(names.ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("left_arm", "right_arm"), r))
+        bus.provide(names.ESTOP_SERVICE, "std_srvs/Trigger", self._estop_service)
         bus.owner_dropped.append(self._on_owner_dropped)
         self._tick_task = asyncio.ensure_future(self._tick())
 
     async def stop(self) -> None:
         if self._on_owner_dropped in self.bus.owner_dropped:
             self.bus.owner_dropped.remove(self._on_owner_dropped)
-        if self._tick_task is not None:
-            self._tick_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._tick_task
-            self._tick_task = None
+        task, self._tick_task = self._tick_task, None
+        await cancel_and_wait(task)
 
     # ---- inputs -------------------------------------------------------------------------------------------------
     def _admit(self, published: Published) -> bool:
@@ -160,7 +138,7 @@ class ExplicitControl:
         out = self.mapper.step(now)
         self._last_output = out
         for part, values in out.commands.items():
-            self.bus.publish(COMMAND_TOPICS[part], {"data": list(values)})
+            self.bus.publish(names.PART_COMMAND_TOPICS[part], {"data": list(values)})
         if out.state is not before:
             level = "info" if out.state is WatchdogState.ACTIVE else "warning"
             self._event(f"watchdog_{out.state.value}", level, {"holder": self.holder})
@@ -241,9 +219,10 @@ class ExplicitControl:
         holder, self.holder = self.holder, None
         self.mapper.estop()
         state = self.robot.joint_state().as_dict()
-        for part, names in self.robot.model.parts.items():
+        for part, joints in self.robot.model.parts.items():
             # where the joints are, within the limits: the physical joints may sit a hair beyond them
-            self.bus.publish(COMMAND_TOPICS[part], {"data": [self.robot.model.clamp(n, state[n]) for n in names]})
+            self.bus.publish(names.PART_COMMAND_TOPICS[part],
+                             {"data": [self.robot.model.clamp(n, state[n]) for n in joints]})
         self._event("estop", "danger", {"holder": holder, "by": caller})
         self._publish_state()
         return {"success": True, "message": "stopped: the robot holds where it is and control is released"}
@@ -321,13 +300,13 @@ class ExplicitControl:
     def _publish_state(self) -> None:
         msg = self._state_message()
         self._last_summary = self._summary(msg)
-        self.bus.publish(STATE_TOPIC, msg)
+        self.bus.publish(names.TELEOP_STATE_TOPIC, msg)
 
     def _publish_state_if_changed(self) -> None:
         msg = self._state_message()
         if self._summary(msg) != self._last_summary:
             self._last_summary = self._summary(msg)
-            self.bus.publish(STATE_TOPIC, msg)
+            self.bus.publish(names.TELEOP_STATE_TOPIC, msg)
 
     @staticmethod
     def _summary(msg: dict[str, Any]) -> tuple[Any, ...]:

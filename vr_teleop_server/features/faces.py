@@ -18,13 +18,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from client_protocol import names
+
 from ..core.bus import Bus
-from .luxai_api import CAMERA_FRAME_ID
+
+from ..core.tasks import cancel_and_wait
 from ..robot.interface import Robot
 
 log = logging.getLogger(__name__)
 
-FACES_TOPIC = "/perception/faces"
 CASCADE = "haarcascade_frontalface_default.xml"
 
 
@@ -93,15 +95,12 @@ class FacePublisher:
         self._task: asyncio.Task[None] | None = None
 
     def start(self) -> None:
-        topic = self.bus.declare_topic(FACES_TOPIC, "vr_teleop_msgs/Faces", persistent=True)
+        topic = self.bus.declare_topic(names.FACES_TOPIC, "vr_teleop_msgs/Faces", persistent=True)
         topic.on_subscriber_count = self._on_watchers
 
     async def stop(self) -> None:
         task, self._task = self._task, None
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await cancel_and_wait(task)
 
     def _on_watchers(self, count: int) -> None:
         if count and self._task is None:
@@ -121,8 +120,8 @@ class FacePublisher:
                 if found is not None:
                     faces, (width, height) = found
                     secs = int(frame.stamp_wall)
-                    self.bus.publish(FACES_TOPIC, {
-                        "header": {"seq": frame.seq % 2**32, "frame_id": CAMERA_FRAME_ID,
+                    self.bus.publish(names.FACES_TOPIC, {
+                        "header": {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
                                    "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
                         "frame_seq": frame.seq % 2**32, "image_width": width, "image_height": height,
                         "detector": self.detector.name,

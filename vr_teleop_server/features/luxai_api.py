@@ -15,22 +15,17 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from client_protocol import names
+from client_protocol.errors import Refusal
+
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..core.tasks import cancel_and_wait
 from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
 from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
 from .speech import Speaker
 
 log = logging.getLogger(__name__)
 
-PART_TOPICS = {
-    "/qt_robot/head_position/command": "head",
-    "/qt_robot/right_arm_position/command": "right_arm",
-    "/qt_robot/left_arm_position/command": "left_arm",
-}
-JOINT_STATE_TOPIC = "/qt_robot/joints/state"
-CAMERA_TOPIC = "/camera/color/image_raw/compressed"
-CLAMP_TOPIC = "/vr_teleop/clamps"
-CAMERA_FRAME_ID = "camera_color_optical_frame"
 
 
 class LuxaiApi:
@@ -52,41 +47,36 @@ class LuxaiApi:
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
         bus = self.bus
-        for topic, part in PART_TOPICS.items():
+        for topic, part in names.COMMAND_TOPIC_PARTS.items():
             bus.declare_topic(topic, "std_msgs/Float64MultiArray", persistent=True)
             bus.subscribe(SERVER_NODE, topic, None, lambda p, part=part: self._on_part_command(part, p))
-        bus.declare_topic(JOINT_STATE_TOPIC, "sensor_msgs/JointState", persistent=True)
-        bus.declare_topic(CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
-        camera = bus.declare_topic(CAMERA_TOPIC, "sensor_msgs/CompressedImage", persistent=True, queue_bound=1)
+        bus.declare_topic(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", persistent=True)
+        bus.declare_topic(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
+        camera = bus.declare_topic(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", persistent=True, queue_bound=1)
         camera.on_subscriber_count = self._on_camera_watchers
 
-        for name, handler in (("/qt_robot/emotion/show", self._on_emotion_topic),
-                              ("/qt_robot/speech/say", self._on_speech_topic),
-                              ("/qt_robot/gesture/play", self._on_gesture_topic)):
+        for name, handler in ((names.EMOTION_SHOW_SERVICE, self._on_emotion_topic),
+                              (names.SPEECH_SAY_SERVICE, self._on_speech_topic),
+                              (names.GESTURE_PLAY_SERVICE, self._on_gesture_topic)):
             bus.declare_topic(name, "std_msgs/String", persistent=True)
             bus.subscribe(SERVER_NODE, name, None, handler)
 
-        bus.provide("/qt_robot/emotion/show", "qt_robot_interface/emotion_show", self._emotion_show)
-        bus.provide("/qt_robot/speech/say", "qt_robot_interface/speech_say", self._speech_say)
-        bus.provide("/qt_robot/speech/stop", "qt_robot_interface/speech_stop", self._speech_stop)
-        bus.provide("/qt_robot/speech/config", "qt_robot_interface/speech_config", self._speech_config)
-        bus.provide("/qt_robot/gesture/record", "qt_gesture_controller/gesture_record", self._gesture_record)
-        bus.provide("/qt_robot/gesture/save", "qt_gesture_controller/gesture_save", self._gesture_save)
-        bus.provide("/qt_robot/gesture/play", "qt_gesture_controller/gesture_play", self._gesture_play)
-        bus.provide("/qt_robot/gesture/list", "qt_gesture_controller/gesture_list", self._gesture_list)
-        bus.provide("/qt_robot/gesture/stop", "qt_gesture_controller/gesture_stop", self._gesture_stop)
-        bus.provide("/qt_robot/motors/home", "qt_motors_controller/home", self._home)
-        bus.provide("/qt_robot/motors/setControlMode", "qt_motors_controller/set_control_mode", self._control_mode)
+        bus.provide(names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", self._emotion_show)
+        bus.provide(names.SPEECH_SAY_SERVICE, "qt_robot_interface/speech_say", self._speech_say)
+        bus.provide(names.SPEECH_STOP_SERVICE, "qt_robot_interface/speech_stop", self._speech_stop)
+        bus.provide(names.SPEECH_CONFIG_SERVICE, "qt_robot_interface/speech_config", self._speech_config)
+        bus.provide(names.GESTURE_RECORD_SERVICE, "qt_gesture_controller/gesture_record", self._gesture_record)
+        bus.provide(names.GESTURE_SAVE_SERVICE, "qt_gesture_controller/gesture_save", self._gesture_save)
+        bus.provide(names.GESTURE_PLAY_SERVICE, "qt_gesture_controller/gesture_play", self._gesture_play)
+        bus.provide(names.GESTURE_LIST_SERVICE, "qt_gesture_controller/gesture_list", self._gesture_list)
+        bus.provide(names.GESTURE_STOP_SERVICE, "qt_gesture_controller/gesture_stop", self._gesture_stop)
+        bus.provide(names.MOTORS_HOME_SERVICE, "qt_motors_controller/home", self._home)
+        bus.provide(names.MOTORS_CONTROL_MODE_SERVICE, "qt_motors_controller/set_control_mode", self._control_mode)
         self._joint_task = asyncio.ensure_future(self._publish_joint_states())
 
     async def stop(self) -> None:
         self.recorder.cancel()
-        tasks = [t for t in (self._joint_task, self._camera_task, self._record_task, *self._tasks) if t is not None]
-        for task in tasks:
-            task.cancel()
-        for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await cancel_and_wait(self._joint_task, self._camera_task, self._record_task, *self._tasks)
 
     def _spawn(self, coro: Any) -> None:
         task = asyncio.ensure_future(coro)
@@ -106,7 +96,7 @@ class LuxaiApi:
         """Makes a clamped or ignored command visible: on /vr_teleop/clamps, and to the sender as a warning."""
         if report.ok:
             return
-        self.bus.publish(CLAMP_TOPIC, {
+        self.bus.publish(names.CLAMP_TOPIC, {
             "header": {"stamp": self.bus.registry.now()}, "source": source,
             "joints": [c.name for c in report.clamped], "requested": [c.requested for c in report.clamped],
             "applied": [c.applied for c in report.clamped], "ignored": list(report.ignored)})
@@ -142,7 +132,7 @@ class LuxaiApi:
         while True:
             state = self.robot.joint_state().reordered(order)
             secs = int(state.stamp_wall)
-            self.bus.publish(JOINT_STATE_TOPIC, {
+            self.bus.publish(names.JOINT_STATE_TOPIC, {
                 "header": {"stamp": {"secs": secs, "nsecs": int((state.stamp_wall - secs) * 1e9)}},
                 "name": list(state.names), "position": list(state.positions), "velocity": list(state.velocities),
                 "effort": list(state.efforts)})
@@ -165,8 +155,8 @@ class LuxaiApi:
         async with contextlib.aclosing(self.robot.live_frames()) as frames:
             async for frame in frames:
                 secs = int(frame.stamp_wall)
-                self.bus.publish(CAMERA_TOPIC, {
-                    "header": {"seq": frame.seq % 2**32, "frame_id": CAMERA_FRAME_ID,
+                self.bus.publish(names.CAMERA_TOPIC, {
+                    "header": {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
                                "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
                     "format": "jpeg", "data": frame.jpeg})
 
@@ -180,7 +170,7 @@ class LuxaiApi:
     def _on_emotion_topic(self, published: Published) -> None:
         try:
             self._show(published.value.data)
-        except BusError as exc:
+        except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _emotion_show(self, request: Any) -> dict[str, Any]:
@@ -193,7 +183,7 @@ class LuxaiApi:
     async def _say_reporting(self, published: Published) -> None:
         try:
             await self.speaker.say(published.value.data)
-        except BusError as exc:
+        except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _speech_say(self, request: Any) -> dict[str, Any]:
@@ -201,7 +191,7 @@ class LuxaiApi:
         return {"status": result.completed}
 
     async def _speech_stop(self, _request: Any) -> dict[str, Any]:
-        self.speaker.stop()
+        self.speaker.stop_speaking()
         return {"status": True}
 
     async def _speech_config(self, request: Any) -> dict[str, Any]:
@@ -219,7 +209,7 @@ class LuxaiApi:
     def _on_gesture_topic(self, published: Published) -> None:
         try:
             gesture = self._gesture(published.value.data)
-        except BusError as exc:
+        except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
             return
         self._spawn(self._play(gesture, 1.0, published.sender))

@@ -19,18 +19,17 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from client_protocol import names
 from menus import COMMANDS, Item, LoadedMenu, read_sentences, walk
+from robot_models.types import MotorMode
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
-from .explicit_control import declare_event_topic, publish_event
+
+from ..core.events import declare_event_topic, publish_event
 
 log = logging.getLogger(__name__)
 
-MENUS_TOPIC = "/vr_teleop/menus"
-SELECT_SERVICE = "/vr_teleop/menu/select"
-SELECTION_TOPIC = "/vr_teleop/menu/selection"
 CALL_TIMEOUT_S = 60.0  # a sentence or a gesture may take a while; the reply comes when it is done
-MOTOR_MODES = {"on": 0, "off": 1, "brake": 2}
 
 
 def _slug(text: str) -> str:
@@ -40,24 +39,30 @@ def _slug(text: str) -> str:
 class MenuService:
     def __init__(self, bus: Bus, menus: list[LoadedMenu], *, gestures: Callable[[], list[str]],
                  emotions: tuple[str, ...], status: Callable[[str], dict[str, Any]],
-                 recorder: Any) -> None:
+                 luxai: Any | None) -> None:
         self.bus = bus
         self.menus = menus
         self._gestures = gestures
         self._emotions = emotions
         self._status = status
-        self._recorder = recorder  # start_recording / save_recording / recording (LuxaiApi)
+        self._luxai_api = luxai  # gesture recording (start_recording / save_recording / recording) and its news
         self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
         self._arms_on = True
         self._head_on = True
 
     def start(self) -> None:
         declare_event_topic(self.bus)
-        self.bus.declare_topic(MENUS_TOPIC, "vr_teleop_msgs/Menus", latched=True, persistent=True)
-        self.bus.declare_topic(SELECTION_TOPIC, "std_msgs/String", persistent=True)
-        self.bus.subscribe(SERVER_NODE, SELECTION_TOPIC, None, self._on_selection)
-        self.bus.provide(SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", self._select_service)
+        self.bus.declare_topic(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", latched=True, persistent=True)
+        self.bus.declare_topic(names.MENU_SELECTION_TOPIC, "std_msgs/String", persistent=True)
+        self.bus.subscribe(SERVER_NODE, names.MENU_SELECTION_TOPIC, None, self._on_selection)
+        self.bus.provide(names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", self._select_service)
+        if self._luxai_api is not None:
+            self._luxai_api.gestures_changed.append(self.publish)  # a saved gesture joins the menus at once
         self.publish()
+
+    async def stop(self) -> None:
+        if self._luxai_api is not None and self.publish in self._luxai_api.gestures_changed:
+            self._luxai_api.gestures_changed.remove(self.publish)
 
     # ---- the trees ----------------------------------------------------------------------------------------------
     def _generated(self, item: Item, menu: LoadedMenu) -> list[tuple[str, str, str, dict[str, Any]]]:
@@ -95,7 +100,7 @@ class MenuService:
                                       "args": json.dumps(args)})
                         table[ident] = (command, args)
         self._items = table
-        self.bus.publish(MENUS_TOPIC, {
+        self.bus.publish(names.MENUS_TOPIC, {
             "header": {"stamp": self.bus.registry.now()},
             "menus": [{"id": m.info.id, "label": m.info.label, "controller": m.info.controller,
                        "button": m.info.button, "icon": m.info.icon} for m in self.menus],
@@ -120,7 +125,7 @@ class MenuService:
         entry = self._items.get(item_id)
         if entry is None:
             raise self._failed(item_id, "", caller, f"unknown menu item {item_id!r}; the items are on "
-                                                    f"{MENUS_TOPIC}")
+                                                    f"{names.MENUS_TOPIC}")
         command, args = entry
         try:
             extra = json.loads(args_json) if args_json.strip() else {}
@@ -161,34 +166,34 @@ class MenuService:
 
     # ---- the commands (one method per name in menus.COMMANDS) --------------------------------------------------
     async def _do_show_emotion(self, a: Any, caller: str) -> str:
-        return await self._luxai("/qt_robot/emotion/show", {"name": a.name}, caller, f"showing {a.name}")
+        return await self._luxai(names.EMOTION_SHOW_SERVICE, {"name": a.name}, caller, f"showing {a.name}")
 
     async def _do_say(self, a: Any, caller: str) -> str:
-        response = await self._call("/qt_robot/speech/say", {"message": a.text}, caller)
+        response = await self._call(names.SPEECH_SAY_SERVICE, {"message": a.text}, caller)
         return f"said {a.text!r}" if response.status else f"stopped while saying {a.text!r}"
 
     async def _do_stop_speech(self, _a: Any, caller: str) -> str:
-        return await self._luxai("/qt_robot/speech/stop", {}, caller, "speech stopped")
+        return await self._luxai(names.SPEECH_STOP_SERVICE, {}, caller, "speech stopped")
 
     async def _do_configure_speech(self, a: Any, caller: str) -> str:
-        return await self._luxai("/qt_robot/speech/config", {"language": a.language, "pitch": a.pitch,
+        return await self._luxai(names.SPEECH_CONFIG_SERVICE, {"language": a.language, "pitch": a.pitch,
                                                              "speed": a.speed}, caller, "speech configured")
 
     async def _do_play_gesture(self, a: Any, caller: str) -> str:
-        response = await self._call("/qt_robot/gesture/play", {"name": a.name, "speed": a.speed}, caller)
+        response = await self._call(names.GESTURE_PLAY_SERVICE, {"name": a.name, "speed": a.speed}, caller)
         return f"played {a.name}" if response.status else f"{a.name} was stopped"
 
     async def _do_stop_gesture(self, _a: Any, caller: str) -> str:
-        return await self._luxai("/qt_robot/gesture/stop", {}, caller, "gesture stopped")
+        return await self._luxai(names.GESTURE_STOP_SERVICE, {}, caller, "gesture stopped")
 
     async def _do_record_toggle(self, a: Any, caller: str) -> str:
-        if not self._recorder.recording:
-            await self._luxai("/qt_robot/gesture/record", {"parts": a.parts}, caller, "")
+        if not self._luxai_api.recording:
+            await self._luxai(names.GESTURE_RECORD_SERVICE, {"parts": a.parts}, caller, "")
             return f"recording {', '.join(a.parts)}; select again to stop and save"
         return await self._do_save_recording(a, caller)
 
     async def _do_save_recording(self, a: Any, caller: str) -> str:
-        name = self._recorder.save_recording(a.name)  # publishes the menus again, with the new gesture
+        name = self._luxai_api.save_recording(a.name)  # publishes the menus again, with the new gesture
         return f"saved as {name}"
 
     async def _switch(self, service: str, a: Any, current: bool, caller: str) -> bool:
@@ -197,31 +202,33 @@ class MenuService:
         return enable
 
     async def _do_set_arms_control(self, a: Any, caller: str) -> str:
-        self._arms_on = await self._switch("/vr_teleop/control/arms", a, self._arms_on, caller)
+        self._arms_on = await self._switch(names.ARMS_SERVICE, a, self._arms_on, caller)
         return f"arms control {'on' if self._arms_on else 'off'}"
 
     async def _do_set_head_control(self, a: Any, caller: str) -> str:
-        self._head_on = await self._switch("/vr_teleop/control/head", a, self._head_on, caller)
+        self._head_on = await self._switch(names.HEAD_SERVICE, a, self._head_on, caller)
         return f"head control {'on' if self._head_on else 'off'}"
 
     async def _do_engage(self, a: Any, caller: str) -> str:
-        return await self._trigger("/vr_teleop/control/engage", {"data": a.enable}, caller)
+        return await self._trigger(names.ENGAGE_SERVICE, {"data": a.enable}, caller)
 
     async def _do_estop(self, _a: Any, caller: str) -> str:
-        return await self._trigger("/vr_teleop/control/estop", {}, caller)
+        return await self._trigger(names.ESTOP_SERVICE, {}, caller)
 
     async def _do_home(self, a: Any, caller: str) -> str:
-        return await self._luxai("/qt_robot/motors/home", {"parts": a.parts}, caller, "going home")
+        return await self._luxai(names.MOTORS_HOME_SERVICE, {"parts": a.parts}, caller, "going home")
 
     async def _do_set_motors(self, a: Any, caller: str) -> str:
-        return await self._luxai("/qt_robot/motors/setControlMode", {"parts": a.parts, "mode": MOTOR_MODES[a.mode]},
-                                 caller, f"motors {a.mode}")
+        return await self._luxai(names.MOTORS_CONTROL_MODE_SERVICE,
+                                 {"parts": a.parts, "mode": int(MotorMode[a.mode.upper()])}, caller, f"motors {a.mode}")
 
     async def _do_show_status(self, a: Any, _caller: str) -> str:
         return json.dumps(self._status(a.which), default=str)
 
     async def _do_change_motivation(self, a: Any, caller: str) -> str:
-        return await self._trigger(f"/vr_teleop/motivation/{a.op}", {"name": a.name, "value": a.value}, caller)
+        service = {"set": names.MOTIVATION_SET_SERVICE, "increment": names.MOTIVATION_INCREMENT_SERVICE,
+                   "reset": names.MOTIVATION_RESET_SERVICE}[a.op]
+        return await self._trigger(service, {"name": a.name, "value": a.value}, caller)
 
 
 def check_commands_implemented() -> None:

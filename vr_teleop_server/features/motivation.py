@@ -14,23 +14,21 @@ Services (vr_teleop_msgs/MotivationChange): /vr_teleop/motivation/increment, /se
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import time
 from pathlib import Path
 from typing import Any
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from client_protocol.registry import describe_validation_error
+from client_protocol import names
+from client_protocol.files import load_model_file
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
-from .explicit_control import EVENT_TOPIC, STATE_TOPIC, declare_event_topic, publish_event
+from ..core.events import declare_event_topic, publish_event
+from ..core.tasks import cancel_and_wait
 
 DEFAULT_CONFIG = Path(__file__).with_name("motivation.yaml")
-TOPIC = "/vr_teleop/status/motivation"
-CLAMP_TOPIC = "/vr_teleop/clamps"
 REFUSAL_KINDS = ("refused", "menu_failed")
 RATE_HZ = 2.0
 
@@ -80,12 +78,7 @@ class MotivationConfig(BaseModel):
 
 def load_config(path: Path | None = None) -> MotivationConfig:
     path = path or DEFAULT_CONFIG
-    try:
-        return MotivationConfig.model_validate(yaml.safe_load(path.read_text(encoding="utf-8")))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"{path}: cannot read: {exc}") from None
-    except ValidationError as exc:
-        raise ValueError(f"{path}: {describe_validation_error(exc)}") from None
+    return load_model_file(MotivationConfig, path)
 
 
 class Motivation:
@@ -102,24 +95,20 @@ class Motivation:
     def start(self) -> None:
         bus = self.bus
         declare_event_topic(bus)
-        bus.declare_topic(TOPIC, "vr_teleop_msgs/Motivation", persistent=True)
-        bus.declare_topic(CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
-        bus.declare_topic(STATE_TOPIC, "vr_teleop_msgs/TeleopState", persistent=True)
-        bus.subscribe(SERVER_NODE, CLAMP_TOPIC, None, lambda _p: self._bump("per_clamp"))
-        bus.subscribe(SERVER_NODE, EVENT_TOPIC, None, self._on_event)
-        bus.subscribe(SERVER_NODE, STATE_TOPIC, None, self._on_state)
-        bus.provide("/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange", self._increment)
-        bus.provide("/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange", self._set)
-        bus.provide("/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", self._reset)
+        bus.declare_topic(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", persistent=True)
+        bus.declare_topic(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
+        bus.declare_topic(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", persistent=True)
+        bus.subscribe(SERVER_NODE, names.CLAMP_TOPIC, None, lambda _p: self._bump("per_clamp"))
+        bus.subscribe(SERVER_NODE, names.EVENT_TOPIC, None, self._on_event)
+        bus.subscribe(SERVER_NODE, names.TELEOP_STATE_TOPIC, None, self._on_state)
+        bus.provide(names.MOTIVATION_INCREMENT_SERVICE, "vr_teleop_msgs/MotivationChange", self._increment)
+        bus.provide(names.MOTIVATION_SET_SERVICE, "vr_teleop_msgs/MotivationChange", self._set)
+        bus.provide(names.MOTIVATION_RESET_SERVICE, "vr_teleop_msgs/MotivationChange", self._reset)
         self._tasks = [asyncio.ensure_future(self._dynamics()), asyncio.ensure_future(self._publish_loop())]
 
     async def stop(self) -> None:
-        for task in self._tasks:
-            task.cancel()
-        for task in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        self._tasks = []
+        tasks, self._tasks = self._tasks, []
+        await cancel_and_wait(*tasks)
 
     # ---- inputs -------------------------------------------------------------------------------------------------
     def _on_event(self, published: Published) -> None:
@@ -196,7 +185,7 @@ class Motivation:
                 "level": [self._levels[n][0] for n in names]}
 
     def publish(self) -> None:
-        self.bus.publish(TOPIC, self.message())
+        self.bus.publish(names.MOTIVATION_STATUS_TOPIC, self.message())
 
     # ---- services -----------------------------------------------------------------------------------------------
     def _variable(self, name: str) -> str:

@@ -30,15 +30,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from client_protocol import names
+
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..robot.interface import Robot, SpeechResult
 
 log = logging.getLogger(__name__)
 
-ROBOT_AUDIO_TOPIC = "/vr_teleop/audio/robot"
-ROBOT_AUDIO_INFO_TOPIC = "/vr_teleop/audio/robot/info"
-OPERATOR_AUDIO_TOPIC = "/vr_teleop/audio/operator"
-OPERATOR_AUDIO_INFO_TOPIC = "/vr_teleop/audio/operator/info"
 CHUNK_S = 0.1  # audio per chunk sent to the headset
 LEAD_S = 0.3  # how far ahead of real time chunks are sent, so the headset's player never starves
 NORMAL_SPEED = 100  # LuxAI's speech speed is a percentage of normal
@@ -132,14 +130,17 @@ class Speaker:
         self.last_wav_path: Path | None = None
         self._stream: asyncio.Task[None] | None = None
         self._info: tuple[int, int, int] | None = None
-        bus.declare_topic(ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
-        bus.declare_topic(ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True, persistent=True)
+
+    def start(self) -> None:
+        self.bus.declare_topic(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
+        self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True,
+                               persistent=True)
 
     async def say(self, text: str) -> SpeechResult:
         if not text.strip():
             raise BusError("nothing to say: the message is empty")
         wav = await self.tts.render(text)
-        self.stop()
+        self.stop_speaking()
         self._log(text, wav)
         self._publish_info(wav)
         stream = self._stream = asyncio.ensure_future(self._stream_audio(wav))
@@ -152,7 +153,7 @@ class Speaker:
                 stream.cancel()
         return result
 
-    def stop(self) -> None:
+    def stop_speaking(self) -> None:
         self.robot.stop_speech()
         if self._stream is not None:
             self._stream.cancel()
@@ -181,7 +182,7 @@ class Speaker:
         if info == self._info:
             return
         self._info = info
-        self.bus.publish(ROBOT_AUDIO_INFO_TOPIC, {
+        self.bus.publish(names.ROBOT_AUDIO_INFO_TOPIC, {
             "channels": wav.channels, "sample_rate": wav.sample_rate, "sample_format": f"S{8 * wav.sample_width}LE",
             "bitrate": wav.sample_rate * wav.channels * wav.sample_width * 8, "coding_format": "pcm"})
 
@@ -193,10 +194,10 @@ class Speaker:
             delay = due - time.monotonic()
             if delay > 0:
                 await asyncio.sleep(delay)
-            self.bus.publish(ROBOT_AUDIO_TOPIC, {"data": wav.pcm[offset:offset + step]})
+            self.bus.publish(names.ROBOT_AUDIO_TOPIC, {"data": wav.pcm[offset:offset + step]})
 
-    def close(self) -> None:
-        self.stop()
+    async def stop(self) -> None:
+        self.stop_speaking()
         self.tts.close()
 
 
@@ -215,15 +216,11 @@ class OperatorAudioLog:
         self._files: dict[str, tuple[wave.Wave_write, Path]] = {}
 
     def start(self) -> None:
-        self.bus.declare_topic(OPERATOR_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
-        self.bus.declare_topic(OPERATOR_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", persistent=True)
-        self.bus.subscribe(SERVER_NODE, OPERATOR_AUDIO_TOPIC, None, self._on_chunk)
-        self.bus.subscribe(SERVER_NODE, OPERATOR_AUDIO_INFO_TOPIC, None, self._on_info)
+        self.bus.declare_topic(names.OPERATOR_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
+        self.bus.declare_topic(names.OPERATOR_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", persistent=True)
+        self.bus.subscribe(SERVER_NODE, names.OPERATOR_AUDIO_TOPIC, None, self._on_chunk)
+        self.bus.subscribe(SERVER_NODE, names.OPERATOR_AUDIO_INFO_TOPIC, None, self._on_info)
         self.bus.owner_dropped.append(self._close_for)
-
-    def path_for(self, sender: str) -> Path | None:
-        entry = self._files.get(sender)
-        return entry[1] if entry else None
 
     def _on_info(self, published: Published) -> None:
         info = published.value
@@ -262,7 +259,7 @@ class OperatorAudioLog:
         if entry is not None:
             entry[0].close()
 
-    def close(self) -> None:
+    async def stop(self) -> None:
         for owner in list(self._files):
             self._close_for(owner)
         if self._close_for in self.bus.owner_dropped:

@@ -15,14 +15,13 @@ from typing import Any
 
 import psutil
 
+from client_protocol import names
+
 from ..core.bus import SERVER_NODE, Bus, Published
+from ..core.tasks import cancel_and_wait
 from ..robot.interface import MotorMode, Robot
 
 RATE_HZ = 2.0
-HARDWARE_TOPIC = "/vr_teleop/status/hardware"
-MOTORS_TOPIC = "/vr_teleop/status/motors"
-DIALOG_TOPIC = "/vr_teleop/status/dialog"
-DIALOG_UPDATE_TOPIC = "/vr_teleop/dialog/update"
 MODE_NAMES = {MotorMode.ON: "on", MotorMode.OFF: "off", MotorMode.BRAKE: "brake"}
 
 
@@ -48,26 +47,23 @@ class StatusPublisher:
 
     def start(self) -> None:
         bus = self.bus
-        bus.declare_topic(HARDWARE_TOPIC, "vr_teleop_msgs/HardwareStatus", persistent=True)
-        bus.declare_topic(MOTORS_TOPIC, "vr_teleop_msgs/MotorsStatus", persistent=True)
-        bus.declare_topic(DIALOG_TOPIC, "vr_teleop_msgs/DialogState", persistent=True)
-        bus.declare_topic(DIALOG_UPDATE_TOPIC, "vr_teleop_msgs/DialogState", persistent=True)
-        bus.subscribe(SERVER_NODE, DIALOG_UPDATE_TOPIC, None, self._on_dialog)
+        bus.declare_topic(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", persistent=True)
+        bus.declare_topic(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", persistent=True)
+        bus.declare_topic(names.DIALOG_STATUS_TOPIC, "vr_teleop_msgs/DialogState", persistent=True)
+        bus.declare_topic(names.DIALOG_UPDATE_TOPIC, "vr_teleop_msgs/DialogState", persistent=True)
+        bus.subscribe(SERVER_NODE, names.DIALOG_UPDATE_TOPIC, None, self._on_dialog)
         psutil.cpu_percent(None)  # the first reading is meaningless; prime it
         self._task = asyncio.ensure_future(self._run())
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        task, self._task = self._task, None
+        await cancel_and_wait(task)
 
     def _on_dialog(self, published: Published) -> None:
         value = published.value.model_dump(mode="json")
         value.pop("header", None)
         self._dialog = value
-        self.bus.publish(DIALOG_TOPIC, self.dialog())
+        self.bus.publish(names.DIALOG_STATUS_TOPIC, self.dialog())
 
     async def _run(self) -> None:
         while True:
@@ -75,9 +71,9 @@ class StatusPublisher:
             await asyncio.sleep(1.0 / RATE_HZ)
 
     def publish_all(self) -> None:
-        self.bus.publish(HARDWARE_TOPIC, self.hardware())
-        self.bus.publish(MOTORS_TOPIC, self.motors())
-        self.bus.publish(DIALOG_TOPIC, self.dialog())
+        self.bus.publish(names.HARDWARE_STATUS_TOPIC, self.hardware())
+        self.bus.publish(names.MOTORS_STATUS_TOPIC, self.motors())
+        self.bus.publish(names.DIALOG_STATUS_TOPIC, self.dialog())
 
     def _header(self) -> dict[str, Any]:
         return {"stamp": self.bus.registry.now()}

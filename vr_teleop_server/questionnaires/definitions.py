@@ -6,8 +6,9 @@ from importlib import resources
 from pathlib import Path
 from typing import TypeVar
 
-import yaml
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
+
+from client_protocol.files import load_model_file
 
 DATA_PACKAGE = "vr_teleop_server.questionnaires"
 
@@ -29,17 +30,4 @@ def load_definition(model: type[ModelT], default_name: str, path: str | Path | N
         shown, source = f"package data {default_name}", data_file(default_name)
     else:
         shown, source = str(path), Path(path)
-    try:
-        document = yaml.safe_load(source.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DefinitionError(f"{shown}: file not found") from None
-    except yaml.YAMLError as exc:
-        raise DefinitionError(f"{shown}: not valid YAML ({exc})") from None
-    try:
-        return model.model_validate(document)
-    except ValidationError as exc:
-        problems = "; ".join(
-            f"{'.'.join(str(part) for part in error['loc']) or '(top level)'}: {error['msg']}"
-            for error in exc.errors()
-        )
-        raise DefinitionError(f"{shown}: {problems}") from None
+    return load_model_file(model, source, shown=shown, error=DefinitionError)

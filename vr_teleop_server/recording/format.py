@@ -28,8 +28,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
+
 FRAME_SCHEMA = "rosbridge/Frame"
-CONNECTIONS = "/rosbridge/connections"
 FRAME_JSON_SCHEMA = {"type": "object", "description": "a rosbridge v2 frame as sent on the WebSocket",
                      "properties": {"op": {"type": "string"}}, "required": ["op"]}
 

@@ -7,7 +7,6 @@ disk, so that a killed server leaves all but the last second or so readable (for
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import logging
 import time
@@ -15,22 +14,25 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
+from client_protocol import names
 from client_protocol.registry import TypeRegistry
 
 from ..core.bus import Bus, Published
+from ..core.tasks import cancel_and_wait
 from ..core.wire import message_json
-from .format import CONNECTIONS, FRAME_JSON_SCHEMA, FRAME_SCHEMA
+from .format import FRAME_JSON_SCHEMA, FRAME_SCHEMA
 
 log = logging.getLogger(__name__)
 
 FLUSH_S = 0.5
 CHUNK_SIZE = 256 * 1024
-CAMERA_TOPIC = "/camera/color/image_raw/compressed"
 
 
 class Recorder:
-    def __init__(self, path: Path, registry: TypeRegistry, camera_fps: float = 2.0) -> None:
+    def __init__(self, path: Path, registry: TypeRegistry, camera_fps: float = 2.0, bus: Bus | None = None) -> None:
+        """`bus`: the bus start() taps; without one, messages come only through write_message (synth)."""
         self.path = path
+        self.bus = bus
         self.registry = registry
         self.camera_period = 1.0 / camera_fps if camera_fps > 0 else None
         self._last_camera = -1e18
@@ -45,9 +47,10 @@ class Recorder:
         self._task: asyncio.Task[None] | None = None
         self.messages = 0
 
-    # ---- attach -------------------------------------------------------------------------------------------------
-    def attach(self, bus: Bus) -> None:
-        bus.taps.append(self.on_published)
+    # ---- lifetime -----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        if self.bus is not None:
+            self.bus.taps.append(self.on_published)
         self._task = asyncio.ensure_future(self._flush_loop())
 
     async def _flush_loop(self) -> None:
@@ -95,7 +98,7 @@ class Recorder:
         self.messages += 1
 
     def on_published(self, published: Published) -> None:
-        if published.topic == CAMERA_TOPIC:
+        if published.topic == names.CAMERA_TOPIC:
             now = time.monotonic()
             if self.camera_period is None or now - self._last_camera < self.camera_period:
                 return
@@ -111,21 +114,18 @@ class Recorder:
         """A rosbridge frame a client sent ("in", publish frames excepted) or the server sent it ("out")."""
         if isinstance(frame, bytes):
             return  # CBOR and PNG frames carry topic messages, which the bus side records
-        channel = self._channel(f"/rosbridge/{direction}", FRAME_SCHEMA, client,
-                                {"client": client, "direction": direction})
+        topic = names.RECORDING_IN_CHANNEL if direction == "in" else names.RECORDING_OUT_CHANNEL
+        channel = self._channel(topic, FRAME_SCHEMA, client, {"client": client, "direction": direction})
         self._write(channel, frame.encode(), time_ns)
 
     def on_connection(self, client: str, event: str, peer: str) -> None:
-        channel = self._channel(CONNECTIONS, FRAME_SCHEMA, "", {})
+        channel = self._channel(names.RECORDING_CONNECTIONS_CHANNEL, FRAME_SCHEMA, "", {})
         self._write(channel, json.dumps({"op": event, "client": client, "peer": peer}).encode())
 
-    async def close(self, bus: Bus) -> None:
-        if self.on_published in bus.taps:
-            bus.taps.remove(self.on_published)
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+    async def stop(self) -> None:
+        if self.bus is not None and self.on_published in self.bus.taps:
+            self.bus.taps.remove(self.on_published)
+        await cancel_and_wait(self._task)
         self.finish()
 
     def finish(self) -> None:

@@ -16,21 +16,13 @@ from __future__ import annotations
 
 import abc
 import asyncio
-import enum
 import math
 import threading
 from collections.abc import AsyncIterator, Mapping, Sequence
 from dataclasses import dataclass
 
 from robot_models import RobotModel
-
-
-class MotorMode(enum.IntEnum):
-    """LuxAI's /qt_robot/motors/setControlMode values."""
-
-    ON = 0  # M_ON: the motor follows commands
-    OFF = 1  # M_OFF: no torque; the link can be moved by hand (and falls under gravity)
-    BRAKE = 2  # M_BREAK: hold the current position and ignore commands
+from robot_models.types import CameraFrame, MotorMode
 
 
 @dataclass(frozen=True)
@@ -183,18 +175,6 @@ class FrameMailbox:
             loop.call_soon_threadsafe(lambda: fut.done() or fut.set_result(value))
         except RuntimeError:  # that loop is closed; its waiter is gone
             pass
-
-
-@dataclass(frozen=True)
-class CameraFrame:
-    """One JPEG frame from the head camera; backends keep only the newest."""
-
-    jpeg: bytes
-    width: int
-    height: int
-    seq: int
-    stamp_monotonic: float
-    stamp_wall: float
 
 
 @dataclass(frozen=True)

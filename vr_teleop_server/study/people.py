@@ -13,7 +13,6 @@ theirs. Draws come from a generator seeded by the study's seed and the trial's n
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import json
 import random
@@ -22,6 +21,9 @@ from typing import Any
 
 from websockets.asyncio.client import ClientConnection, connect
 
+from client_protocol import names
+
+from ..core.tasks import cancel_and_wait
 from .studyfile import Script, Study
 
 BUSY_RETRY_S = 0.3
@@ -43,10 +45,7 @@ class RosbridgeClient:
         self._reader = asyncio.ensure_future(self._read())
 
     async def close(self) -> None:
-        if self._reader is not None:
-            self._reader.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._reader
+        await cancel_and_wait(self._reader)
         if self.ws is not None:
             await self.ws.close()
 
@@ -97,7 +96,7 @@ class SimulatedPeople:
 
     async def connect(self) -> None:
         await self.client.connect()
-        await self.client.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", self._on_update)
+        await self.client.subscribe(names.STUDY_STATE_UPDATES_TOPIC, "vr_teleop_msgs/StateUpdate", self._on_update)
         await asyncio.sleep(0.1)  # the subscription is in place before the trial's first update
 
     async def close(self) -> None:
@@ -139,9 +138,9 @@ class SimulatedPeople:
         for name, after, (lo, hi), _ in self._steps(script):
             await self._until(after)
             await asyncio.sleep(self.rng.uniform(*script.reaction_s))
-            await self.client.call("/study/label/start", {"action": name})
+            await self.client.call(names.STUDY_LABEL_START_SERVICE, {"action": name})
             await asyncio.sleep(self.rng.uniform(lo, hi))
-            await self.client.call("/study/label/stop", {"action": name})
+            await self.client.call(names.STUDY_LABEL_STOP_SERVICE, {"action": name})
 
     async def _operate(self) -> None:
         script = self.study.operator
@@ -155,7 +154,7 @@ class SimulatedPeople:
             await asyncio.sleep(self.rng.uniform(*script.reaction_s))
             while True:
                 try:
-                    await self.client.call("/decision/teleop", {"object": part, "action": action})
+                    await self.client.call(names.DECISION_TELEOP_SERVICE, {"object": part, "action": action})
                     break
                 except RuntimeError as exc:
                     if "busy" not in str(exc) and "not waiting" not in str(exc):
@@ -166,4 +165,5 @@ class SimulatedPeople:
     async def _override(self, subtask: str, delay_s: float, succeeded: bool, note: str) -> None:
         await self._until([f"robot:{subtask}:start"])
         await asyncio.sleep(delay_s)
-        await self.client.call("/decision/override", {"succeeded": succeeded, "note": note or "scripted override"})
+        await self.client.call(names.DECISION_OVERRIDE_SERVICE,
+                               {"succeeded": succeeded, "note": note or "scripted override"})

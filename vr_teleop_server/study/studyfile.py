@@ -13,9 +13,10 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
+
+from client_protocol.files import load_model_file
 
 _STRICT = ConfigDict(extra="forbid", frozen=True)
 
@@ -234,16 +235,4 @@ class Study(BaseModel):
 
 def load_study(path: Path | str) -> Study:
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise StudyFileError(f"{path}: file not found") from None
-    except yaml.YAMLError as exc:
-        raise StudyFileError(f"{path}: not valid YAML ({exc})") from None
-    try:
-        return Study.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = str(err["msg"]).removeprefix("Value error, ")
-        raise StudyFileError(f"{path}: {where}: {msg}") from None
+    return load_model_file(Study, path, error=StudyFileError)

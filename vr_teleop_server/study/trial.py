@@ -22,19 +22,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from client_protocol import names
+
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..core.tasks import cancel_and_wait
 from .metrics import FluencyResult, Intervention, LiveMetrics, StateUpdate
 
 log = logging.getLogger(__name__)
 
-STATE_UPDATES = "/study/state_updates"
-INTERVENTIONS = "/study/interventions"
-TRIAL_STATE = "/study/trial"
-METRICS = "/study/metrics"
-LABELS = "/study/labels"
-LABEL_START = "/study/label/start"
-LABEL_STOP = "/study/label/stop"
-LABEL_ADD = "/study/label/add"
 METRICS_PERIOD_S = 1.0
 
 
@@ -73,20 +68,20 @@ class TrialLog:
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def attach(self) -> None:
         bus = self.bus
-        bus.declare_topic(STATE_UPDATES, "vr_teleop_msgs/StateUpdate", persistent=True)
-        bus.declare_topic(INTERVENTIONS, "vr_teleop_msgs/Intervention", persistent=True)
-        bus.declare_topic(TRIAL_STATE, "vr_teleop_msgs/TrialState", latched=True, persistent=True)
-        bus.declare_topic(METRICS, "vr_teleop_msgs/FluencyMetrics", persistent=True)
-        bus.declare_topic(LABELS, "vr_teleop_msgs/Event", persistent=True)
-        self._subscription = bus.subscribe(SERVER_NODE, LABELS, None, self._on_label_event)
-        bus.provide(LABEL_START, "vr_teleop_msgs/LabelAction", self._label_start)
-        bus.provide(LABEL_STOP, "vr_teleop_msgs/LabelAction", self._label_stop)
-        bus.provide(LABEL_ADD, "vr_teleop_msgs/AddLabel", self._label_add)
+        bus.declare_topic(names.STUDY_STATE_UPDATES_TOPIC, "vr_teleop_msgs/StateUpdate", persistent=True)
+        bus.declare_topic(names.STUDY_INTERVENTIONS_TOPIC, "vr_teleop_msgs/Intervention", persistent=True)
+        bus.declare_topic(names.STUDY_TRIAL_TOPIC, "vr_teleop_msgs/TrialState", latched=True, persistent=True)
+        bus.declare_topic(names.STUDY_METRICS_TOPIC, "vr_teleop_msgs/FluencyMetrics", persistent=True)
+        bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
+        self._subscription = bus.subscribe(SERVER_NODE, names.STUDY_LABELS_TOPIC, None, self._on_label_event)
+        bus.provide(names.STUDY_LABEL_START_SERVICE, "vr_teleop_msgs/LabelAction", self._label_start)
+        bus.provide(names.STUDY_LABEL_STOP_SERVICE, "vr_teleop_msgs/LabelAction", self._label_stop)
+        bus.provide(names.STUDY_LABEL_ADD_SERVICE, "vr_teleop_msgs/AddLabel", self._label_add)
 
     def detach(self) -> None:
         if self._subscription is not None:
-            self.bus.unsubscribe(LABELS, self._subscription)
-        for name in (LABEL_START, LABEL_STOP, LABEL_ADD):
+            self.bus.unsubscribe(names.STUDY_LABELS_TOPIC, self._subscription)
+        for name in (names.STUDY_LABEL_START_SERVICE, names.STUDY_LABEL_STOP_SERVICE, names.STUDY_LABEL_ADD_SERVICE):
             with contextlib.suppress(BusError):
                 self.bus.unadvertise_service(SERVER_NODE, name)
 
@@ -107,10 +102,7 @@ class TrialLog:
 
     async def finish(self, state: str, message: str = "") -> FluencyResult:
         """T1: running actions stay unfinished (clipped); the final metrics are published and returned."""
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+        await cancel_and_wait(self._task)
         t1 = self.now()
         self.final = self.snapshot(t1)
         self.set_state(state, message=message, elapsed=t1)
@@ -153,11 +145,11 @@ class TrialLog:
 
     def intervention(self, kind: str, subtask: str, start: float, stop: float, note: str = "") -> None:
         self.interventions.append(Intervention(start=start, stop=stop, subtask=subtask or None, note=note))
-        self.bus.publish(INTERVENTIONS, {"trial": self.trial, "kind": kind, "subtask": subtask, "start": start,
-                                         "stop": stop, "note": note})
+        self.bus.publish(names.STUDY_INTERVENTIONS_TOPIC, {"trial": self.trial, "kind": kind, "subtask": subtask,
+                                                           "start": start, "stop": stop, "note": note})
 
     def _publish_update(self, run: Running, *, finished: bool, stop: float, succeeded: bool) -> None:
-        self.bus.publish(STATE_UPDATES, {
+        self.bus.publish(names.STUDY_STATE_UPDATES_TOPIC, {
             "trial": self.trial, "id": run.id, "agent": run.agent, "action": run.action, "start": run.start,
             "finished": finished, "stop": stop, "succeeded": succeeded, "source": run.source, "detail": run.detail})
 
@@ -182,7 +174,7 @@ class TrialLog:
         if current is not None:
             self.current = current
         perception, decision, action = self.modules
-        self.bus.publish(TRIAL_STATE, {
+        self.bus.publish(names.STUDY_TRIAL_TOPIC, {
             "study": self.study, "trial": self.trial, "state": state, "perception": perception,
             "decision": decision, "action": action,
             "elapsed": elapsed if elapsed is not None else (self.now() if self.started else 0.0),
@@ -204,7 +196,7 @@ class TrialLog:
         def v(x: float | None) -> float:
             return 0.0 if x is None else x
 
-        self.bus.publish(METRICS, {
+        self.bus.publish(names.STUDY_METRICS_TOPIC, {
             "trial": self.trial, "final": final, "defined": r.h_idle is not None, "elapsed": r.t1 - r.t0,
             "h_idle": v(r.h_idle), "r_idle": v(r.r_idle), "c_act": v(r.c_act), "f_del": v(r.f_del),
             "both_idle": v(r.both_idle), "effectiveness": -1.0 if r.effectiveness is None else r.effectiveness,

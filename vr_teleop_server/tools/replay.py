@@ -29,25 +29,23 @@ import numpy as np
 from tqdm import tqdm
 from websockets.asyncio.client import connect
 
+from client_protocol import names
 from robot_models import load_qtrobot
 
 from ..recording.format import read_recording
+
 from ..teleop import TeleopError, TeleopMapper, TeleopSettings
 
-REPLAYED_TOPIC_PREFIXES = ("/vr/", "/vr_teleop/menu/selection", "/vr_teleop/audio/operator")
-COMMAND_TOPICS = {"/qt_robot/head_position/command": "head", "/qt_robot/left_arm_position/command": "left_arm",
-                  "/qt_robot/right_arm_position/command": "right_arm"}
-CAMERA_TOPIC = "/camera/color/image_raw/compressed"
-MENUS_TOPIC = "/vr_teleop/menus"
-ENGAGE = "/vr_teleop/control/engage"
+REPLAYED_TOPIC_PREFIXES = ("/vr/", names.MENU_SELECTION_TOPIC, names.OPERATOR_AUDIO_TOPIC)
 ENGAGE_LAGS = 10  # head poses an engage may be overtaken by, at most
 DRAIN_S = 30.0  # at most this long after the last message sent, for answers and late commands
 QUIET_S = 2.0  # commands have stopped once none came for this long (a loaded server pauses)
-TOPIC_TYPES = {"/vr/head/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/pose": "geometry_msgs/PoseStamped",
-               "/vr/right_controller/pose": "geometry_msgs/PoseStamped", "/vr/left_controller/joy": "sensor_msgs/Joy",
-               "/vr/right_controller/joy": "sensor_msgs/Joy", "/vr_teleop/menu/selection": "std_msgs/String",
-               "/vr_teleop/audio/operator": "audio_common_msgs/AudioData",
-               "/vr_teleop/audio/operator/info": "audio_common_msgs/AudioInfo"}
+TOPIC_TYPES = {names.HEAD_POSE_TOPIC: "geometry_msgs/PoseStamped",
+               **{topic: "geometry_msgs/PoseStamped" for topic in names.CONTROLLER_POSE_TOPICS.values()},
+               **{topic: "sensor_msgs/Joy" for topic in names.JOY_TOPICS.values()},
+               names.MENU_SELECTION_TOPIC: "std_msgs/String",
+               names.OPERATOR_AUDIO_TOPIC: "audio_common_msgs/AudioData",
+               names.OPERATOR_AUDIO_INFO_TOPIC: "audio_common_msgs/AudioInfo"}
 
 
 @dataclass(frozen=True)
@@ -66,7 +64,7 @@ def load_steps(path: Path, client: str | None = None) -> tuple[list[Step], str]:
     if client is None:
         counts: dict[str, int] = defaultdict(int)
         for m in messages:
-            if m.topic == "/vr/head/pose":
+            if m.topic == names.HEAD_POSE_TOPIC:
                 counts[m.sender] += 1
         if not counts:
             raise ValueError(f"{path}: no client published /vr/head/pose; nothing to replay")
@@ -79,7 +77,7 @@ def load_steps(path: Path, client: str | None = None) -> tuple[list[Step], str]:
         t = (m.time_ns - start) / 1e9
         if m.topic.startswith(REPLAYED_TOPIC_PREFIXES) and m.metadata.get("direction") is None:
             steps.append(Step(t, "publish", m.topic, m.data))
-        elif m.topic == "/rosbridge/in" and m.data.get("op") == "call_service":
+        elif m.topic == names.RECORDING_IN_CHANNEL and m.data.get("op") == "call_service":
             steps.append(Step(t, "call", m.data.get("service", ""), m.data))
     steps.sort(key=lambda s: s.t)
     return steps, client
@@ -109,15 +107,15 @@ async def _receive(ws: Any, got: Collected) -> None:
         op = msg.get("op")
         if op == "publish":
             topic = msg["topic"]
-            if topic in COMMAND_TOPICS:
-                got.commands[COMMAND_TOPICS[topic]].append((now, msg["msg"]["data"]))
+            if topic in names.COMMAND_TOPIC_PARTS:
+                got.commands[names.COMMAND_TOPIC_PARTS[topic]].append((now, msg["msg"]["data"]))
                 got.last_command = now
-            elif topic == "/qt_robot/joints/state":
+            elif topic == names.JOINT_STATE_TOPIC:
                 got.joint_states.append((now, dict(zip(msg["msg"]["name"], msg["msg"]["position"]))))
-            elif topic == MENUS_TOPIC:
+            elif topic == names.MENUS_TOPIC:
                 got.menu_items = {item["id"]: (item["command"], json.loads(item.get("args") or "{}"))
                                   for item in msg["msg"]["items"] if item.get("command")}
-            elif topic == CAMERA_TOPIC:
+            elif topic == names.CAMERA_TOPIC:
                 stamp = msg["msg"]["header"]["stamp"]
                 secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
                 got.camera.append((time.time(), secs))
@@ -131,11 +129,11 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                      progress: bool = True) -> tuple[Collected, float]:
     got = Collected()
     async with connect(url, max_size=None, compression=None) as ws:
-        subscriptions = [*COMMAND_TOPICS, "/qt_robot/joints/state"] + ([CAMERA_TOPIC] if camera else [])
+        subscriptions = [*names.COMMAND_TOPIC_PARTS, names.JOINT_STATE_TOPIC] + ([names.CAMERA_TOPIC] if camera else [])
         for topic in subscriptions:  # every command and joint state: a backlog, not the newest only
-            queue = 0 if topic == CAMERA_TOPIC else 100_000
+            queue = 0 if topic == names.CAMERA_TOPIC else 100_000
             await ws.send(json.dumps({"op": "subscribe", "topic": topic, "queue_length": queue}))
-        await ws.send(json.dumps({"op": "subscribe", "topic": MENUS_TOPIC, "type": "vr_teleop_msgs/Menus"}))
+        await ws.send(json.dumps({"op": "subscribe", "topic": names.MENUS_TOPIC, "type": "vr_teleop_msgs/Menus"}))
         for topic in sorted({s.topic for s in steps if s.kind == "publish"} & set(TOPIC_TYPES)):
             await ws.send(json.dumps({"op": "advertise", "topic": topic, "type": TOPIC_TYPES[topic]}))
         receiver = asyncio.create_task(_receive(ws, got))
@@ -151,7 +149,7 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
             if step.kind == "publish":
                 sent = time.monotonic()
                 await ws.send(json.dumps({"op": "publish", "topic": step.topic, "msg": step.payload}))
-                if step.topic == "/vr/head/pose":
+                if step.topic == names.HEAD_POSE_TOPIC:
                     got.sent_head.append((sent, i))
             else:
                 frame = {**step.payload, "id": f"replay:{i}"}
@@ -181,9 +179,9 @@ def _responses(got: Collected, expected: dict[int, dict[str, list[float]]]) -> t
     # The server may send a few more: an engage taking hold a pose early, a last step of its watchdog tick when
     # the stream stops. Those come first or last: skip the offset at the start that fits best.
     extra = {part: len(got.commands.get(part, [])) - sum(1 for e in expected.values() if part in e)
-             for part in COMMAND_TOPICS.values()}
+             for part in names.COMMAND_TOPIC_PARTS.values()}
     if all(0 <= n < ENGAGE_LAGS for n in extra.values()):
-        for part in COMMAND_TOPICS.values():
+        for part in names.COMMAND_TOPIC_PARTS.values():
             causes = sorted(i for i, e in expected.items() if part in e)
             cmds = got.commands.get(part, [])
             if not causes:
@@ -221,18 +219,18 @@ def _control_action(step: Step, got: Collected, cid: str) -> tuple[str, bool] | 
         return None
     args = got.calls[cid][2]
     service, data = step.topic, args.get("data")
-    if service == "/vr_teleop/menu/select":
+    if service == names.MENU_SELECT_SERVICE:
         command, item_args = got.menu_items.get(args.get("id", ""), ("", {}))
         extra = json.loads(args.get("args") or "{}")
         item_args = {**item_args, **extra}
-        service = {"engage": ENGAGE, "estop": "/vr_teleop/control/estop", "set_head_control": "/vr_teleop/control/head",
-                   "set_arms_control": "/vr_teleop/control/arms"}.get(command, "")
+        service = {"engage": names.ENGAGE_SERVICE, "estop": names.ESTOP_SERVICE, "set_head_control": names.HEAD_SERVICE,
+                   "set_arms_control": names.ARMS_SERVICE}.get(command, "")
         data = item_args.get("enable", True)
         if command in ("set_head_control", "set_arms_control") and "enable" not in item_args:
             on = str(response[1].get("message", "") if isinstance(response[1], dict) else "").endswith(" on")
             data = on  # a toggle: the answer says which way it went
-    kind = {ENGAGE: "engage", "/vr_teleop/control/estop": "estop", "/vr_teleop/control/head": "head",
-            "/vr_teleop/control/arms": "arms"}.get(service)
+    kind = {names.ENGAGE_SERVICE: "engage", names.ESTOP_SERVICE: "estop", names.HEAD_SERVICE: "head",
+            names.ARMS_SERVICE: "arms"}.get(service)
     return (kind, bool(data)) if kind else None
 
 
@@ -264,7 +262,7 @@ def expected_commands(steps: list[Step], got: Collected, settings: TeleopSetting
             continue
         t = last_t = send_time.get(i, last_t)
         try:
-            if step.topic == "/vr/head/pose":
+            if step.topic == names.HEAD_POSE_TOPIC:
                 if engage_in == 0:
                     engage_in = None
                     mapper.engage(t, _measured_at(got, t))
@@ -288,7 +286,7 @@ def _tracking(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tu
     caused, pairing = _responses(got, expected)
     errors = {part: np.array([np.abs(np.array(parts[part][1]) - np.array(expected[i][part])).max()
                               for i, parts in caused.items() if part in parts and part in expected.get(i, {})])
-              for part in COMMAND_TOPICS.values()}
+              for part in names.COMMAND_TOPIC_PARTS.values()}
     return errors, caused, pairing
 
 
@@ -296,10 +294,11 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
     """How many head poses after the engage call the server engaged (not on the wire: the server runs calls as
     tasks). The lag whose first offline head commands match the first ones received, in order, wins."""
     received = [c[1] for c in got.commands.get("head", [])]
-    engage = next((i for i, step in enumerate(steps) if step.kind == "call" and step.topic == ENGAGE), None)
+    engage = next((i for i, step in enumerate(steps) if step.kind == "call" and step.topic == names.ENGAGE_SERVICE),
+                  None)
     if engage is None or not received:
         return 0
-    after = [i for i, step in enumerate(steps) if i > engage and step.topic == "/vr/head/pose"]
+    after = [i for i, step in enumerate(steps) if i > engage and step.topic == names.HEAD_POSE_TOPIC]
     head = steps[:after[min(poses, len(after)) - 1] + 1] if after else steps
 
     def miss(lag: int) -> float:
@@ -323,7 +322,8 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> d
     lat_ms = np.array([(min(t for t, _v in parts.values()) - sent_at[i]) * 1e3 for i, parts in caused.items()])
     cam_rx = np.array([c[0] for c in got.camera])
     cam_age = np.array([(rx - stamp) * 1e3 for rx, stamp in got.camera])
-    menu_ids = [cid for cid, (service, _t, _a) in got.calls.items() if service == "/vr_teleop/menu/select"]
+    menu_ids = [cid for cid, (service, _t, _a) in got.calls.items()
+                if service == names.MENU_SELECT_SERVICE]
     failed_calls = {cid: got.responses[cid][1] for cid in got.calls if cid in got.responses and not got.responses[cid][0]}
 
     def pct(a: np.ndarray, q: float) -> float | None:
@@ -347,7 +347,7 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> d
         "tracking_error_deg": {**stats(np.concatenate(list(errors.values()))),
                                "by_part": {part: stats(e) for part, e in errors.items()}},
         "commands_received": {part: len(v) for part, v in got.commands.items()},
-        "commands_expected": {part: n for part in COMMAND_TOPICS.values()
+        "commands_expected": {part: n for part in names.COMMAND_TOPIC_PARTS.values()
                               if (n := sum(1 for e in expected.values() if part in e))},
         "camera": {"frames": int(cam_rx.size),
                    "fps": round(float((cam_rx.size - 1) / (cam_rx[-1] - cam_rx[0])), 2) if cam_rx.size > 1 else 0.0,

@@ -8,10 +8,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..app import TeleopServer
+from ..core.tasks import cancel_and_wait
 from ..settings import ServerSettings
 from ..study.metrics import FluencyResult, compute_metrics, read_trial
 from ..study.people import SimulatedPeople
@@ -51,7 +53,10 @@ def recorded_metrics(path: Path, trial: str) -> FluencyResult:
 
 
 async def run_trial(study: Study, trial: str, *, record: Path | None = None, timeout: float = 900.0,
-                    settings: ServerSettings | None = None) -> TrialReport:
+                    settings: ServerSettings | None = None, progress: Callable[[float, int], None] | None = None,
+                    progress_every_s: float = 5.0) -> TrialReport:
+    """Runs one trial on a server of its own; `progress(elapsed_s, actions_done)` hears how it goes, every
+    `progress_every_s` while it runs and once at its end."""
     spec = study.trials[trial]
     base = settings or ServerSettings(port=0, backend="sim")
     server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "record": record,
@@ -65,11 +70,17 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
             await runtime.prepare()
             await people.connect()
             acting = asyncio.ensure_future(people.run())
+            reporting = asyncio.ensure_future(_report_progress(runtime, progress, progress_every_s)) \
+                if progress is not None else None
             try:
                 result = await asyncio.wait_for(runtime.run(), timeout)
             finally:
+                await cancel_and_wait(reporting)
                 acting.cancel()
                 await asyncio.gather(acting, return_exceptions=True)
+            if progress is not None:
+                counts = result.metrics.counts
+                progress(result.metrics.t1, counts.human_actions + counts.robot_actions - counts.unfinished)
             if acting.done() and not acting.cancelled() and acting.exception() is not None:
                 log.warning("a simulated person stopped early: %r", acting.exception())
         finally:
@@ -80,6 +91,14 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
     recorded = recorded_metrics(record, trial) if record is not None else None
     return TrialReport(trial, (spec.perception, spec.decision, spec.motion), result.outcome, result.metrics,
                        recorded, record, tuple(people.refusals))
+
+
+async def _report_progress(runtime: TrialRuntime, progress: Callable[[float, int], None], every_s: float) -> None:
+    while True:
+        await asyncio.sleep(every_s)
+        if runtime.log.started:
+            counts = runtime.log.snapshot().counts
+            progress(runtime.log.now(), counts.human_actions + counts.robot_actions - counts.unfinished)
 
 
 def table(reports: list[TrialReport]) -> str:

@@ -22,13 +22,14 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from client_protocol import names
 from client_protocol.registry import TypeRegistry
 from menus import load_menus
 from robot_models import load_qtrobot
 
 from ..core.bus import SERVER_NODE, Bus
 from ..robot.gestures import GestureLibrary, packaged_gesture_dir
-from ..features.menu_service import MENUS_TOPIC, MenuService
+from ..features.menu_service import MenuService
 from ..recording.recorder import Recorder
 
 RATE = 90.0
@@ -115,7 +116,7 @@ class Session:
 def _engaged() -> Session:
     s = Session()
     s.head.hold(1.0)  # grips are pressed only after engaging: a grip held while engaging must be pressed anew
-    s.call(0.5, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
+    s.call(0.5, names.ENGAGE_SERVICE, "std_srvs/SetBool", {"data": True})
     return s
 
 
@@ -167,9 +168,9 @@ def menu_item_ids(menu_dir: Path | None = None) -> list[str]:
     bus = Bus(TypeRegistry())
     gestures = GestureLibrary([packaged_gesture_dir()], model).names
     MenuService(bus, menus, gestures=gestures, emotions=model.emotions, status=lambda _which: {},
-                recorder=None).start()
+                luxai=None).start()
     got: list[Any] = []
-    bus.subscribe(SERVER_NODE, MENUS_TOPIC, None, lambda published: got.append(published.value))
+    bus.subscribe(SERVER_NODE, names.MENUS_TOPIC, None, lambda published: got.append(published.value))
     ids = [item.id for item in got[-1].items if item.command]
     # Leave the robot as found: emergency stop, release and motors off come last, then motors on and engage.
     last = ("motion.robot.stop", "motion.robot.release", "motion.robot.motors_off", "motion.robot.motors_on",
@@ -182,11 +183,11 @@ def menu_tour(s: Session, rng: np.random.Generator, ids: list[str] | None = None
     ids = ids if ids is not None else menu_item_ids()
     for item in ids:
         args = json.dumps({"name": "synth_menu_tour"}) if item == "motion.record" else ""
-        s.call(t, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": item, "args": args})
+        s.call(t, names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", {"id": item, "args": args})
         if item in TOGGLES:  # select it again: stop and save, or switch back on
             t += spacing
             again = args if item == "motion.record" else json.dumps({"enable": True})
-            s.call(t, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": item, "args": again})
+            s.call(t, names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", {"id": item, "args": again})
         t += spacing
     s.head.move((rng.normal(0, 5), rng.normal(0, 3)), max(0.5, t - s.head.end_time))
 
@@ -214,7 +215,7 @@ def classroom(s: Session, rng: np.random.Generator, minutes: float = 5.0) -> Non
         elif choice == "talk":
             item = selections[k % len(selections)]
             k += 1
-            s.call(s.head.end_time, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": item, "args": ""})
+            s.call(s.head.end_time, names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", {"id": item, "args": ""})
             s.head.hold(3.0)
         else:
             s.head.move(s.head.end + rng.normal(0, 2, 2), rng.uniform(2, 5))
@@ -279,19 +280,20 @@ def write(session: Session, out: Path, seed: int = 0, start_ns: int = 1_700_000_
         sway = np.array([0.005 * math.sin(0.7 * t), 0.003 * math.sin(1.1 * t), 0.004 * math.sin(0.5 * t)])
         eye = EYE + sway + rng.normal(0, 0.001, 3)
         head = _pose(stamp, eye, _quat(yaw, pitch, rng.normal(0, 0.2, 3)))
-        recorder.write_message("/vr/head/pose", "geometry_msgs/PoseStamped", CLIENT, json.dumps(head).encode(), stamp)
+        recorder.write_message(names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped", CLIENT, json.dumps(head).encode(),
+                               stamp)
         for side, sign in (("left", -1), ("right", 1)):
             shoulder = EYE + np.array([sign * SHOULDER_HALF, -SHOULDER_DROP, -0.05])
             position = shoulder + session.hands[side](t) + rng.normal(0, 0.001, 3)
             msg = _pose(stamp, position, _quat(0, 0, rng.normal(0, 0.3, 3)))
-            recorder.write_message(f"/vr/{side}_controller/pose", "geometry_msgs/PoseStamped", CLIENT,
+            recorder.write_message(names.CONTROLLER_POSE_TOPICS[side], "geometry_msgs/PoseStamped", CLIENT,
                                    json.dumps(msg).encode(), stamp)
             if i % JOY_EVERY == 0:
                 held = any(a <= t <= b for a, b in session.grips[side])
                 joy = {"header": {"seq": 0, "stamp": {"secs": stamp // 10**9, "nsecs": stamp % 10**9},
                                   "frame_id": ""},
                        "axes": [0.0, 0.0, 0.0, 0.95 if held else 0.0], "buttons": [0, 0, 0, 0]}
-                recorder.write_message(f"/vr/{side}_controller/joy", "sensor_msgs/Joy", CLIENT,
+                recorder.write_message(names.JOY_TOPICS[side], "sensor_msgs/Joy", CLIENT,
                                        json.dumps(joy).encode(), stamp)
     recorder.finish()
     return n

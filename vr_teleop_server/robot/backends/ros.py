@@ -23,9 +23,10 @@ from urllib.parse import urlparse
 import roslibpy
 from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
 
+from client_protocol import names
+from client_protocol.errors import Refusal
 from robot_models import RobotModel, load_qtrobot
 
-from ...core.bus import BusError
 from ..interface import (
     CameraFrame,
     FrameMailbox,
@@ -44,17 +45,13 @@ log = logging.getLogger(__name__)
 
 MAX_BACKOFF_S = 5.0
 CALL_TIMEOUT_S = 10.0
-CAMERA_TOPIC = "/camera/color/image_raw/compressed"
-MOTOR_STATES_TOPIC = "/qt_robot/motors/states"
-PART_TOPICS = {"head": "/qt_robot/head_position/command", "right_arm": "/qt_robot/right_arm_position/command",
-               "left_arm": "/qt_robot/left_arm_position/command"}
 
 
 class RobotUnreachable(RuntimeError):
     """The robot's rosbridge did not answer at start-up: the server cannot run this backend."""
 
 
-class RobotDisconnected(BusError):
+class RobotDisconnected(Refusal):
     """A request refused while the robot is away; the client sees the message as it is."""
 
 
@@ -103,15 +100,16 @@ class RosRobot(Robot):
                 from None
         self._connected = True
         self._publishers = {part: roslibpy.Topic(self._ros, topic, "std_msgs/Float64MultiArray")
-                            for part, topic in PART_TOPICS.items()}
+                            for part, topic in names.PART_COMMAND_TOPICS.items()}
         for topic in self._publishers.values():
             topic.advertise()
-        self._joints_topic = roslibpy.Topic(self._ros, "/qt_robot/joints/state", "sensor_msgs/JointState")
+        self._joints_topic = roslibpy.Topic(self._ros, names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")
         self._joints_topic.subscribe(self._on_joint_state)
         # no type: the robot's rosbridge names it (it varies by firmware); a robot without the topic answers a status
-        self._motors_topic = roslibpy.Topic(self._ros, MOTOR_STATES_TOPIC, "")
+        self._motors_topic = roslibpy.Topic(self._ros, names.MOTOR_STATES_TOPIC, "")
         self._motors_topic.subscribe(self._on_motor_states)
-        self._camera_topic = roslibpy.Topic(self._ros, CAMERA_TOPIC, "sensor_msgs/CompressedImage", queue_length=1)
+        self._camera_topic = roslibpy.Topic(self._ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage",
+                                            queue_length=1)
 
     @classmethod
     async def create(cls, url: str, model: RobotModel | None = None) -> RosRobot:
@@ -162,11 +160,11 @@ class RosRobot(Robot):
             return ClampReport(report.names, report.requested, report.applied, report.clamped, tuple(clamped))
         with self._lock:
             current = self._state.as_dict() if self._state is not None else {}
-        for part, names in self._model.parts.items():
-            if not any(n in clamped for n in names):
+        for part, joints in self._model.parts.items():
+            if not any(n in clamped for n in joints):
                 continue
             values = []
-            for n in names:
+            for n in joints:
                 value = clamped.get(n, self._commanded.get(n, current.get(n, self._model.joint(n).home)))
                 values.append(float(value))
                 self._commanded[n] = float(value)
@@ -196,7 +194,7 @@ class RosRobot(Robot):
 
     def set_control_mode(self, parts: Sequence[str], mode: MotorMode) -> None:
         mode = MotorMode(mode)
-        self._call_nowait("/qt_robot/motors/setControlMode", "qt_motors_controller/set_control_mode",
+        self._call_nowait(names.MOTORS_CONTROL_MODE_SERVICE, "qt_motors_controller/set_control_mode",
                           {"parts": list(parts), "mode": int(mode)})
         for part in parts:
             for n in self._model.part_joints(part):
@@ -220,8 +218,8 @@ class RosRobot(Robot):
         with self._lock:
             readings = dict(self._motor_readings)
         out = []
-        for part, names in self._model.parts.items():
-            for n in names:
+        for part, joints in self._model.parts.items():
+            for n in joints:
                 temperature, voltage = readings.get(n, (None, None))
                 out.append(MotorStatus(n, part, positions.get(n, math.nan), temperature, voltage, self._modes[n],
                                        "measured"))
@@ -256,20 +254,20 @@ class RosRobot(Robot):
         short = name.removeprefix("QT/")
         if short not in self._model.emotions:
             raise ValueError(f"unknown emotion {name!r}; valid emotions: {', '.join(self._model.emotions)}")
-        self._call_nowait("/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": f"QT/{short}"})
+        self._call_nowait(names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": f"QT/{short}"})
 
     async def say(self, text: str, duration_s: float | None = None) -> SpeechResult:
         start = time.monotonic()
-        response = await self._call("/qt_robot/speech/say", "qt_robot_interface/speech_say", {"message": text})
+        response = await self._call(names.SPEECH_SAY_SERVICE, "qt_robot_interface/speech_say", {"message": text})
         return SpeechResult(text, bool(response.get("status")), time.monotonic() - start, audible=True)
 
     def stop_speech(self) -> None:
-        self._call_nowait("/qt_robot/speech/stop", "qt_robot_interface/speech_stop", {})
+        self._call_nowait(names.SPEECH_STOP_SERVICE, "qt_robot_interface/speech_stop", {})
 
     async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
         """Streams the gesture's waypoints as position commands, so recordings the robot does not hold play too."""
         gesture.validate(self._model)
-        self._refuse_if_disconnected("/qt_robot/gesture/play")
+        self._refuse_if_disconnected(names.GESTURE_PLAY_SERVICE)
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
         self.stop_gesture()

@@ -13,9 +13,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from robot_models import RobotModel, load_qtrobot
-from sim import MotorMode as SimMotorMode
 from sim import StandIn
-from sim.standin import CameraFrame as SimFrame
 
 from ..interface import (
     CameraFrame,
@@ -33,10 +31,6 @@ from ..interface import (
 )
 
 SETTLE_TOLERANCE_DEG = 1.0  # a gesture counts as finished when every joint is this close to its last waypoint
-
-
-def _frame(f: SimFrame) -> CameraFrame:
-    return CameraFrame(f.jpeg, f.width, f.height, f.seq, f.stamp_monotonic, f.stamp_wall)
 
 
 class SimRobot(Robot):
@@ -92,7 +86,7 @@ class SimRobot(Robot):
     def set_control_mode(self, parts: Sequence[str], mode: MotorMode) -> None:
         mode = MotorMode(mode)
         joints = [n for part in parts for n in self._model.part_joints(part)]
-        self._standin.set_motor_mode(joints, SimMotorMode(int(mode)))
+        self._standin.set_motor_mode(joints, mode)
 
     def motor_status(self) -> tuple[MotorStatus, ...]:
         s = self._standin.joint_state()
@@ -204,15 +198,14 @@ class SimRobot(Robot):
         self._standin.stop_camera()
 
     def latest_frame(self) -> CameraFrame | None:
-        f = self._standin.latest_frame()
-        return None if f is None else _frame(f)
+        return self._standin.latest_frame()
 
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
         return await self._frames.next(after_seq, timeout)
 
-    def _on_frame(self, frame: SimFrame) -> None:
+    def _on_frame(self, frame: CameraFrame) -> None:
         """Render thread: hand the frame to the asyncio waiters."""
-        self._frames.put(_frame(frame))
+        self._frames.put(frame)
 
     # ------------------------------------------------------------------------------------------------ lifecycle
     def close(self) -> None:

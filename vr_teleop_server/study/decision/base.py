@@ -12,14 +12,15 @@ import asyncio
 import contextlib
 from dataclasses import dataclass, field
 
+from client_protocol import names
+
 from ...core.bus import SERVER_NODE, Bus, BusError
+
+from ...core.tasks import cancel_and_wait
 from ..action import ActionModule
 from ..studyfile import Study
 from ..trial import TrialLog
 
-TELEOP = "/decision/teleop"
-PREEMPT = "/decision/preempt"
-OVERRIDE = "/decision/override"
 
 
 @dataclass
@@ -83,9 +84,7 @@ class Decision:
         ctx = self.ctx
         task = ctx.current.task
         if task is not None and not task.done():
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            await cancel_and_wait(task)
         here = ctx.actions.robot.joint_state().as_dict()
         ctx.actions.robot.set_joint_targets(here)  # hold where it is
         t = ctx.log.now()
@@ -103,9 +102,7 @@ class Decision:
                 start = ctx.log.running[uid].start
             else:
                 start = t
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            await cancel_and_wait(task)
             ctx.log.intervention("override", ctx.current.subtask, start, t, note)
             return f"{ctx.current.subtask} marked {'succeeded' if succeeded else 'failed'}"
         if ctx.current.human:
@@ -124,12 +121,12 @@ class DecisionHost:
         self.module = module
 
     def start(self) -> None:
-        self.bus.provide(TELEOP, "vr_teleop_msgs/DecisionCommand", self._teleop)
-        self.bus.provide(PREEMPT, "std_srvs/Trigger", self._preempt)
-        self.bus.provide(OVERRIDE, "vr_teleop_msgs/DecisionOverride", self._override)
+        self.bus.provide(names.DECISION_TELEOP_SERVICE, "vr_teleop_msgs/DecisionCommand", self._teleop)
+        self.bus.provide(names.DECISION_PREEMPT_SERVICE, "std_srvs/Trigger", self._preempt)
+        self.bus.provide(names.DECISION_OVERRIDE_SERVICE, "vr_teleop_msgs/DecisionOverride", self._override)
 
     def stop(self) -> None:
-        for name in (TELEOP, PREEMPT, OVERRIDE):
+        for name in (names.DECISION_TELEOP_SERVICE, names.DECISION_PREEMPT_SERVICE, names.DECISION_OVERRIDE_SERVICE):
             with contextlib.suppress(BusError):
                 self.bus.unadvertise_service(SERVER_NODE, name)
 

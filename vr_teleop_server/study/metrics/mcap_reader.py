@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from client_protocol import names
+
 from ...recording.format import read_recording
+
 from .model import Intervention, MetricsInputError, StateUpdate, TrialData
 
-UPDATES = "/study/state_updates"
-INTERVENTIONS = "/study/interventions"
-TRIAL = "/study/trial"
 FINAL_STATES = ("completed", "preempted", "failed")
 
 
@@ -32,16 +32,16 @@ def read_trial_mcap(path: Path | str, trial: str | None = None) -> TrialData:
     states: dict[str, dict] = {}
     try:
         for m in read_recording(path):
-            if m.topic == UPDATES:
+            if m.topic == names.STUDY_STATE_UPDATES_TOPIC:
                 key = (m.data["trial"], int(m.data["id"]))
                 if m.data["finished"]:
                     stops[key] = float(m.data["stop"])
                 starts.setdefault(key, m.data)
-            elif m.topic == INTERVENTIONS:
+            elif m.topic == names.STUDY_INTERVENTIONS_TOPIC:
                 d = m.data
                 interventions.setdefault(d["trial"], []).append(Intervention(
                     start=float(d["start"]), stop=float(d["stop"]), subtask=d["subtask"] or None, note=d["note"]))
-            elif m.topic == TRIAL:
+            elif m.topic == names.STUDY_TRIAL_TOPIC:
                 states[m.data["trial"]] = m.data
     except (KeyError, TypeError, ValueError) as exc:
         raise MetricsInputError(path, f"a study message does not have the expected fields ({exc})",

@@ -20,6 +20,7 @@ import numpy as np
 from robot_models import RobotModel
 from robot_models.kinematics import forward_kinematics
 
+from ...core.tasks import cancel_and_wait
 from ...robot.interface import Robot
 from ..studyfile import ObjectSpec
 
@@ -89,11 +90,8 @@ class ArucoTracker:
         self._task = asyncio.ensure_future(self._loop())
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        task, self._task = self._task, None
+        await cancel_and_wait(task)
 
     async def _loop(self) -> None:
         async with contextlib.aclosing(self.robot.live_frames()) as frames:

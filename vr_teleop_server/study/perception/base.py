@@ -9,10 +9,12 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from client_protocol import names
+
 from ...core.bus import SERVER_NODE, Bus, BusError
+
 from ..studyfile import ObjectSpec
 
-QUERY_SERVICE = "/perception/query"
 BASE_FRAME = "base_link"
 
 
@@ -43,11 +45,11 @@ class Perception:
     async def start(self) -> None:
         for tracker in self.trackers.values():
             await tracker.start()
-        self.bus.provide(QUERY_SERVICE, "vr_teleop_msgs/PerceptionQuery", self._query_service)
+        self.bus.provide(names.PERCEPTION_QUERY_SERVICE, "vr_teleop_msgs/PerceptionQuery", self._query_service)
 
     async def stop(self) -> None:
         with contextlib.suppress(BusError):
-            self.bus.unadvertise_service(SERVER_NODE, QUERY_SERVICE)
+            self.bus.unadvertise_service(SERVER_NODE, names.PERCEPTION_QUERY_SERVICE)
         for tracker in self.trackers.values():
             await tracker.stop()
 

@@ -1,0 +1,96 @@
+"""Every topic and service name the server uses, defined once; the modules import them from here.
+
+interface.py (what clients see) spells its endpoints with these constants, and tests/test_names.py checks that no
+server module spells one of these names as a literal. Wire names are a contract: change one here only with the
+clients that use it.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+
+# ---- the robot (LuxAI's QTrobot interface) ----------------------------------------------------------------------
+JOINT_STATE_TOPIC = "/qt_robot/joints/state"
+HEAD_COMMAND_TOPIC = "/qt_robot/head_position/command"
+RIGHT_ARM_COMMAND_TOPIC = "/qt_robot/right_arm_position/command"
+LEFT_ARM_COMMAND_TOPIC = "/qt_robot/left_arm_position/command"
+# The part -> command-topic map (the robot's parts as robot_models names them).
+PART_COMMAND_TOPICS = MappingProxyType({"head": HEAD_COMMAND_TOPIC, "right_arm": RIGHT_ARM_COMMAND_TOPIC,
+                                        "left_arm": LEFT_ARM_COMMAND_TOPIC})
+COMMAND_TOPIC_PARTS = MappingProxyType({topic: part for part, topic in PART_COMMAND_TOPICS.items()})
+CAMERA_TOPIC = "/camera/color/image_raw/compressed"
+CAMERA_FRAME_ID = "camera_color_optical_frame"
+MOTOR_STATES_TOPIC = "/qt_robot/motors/states"  # the real robot's, read by the ros backend
+EMOTION_SHOW_SERVICE = "/qt_robot/emotion/show"
+SPEECH_SAY_SERVICE = "/qt_robot/speech/say"
+SPEECH_STOP_SERVICE = "/qt_robot/speech/stop"
+SPEECH_CONFIG_SERVICE = "/qt_robot/speech/config"
+GESTURE_PLAY_SERVICE = "/qt_robot/gesture/play"
+GESTURE_STOP_SERVICE = "/qt_robot/gesture/stop"
+GESTURE_LIST_SERVICE = "/qt_robot/gesture/list"
+GESTURE_RECORD_SERVICE = "/qt_robot/gesture/record"
+GESTURE_SAVE_SERVICE = "/qt_robot/gesture/save"
+MOTORS_HOME_SERVICE = "/qt_robot/motors/home"
+MOTORS_CONTROL_MODE_SERVICE = "/qt_robot/motors/setControlMode"
+
+# ---- the headset's streams (explicit control) -------------------------------------------------------------------
+HEAD_POSE_TOPIC = "/vr/head/pose"
+CONTROLLER_POSE_TOPICS = MappingProxyType({"left": "/vr/left_controller/pose", "right": "/vr/right_controller/pose"})
+JOY_TOPICS = MappingProxyType({"left": "/vr/left_controller/joy", "right": "/vr/right_controller/joy"})
+
+# ---- the server's own ---------------------------------------------------------------------------------------------
+EVENT_TOPIC = "/vr_teleop/events"
+TELEOP_STATE_TOPIC = "/vr_teleop/teleop_state"
+CLAMP_TOPIC = "/vr_teleop/clamps"
+DESCRIPTION_TOPIC = "/vr_teleop/robot_description"
+ENGAGE_SERVICE = "/vr_teleop/control/engage"
+CALIBRATE_SERVICE = "/vr_teleop/control/calibrate"
+HEAD_SERVICE = "/vr_teleop/control/head"
+ARMS_SERVICE = "/vr_teleop/control/arms"
+ESTOP_SERVICE = "/vr_teleop/control/estop"
+MENUS_TOPIC = "/vr_teleop/menus"
+MENU_SELECT_SERVICE = "/vr_teleop/menu/select"
+MENU_SELECTION_TOPIC = "/vr_teleop/menu/selection"
+HARDWARE_STATUS_TOPIC = "/vr_teleop/status/hardware"
+MOTORS_STATUS_TOPIC = "/vr_teleop/status/motors"
+DIALOG_STATUS_TOPIC = "/vr_teleop/status/dialog"
+DIALOG_UPDATE_TOPIC = "/vr_teleop/dialog/update"
+MOTIVATION_STATUS_TOPIC = "/vr_teleop/status/motivation"
+MOTIVATION_SET_SERVICE = "/vr_teleop/motivation/set"
+MOTIVATION_INCREMENT_SERVICE = "/vr_teleop/motivation/increment"
+MOTIVATION_RESET_SERVICE = "/vr_teleop/motivation/reset"
+ROBOT_AUDIO_TOPIC = "/vr_teleop/audio/robot"
+ROBOT_AUDIO_INFO_TOPIC = "/vr_teleop/audio/robot/info"
+OPERATOR_AUDIO_TOPIC = "/vr_teleop/audio/operator"
+OPERATOR_AUDIO_INFO_TOPIC = "/vr_teleop/audio/operator/info"
+FACES_TOPIC = "/perception/faces"
+
+# ---- the study framework ------------------------------------------------------------------------------------------
+STUDY_LABELS_TOPIC = "/study/labels"
+STUDY_LABEL_START_SERVICE = "/study/label/start"
+STUDY_LABEL_STOP_SERVICE = "/study/label/stop"
+STUDY_LABEL_ADD_SERVICE = "/study/label/add"
+STUDY_STATE_UPDATES_TOPIC = "/study/state_updates"
+STUDY_INTERVENTIONS_TOPIC = "/study/interventions"
+STUDY_TRIAL_TOPIC = "/study/trial"
+STUDY_METRICS_TOPIC = "/study/metrics"
+DECISION_TELEOP_SERVICE = "/decision/teleop"
+DECISION_PREEMPT_SERVICE = "/decision/preempt"
+DECISION_OVERRIDE_SERVICE = "/decision/override"
+PERCEPTION_QUERY_SERVICE = "/perception/query"
+
+# ---- recordings' own channels (not on the bus) --------------------------------------------------------------------
+RECORDING_IN_CHANNEL = "/rosbridge/in"
+RECORDING_OUT_CHANNEL = "/rosbridge/out"
+RECORDING_CONNECTIONS_CHANNEL = "/rosbridge/connections"
+
+
+def all_names() -> dict[str, str]:
+    """Every name above, by its constant's name (names only in a map as NAME[key])."""
+    constants = {key: value for key, value in globals().items() if key.isupper()}
+    found = {key: value for key, value in constants.items() if isinstance(value, str) and value.startswith("/")}
+    spelled = set(found.values())
+    for key, value in constants.items():
+        if isinstance(value, MappingProxyType) and key != "COMMAND_TOPIC_PARTS":
+            found.update({f"{key}[{k!r}]": v for k, v in value.items() if v not in spelled})
+    return found

@@ -1,0 +1,30 @@
+"""Value types the stand-in (sim) and the server's robot interface both speak, defined once here, below both."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class MotorMode(enum.IntEnum):
+    """LuxAI's /qt_robot/motors/setControlMode values."""
+
+    ON = 0  # M_ON: the motor follows commands
+    OFF = 1  # M_OFF: no torque; the link can be moved by hand (and falls under gravity)
+    BRAKE = 2  # M_BREAK: hold the current position and ignore commands
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One JPEG frame from the head camera; whoever holds frames keeps only the newest."""
+
+    jpeg: bytes
+    width: int
+    height: int
+    seq: int
+    stamp_monotonic: float  # time.monotonic() when the image was taken
+    stamp_wall: float  # time.time() at the same moment, for message headers
+    # The stand-in's own figures (None from a real camera): simulated time, and what rendering and encoding cost.
+    sim_time: float | None = None
+    render_ms: float | None = None
+    encode_ms: float | None = None

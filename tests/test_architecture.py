@@ -1,0 +1,224 @@
+"""The import rule, read from the source: no cycle between modules, and no import against the layer order.
+
+The table below is the architecture (README, "Architecture"): layers from low to high; a module may import from
+its own layer or a lower one, and a package with an entry in MAY_IMPORT only from the packages listed there (and
+itself). A module in no package of the table fails too, so that a new package is placed on purpose.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SERVER = "vr_teleop_server"
+
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("leaves", ("client_protocol", "robot_models", "menus", "sim", "netem")),
+    ("core, robot, recording, teleop, media", (
+        f"{SERVER}.core", f"{SERVER}.robot", f"{SERVER}.recording", f"{SERVER}.teleop", f"{SERVER}.media",
+        f"{SERVER}.questionnaires", SERVER)),  # SERVER: the package's own __init__ (a docstring)
+    ("features, study", (f"{SERVER}.features", f"{SERVER}.study")),
+    ("app", (f"{SERVER}.app", f"{SERVER}.settings")),
+    ("tools, cli", (f"{SERVER}.tools", f"{SERVER}.cli")),
+)
+LEAVES = LAYERS[0][1]
+# Narrower rules than the layer order: whom these packages may import at all (besides themselves).
+MAY_IMPORT: dict[str, tuple[str, ...]] = {
+    "client_protocol": (),
+    "robot_models": ("client_protocol",),
+    "menus": ("client_protocol",),
+    "sim": ("client_protocol", "robot_models"),
+    "netem": (),
+    f"{SERVER}.core": ("client_protocol",),
+    f"{SERVER}.robot": LEAVES,  # knows nothing of the bus
+    f"{SERVER}.teleop": LEAVES,  # pure mapping maths
+    f"{SERVER}.recording.format": LEAVES,  # reading a recording needs no bus
+    f"{SERVER}.questionnaires": ("client_protocol",),
+}
+PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", SERVER)
+
+
+@dataclass(frozen=True)
+class Import:
+    source: str  # the importing module
+    target: str  # the imported module (or package)
+    file: Path
+    line: int
+
+
+def modules_under(root: Path, packages: Iterable[str]) -> dict[str, Path]:
+    found = {}
+    for package in packages:
+        for path in sorted((root / package).rglob("*.py")) if (root / package).is_dir() else ():
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            found[".".join(parts)] = path
+    return found
+
+
+def _type_checking_only(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
+    while node in parents:
+        node = parents[node]
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            return True
+    return False
+
+
+def imports_of(modules: dict[str, Path]) -> list[Import]:
+    """Every import of one of our modules by another, lazy ones inside functions included."""
+    ours = set(modules)
+    found = []
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text(), str(path))
+        parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base_name = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    base_name = node.module or ""
+                targets = [f"{base_name}.{a.name}" if f"{base_name}.{a.name}" in ours else base_name
+                           for a in node.names]
+            else:
+                continue
+            if _type_checking_only(node, parents):
+                continue
+            for target in targets:
+                while target and target not in ours:  # `import a.b.c` of a package: the deepest module we have
+                    target = target.rpartition(".")[0]
+                if target and target != name:
+                    found.append(Import(name, target, path, node.lineno))
+    return found
+
+
+def owner(module: str, candidates: Iterable[str]) -> str | None:
+    """The most specific entry of `candidates` that `module` belongs to."""
+    best = None
+    for c in candidates:
+        if (module == c or module.startswith(c + ".")) and (best is None or len(c) > len(best)):
+            best = c
+    return best
+
+
+def layer_of(module: str) -> int | None:
+    packages = [p for _, ps in LAYERS for p in ps]
+    pkg = owner(module, packages)
+    return None if pkg is None else next(i for i, (_, ps) in enumerate(LAYERS) if pkg in ps)
+
+
+def violations(imports: list[Import], modules: Iterable[str]) -> list[str]:
+    problems = [f"{m}: in no layer of tests/test_architecture.py's LAYERS; add its package there"
+                for m in modules if layer_of(m) is None]
+    for imp in imports:
+        where = f"{imp.file.relative_to(ROOT) if imp.file.is_relative_to(ROOT) else imp.file}:{imp.line}"
+        rule = owner(imp.source, MAY_IMPORT)
+        if rule is not None:
+            if owner(imp.target, (rule, *MAY_IMPORT[rule])) is None:
+                problems.append(f"{where}: {imp.source} imports {imp.target}, but {rule} may import only "
+                                f"{', '.join(MAY_IMPORT[rule]) or 'nothing of ours'}")
+                continue
+        src, dst = layer_of(imp.source), layer_of(imp.target)
+        if src is not None and dst is not None and dst > src:
+            problems.append(f"{where}: {imp.source} (layer '{LAYERS[src][0]}') imports {imp.target} from the "
+                            f"higher layer '{LAYERS[dst][0]}'")
+    return problems
+
+
+def cycles(imports: list[Import]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan), each as a sorted list."""
+    graph: dict[str, set[str]] = {}
+    for imp in imports:
+        graph.setdefault(imp.source, set()).add(imp.target)
+        graph.setdefault(imp.target, set())
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(graph[node]):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def describe_cycle(component: list[str], imports: list[Import]) -> str:
+    members = set(component)
+    edges = [f"{i.file.name}:{i.line} {i.source} -> {i.target}" for i in imports
+             if i.source in members and i.target in members]
+    return "import cycle between " + ", ".join(component) + ":\n    " + "\n    ".join(edges)
+
+
+@pytest.fixture(scope="module")
+def graph() -> tuple[dict[str, Path], list[Import]]:
+    modules = modules_under(ROOT, PACKAGES)
+    return modules, imports_of(modules)
+
+
+def test_the_scan_sees_the_server(graph):
+    modules, imports = graph
+    assert f"{SERVER}.app" in modules and f"{SERVER}.core.bus" in modules
+    assert any(i.source == f"{SERVER}.app" and i.target == f"{SERVER}.core.bus" for i in imports)
+
+
+def test_no_import_against_the_layer_order(graph):
+    modules, imports = graph
+    problems = violations(imports, modules)
+    assert not problems, "imports against the layers:\n  " + "\n  ".join(problems)
+
+
+def test_no_import_cycles(graph):
+    _, imports = graph
+    found = cycles(imports)
+    assert not found, "\n".join(describe_cycle(c, imports) for c in found)
+
+
+def test_the_checks_catch_a_bad_tree(tmp_path):
+    """The rules fail on what they forbid: a core module reaching a feature, and two modules importing each other."""
+    server = tmp_path / SERVER
+    for d in ("core", "features", "robot"):
+        (server / d).mkdir(parents=True)
+        (server / d / "__init__.py").write_text("")
+    (server / "__init__.py").write_text("")
+    (server / "core" / "bus.py").write_text("from ..features.speech import Speaker\n")
+    (server / "features" / "speech.py").write_text("from ..core import bus\n")
+    (server / "robot" / "interface.py").write_text("def f():\n    from vr_teleop_server.core.bus import Bus\n")
+    modules = modules_under(tmp_path, [SERVER])
+    imports = imports_of(modules)
+    problems = violations(imports, modules)
+    assert any("core/bus.py:1" in p and "imports vr_teleop_server.features.speech" in p for p in problems), problems
+    assert any("robot/interface.py:2" in p and "vr_teleop_server.core.bus" in p for p in problems), problems
+    found = cycles(imports)
+    assert found == [[f"{SERVER}.core.bus", f"{SERVER}.features.speech"]]
+    assert "bus.py:1" in describe_cycle(found[0], imports)

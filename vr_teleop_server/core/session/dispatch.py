@@ -1,0 +1,216 @@
+"""One client's rosbridge session: parses each frame, dispatches it by op, and keeps what the client owns.
+
+A handler per op (as rosbridge_suite's capabilities, without their globals). Errors become `status` replies that
+name the problem and echo the operation's `id`; the connection always goes on. Outgoing messages wait in a
+bounded outbox that the transport drains: a client that reads slowly loses its oldest messages per
+subscription, and never slows a publisher or another client.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import math
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from pydantic import ValidationError
+
+from client_protocol import ops
+from client_protocol.registry import describe_validation_error
+
+from ..access import AccessDenied, AccessPolicy, Role
+from ..bus import GOAL_STATUS_ABORTED, Bus, BusError, GoalHandle
+from ..settings import CoreSettings
+from ..wire import FrameError, decode_frame, dumps, encode_for_client
+from .actions import ActionOps
+from .fragments import Reassembly
+from .outbox import Frame, Outbox
+from .protocol import ProtocolError
+from .services import ServiceOps
+from .topics import TopicOps, TopicSubscription, _well_formed_publish
+
+log = logging.getLogger(__name__)
+
+LEVELS = {"info": 0, "warning": 1, "error": 2, "none": 3}
+
+
+class Session(TopicOps, ServiceOps, ActionOps):
+    """One client's session (the op handlers of topics, services and actions are in the mixins)."""
+
+    def __init__(self, name: str, bus: Bus, settings: CoreSettings, peer: str = "", *,
+                 policy: AccessPolicy | None = None, tap: Callable[[str, str, Frame], None] | None = None) -> None:
+        self.name = name
+        self.peer = peer
+        self.bus = bus
+        self.registry = bus.registry
+        self.settings = settings
+        self.level = "error"
+        self.closed = False
+        self.subscriptions: dict[str, TopicSubscription] = {}
+        self.advertised: dict[str, str] = {}  # topic -> type
+        self.services: set[str] = set()
+        self.actions: set[str] = set()
+        self._wake = asyncio.Event()
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._calls_to_me: dict[str, asyncio.Future[Any]] = {}  # server-made call id -> caller's future
+        self._goals_to_me: dict[str, GoalHandle] = {}  # goals this client serves, by the bus's goal id
+        self._my_goals: dict[Any, GoalHandle] = {}  # goals this client sent, by its own id
+        self.fragments = Reassembly(settings.max_message_size, settings.fragment_timeout, self._fragments_expired)
+        self._ids = itertools.count(1)
+        self.counters = {"frames_in": 0, "errors": 0, "dropped": 0}
+        self.outbox = Outbox(self.registry, settings.control_queue_bound, wake=self._wake.set, counters=self.counters,
+                             ids=self._ids, name=name)
+        # Sees every frame but topic messages, in ("in") and out ("out"): (session name, direction, frame).
+        self.tap = tap
+        self.policy = policy if policy is not None else AccessPolicy({})  # none given: open
+        self.role: Role | None = None  # set by a successful auth op
+        self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
+            name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
+        }
+
+    # ---- incoming -----------------------------------------------------------------------------------------------
+    async def handle_frame(self, frame: Frame, *, reassembled: bool = False) -> None:
+        self.counters["frames_in"] += 1
+        if len(frame) > self.settings.max_message_size:
+            self.status("error", f"a frame of {len(frame)} bytes is over this server's limit of "
+                                 f"{self.settings.max_message_size} bytes: send it in pieces with the 'fragment' op, "
+                                 f"or start the server with a larger --max-message-size")
+            return
+        try:
+            raw = decode_frame(frame)
+        except FrameError as exc:
+            self.status("error", str(exc))
+            return
+        raw_id = raw.get("id")
+        msg_id = raw_id if isinstance(raw_id, (str, int)) and not isinstance(raw_id, bool) else None
+        name = raw["op"]
+        if self.tap is not None and name != "publish":  # published messages are recorded from the bus
+            self.tap(self.name, "in", frame)
+        model = ops.CLIENT_OP_MODELS.get(name)
+        if model is None:
+            self.status("error", f"unknown op '{name[:60]}'; this server understands: "
+                                 f"{', '.join(sorted(ops.CLIENT_OP_MODELS))}", msg_id)
+            return
+        if reassembled and name == "fragment":
+            self.status("error", "a reassembled message is itself a fragment; fragments do not nest", msg_id)
+            return
+        try:
+            op = _well_formed_publish(raw) if name == "publish" else None
+            if op is None:
+                op = model.model_validate(raw)
+        except ValidationError as exc:
+            self.status("error", f"{name}: {describe_validation_error(exc)}", msg_id)
+            return
+        try:
+            if not self.policy.open:  # getattr on a model that lacks the field raises inside pydantic: costly
+                fields = op.__dict__
+                self.policy.check(self.role, name, fields.get("service") or fields.get("topic") or "")
+        except AccessDenied as exc:
+            self.status("error", f"{name}: refused: {exc}", msg_id)
+            return
+        try:
+            result = self._handlers[name](op)
+            if result is not None:
+                await result
+        except (ProtocolError, BusError) as exc:
+            self.status(getattr(exc, "level", "error"), f"{name}: {exc}", msg_id)
+        except Exception as exc:
+            log.exception("%s: %s (id %r) failed", self.name, name, msg_id)
+            self.status("error", f"{name}: internal error ({type(exc).__name__}: {exc}); the server logged it",
+                        msg_id)
+
+    # ---- fragments, levels, logs --------------------------------------------------------------------------------
+    async def _op_fragment(self, op: ops.Fragment) -> None:
+        whole = self.fragments.add(op)
+        if whole is not None:
+            await self.handle_frame(whole, reassembled=True)
+
+    def _fragments_expired(self, frag_id: Any, arrived: int, total: int) -> None:
+        self.status("warning", f"fragments of id {frag_id!r} were discarded after "
+                               f"{self.settings.fragment_timeout:g} s: {arrived} of {total} arrived", frag_id)
+
+    def _op_auth(self, op: ops.Auth) -> None:
+        role = self.policy.role_for(op.mac)
+        if role is None:
+            raise ProtocolError("this token is not known; ask whoever runs the server for one")
+        self.role = role
+        log.info("%s authenticated as %s", self.name, role)
+
+    def _op_set_level(self, op: ops.SetLevel) -> None:
+        self.level = op.level
+
+    def _op_status(self, op: ops.Status) -> None:
+        log.log({"info": logging.INFO, "warning": logging.WARNING}.get(op.level, logging.ERROR),
+                "%s reports (id %r): %s", self.name, op.id, op.msg)
+
+    # ---- outgoing -----------------------------------------------------------------------------------------------
+    def status(self, level: str, message: str, msg_id: Any = None) -> None:
+        if level == "error":
+            self.counters["errors"] += 1
+        log.debug("%s status %s (id %r): %s", self.name, level, msg_id, message)
+        if LEVELS[level] >= LEVELS[self.level] and level != "none":
+            self._send(self._with_id({"op": "status", "level": level, "msg": message}, msg_id))
+
+    @staticmethod
+    def _with_id(frame: dict[str, Any], msg_id: Any) -> dict[str, Any]:
+        return frame if msg_id is None else {"op": frame["op"], "id": msg_id, **frame}
+
+    def _send(self, frame: dict[str, Any]) -> None:
+        self._push(dumps(frame))
+
+    def _reply(self, frame: dict[str, Any], compression: str, fragment_size: int | None, msg_id: Any) -> None:
+        for piece in encode_for_client(dumps(frame), compression, fragment_size,
+                                       f"{msg_id if msg_id is not None else 'reply'}:{next(self._ids)}"):
+            self._push(piece)
+
+    def _push(self, frame: Frame) -> None:
+        if self.closed:
+            return
+        if self.tap is not None:
+            self.tap(self.name, "out", frame)
+        self.outbox.push(frame)
+
+    async def next_frames(self) -> list[Frame]:
+        """Waits for and returns the frames that may go out now (replies first, then topics, throttles obeyed)."""
+        outbox, wake = self.outbox, self._wake
+        while True:
+            now = time.monotonic()
+            frames, wake_at = outbox.take(now)
+            if frames:
+                return frames
+            wake.clear()
+            if wake_at == math.inf:
+                await wake.wait()
+            else:
+                try:
+                    await asyncio.wait_for(wake.wait(), wake_at - now)
+                except TimeoutError:
+                    pass
+
+    # ---- lifetime -----------------------------------------------------------------------------------------------
+    def _spawn(self, coro: Awaitable[Any]) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def close(self) -> None:
+        """Releases everything the client held: subscriptions, advertisements, services, goals, pending calls."""
+        if self.closed:
+            return
+        self.closed = True
+        for task in list(self._tasks):
+            task.cancel()
+        for future in self._calls_to_me.values():
+            if not future.done():
+                future.set_exception(BusError("the client providing this service disconnected"))
+        for goal in list(self._goals_to_me.values()):
+            goal.finish(GOAL_STATUS_ABORTED, "the client serving this goal disconnected", False)
+        for goal in list(self._my_goals.values()):
+            self.bus.cancel_goal(goal)
+        self.fragments.clear()
+        self.bus.drop_owner(self.name)
+        self.subscriptions.clear()
+        self.outbox.clear()
