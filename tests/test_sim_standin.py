@@ -76,9 +76,10 @@ def test_velocity_caps_are_configurable_at_run_time(standin):
         standin.set_targets({"HeadPitch": 20.0})
         time.sleep(0.5)
         snap = standin.joint_state()
-        # After 0.5 s at 20 deg/s the setpoint can have travelled at most 10 degrees.
+        # At 20 deg/s the setpoint travels at most 20 degrees a simulated second (the simulation's clock: a loaded
+        # machine stretches the sleep, not the cap), and the joint follows the setpoint.
         assert snap.setpoints[1] <= 20.0 * (snap.sim_time - t0) + 0.1
-        assert snap.position("HeadPitch") < 12.0
+        assert snap.position("HeadPitch") <= 20.0 * (snap.sim_time - t0) + 2.0
     finally:
         standin.set_velocity_caps({"HeadPitch": ROBOT.joint("HeadPitch").max_velocity})
     settle_home(standin)
@@ -123,10 +124,9 @@ def test_camera_streams_only_while_watched_and_changes_when_the_head_turns(stand
         assert diff > 10, diff
     finally:
         standin.stop_camera()
-    time.sleep(0.15)  # a frame in flight may still land
-    last = standin.latest_frame().seq
-    time.sleep(0.3)
-    assert standin.latest_frame().seq == last
+    at_stop = standin.latest_frame().seq
+    time.sleep(1.0)
+    assert standin.latest_frame().seq <= at_stop + 1  # the frame in flight may still land, and no more
     settle_home(standin)
 
 
