@@ -151,7 +151,9 @@ def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_serve
         assert select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})["success"]
         for yaw in (0, 10, 20, 30, 20, 0, -15, -30, -15, 0):
             headset.head_orientation = unity_yaw_pitch(yaw)
-            time.sleep(0.3)
+            # Each pose held until the robot's head is there (not for a fixed time: a loaded machine is slower).
+            assert wait_for(lambda yaw=yaw: abs(joints(js).get("HeadYaw", 99) - yaw) < 2.0, 30), yaw
+            time.sleep(0.1)
         reply = select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})
         assert reply["message"] == "saved as look_around"
     finally:
