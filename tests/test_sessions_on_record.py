@@ -79,17 +79,16 @@ def test_replay_reports_latency_tracking_camera_and_the_recording_holds_it_all(r
 
     server.call(lambda: server.server.recorder.flush())
     msgs = list(read_recording(recorded))
-    # What the server itself reports decides how commands pair with poses: unless its watchdog saw the pose stream
-    # stall before the last pose (a loaded machine can starve the replaying client), every pose caused its
-    # commands in order and the offline mapping predicts them. After a stall the server held the robot, which
-    # the offline mapping cannot know: commands are then paired by arrival and the tracking figures say nothing.
-    last_pose_ns = max(m.time_ns for m in msgs if m.topic == "/vr/head/pose")
-    stalls = [m for m in msgs if m.topic == "/vr_teleop/events" and m.data["kind"] == "watchdog_stalled"
-              and m.time_ns < last_pose_ns]
+    # The counts decide how commands pair with poses: when the client got as many commands as the offline mapping
+    # predicts, every pose caused its commands in order and the tracking is judged. On a loaded machine the server
+    # may drop a slow reader's backlog or hold a starved stream; the counts then differ, commands are paired by
+    # arrival and the tracking figures say nothing.
     latency, by_part = result["latency_ms"], result["tracking_error_deg"]["by_part"]
     assert latency["n"] > 0 and 0 < latency["p50"] <= latency["max"], latency
     assert by_part["left_arm"]["n"] == 0  # the wave is one-armed
-    if not stalls:
+    if latency["pairing"] != "in_order":
+        assert result["commands_received"] != result["commands_expected"], result
+    else:
         assert latency["pairing"] == "in_order" and latency["n"] > 100, latency  # the server dropped nothing
         head, right = by_part["head"], by_part["right_arm"]
         assert head["n"] > 100 and head["mean"] < 0.5, head  # the server runs the mapping offline replay runs
