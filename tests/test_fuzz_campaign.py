@@ -384,6 +384,7 @@ def rerun_hint(campaign_seed: int) -> str:
             f"pytest tests/test_fuzz_campaign.py")
 
 
+@pytest.mark.timeout(900)  # three rounds of drawing: under a minute idle, minutes on a loaded machine
 def test_a_seed_draws_the_same_frames_again():
     def draw(campaign_seed: int) -> list[tuple[int, str | bytes, str | None]]:
         frames: list[Frame] = []
