@@ -1,5 +1,6 @@
 """`make bench`: the benchmark suite (bench/suite.py), printed as one table of figures against same-run baselines.
-Pass --quick for short runs. The other scripts in bench/ print more detail on one subject each."""
+Pass --quick for short runs. Progress goes to stderr: which part is running, the rows it makes, and its expected
+duration. The other scripts in bench/ print more detail on one subject each."""
 
 from __future__ import annotations
 

@@ -332,6 +332,32 @@ def machine() -> str:
             f"{platform.system()} {platform.release()}")
 
 
+PART_ROWS = {
+    "pubsub": "pose round trip and publish->subscribe, 1 and 10 subscribers, against the bare relay",
+    "teleop": "pose to head command, against a bare echo",
+    "camera": "camera fps and frame age, 1 and 5 subscribers",
+    "soak": "server memory with a stalled client",
+    "churn": "tasks, subscriptions, descriptors and sessions after 20 clients churn",
+    "replay": "the classroom session replayed at x10",
+}
+
+
+def expected_s(name: str, quick: bool) -> float:
+    """About how long a part runs: its measuring time (what main() passes it) plus start-up, from past runs."""
+    return {
+        "pubsub": 3 * 2 * 3 * (2.0 if quick else 10.0) + 3 * 2 * 2.0,  # rounds x servers x (latency, 1, 10 subs)
+        "teleop": 2 * (5.0 if quick else 20.0) + 8.0,  # the echo baseline and ours, plus a sim server's start
+        "camera": 2 * (4.0 if quick else 10.0) + 8.0,
+        "soak": (60.0 if quick else 600.0) + 5.0,
+        "churn": (20.0 if quick else 60.0) + 6.0,
+        "replay": (60.0 if quick else 300.0) / 10.0 + 15.0,  # the session / 10, synthesis and a sim server
+    }[name]
+
+
+def _dur(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="short runs (about 3 minutes in all)")
@@ -348,12 +374,20 @@ def main(argv: list[str] | None = None) -> int:
     }
     rows: list[Row] = []
     failed = []
-    for name in args.only or parts:
-        print(f"running {name}...", file=sys.stderr, flush=True)
+    chosen = args.only or list(parts)
+    total = sum(expected_s(name, q) for name in chosen)
+    done = 0.0
+    for i, name in enumerate(chosen, 1):
+        # Progress on stderr (stdout is the table): which row, about how long it takes, how much is left.
+        print(f"[{i}/{len(chosen)}] running {name}: {PART_ROWS[name]}; expected about {_dur(expected_s(name, q))} "
+              f"({_dur(total - done)} left in all)", file=sys.stderr, flush=True)
+        start = time.monotonic()
         try:
             rows += parts[name]()
         except Exception as exc:  # noqa: BLE001 (one broken figure must not hide the others)
             failed.append(f"{name}: {type(exc).__name__}: {exc}")
+        done += expected_s(name, q)
+        print(f"[{i}/{len(chosen)}] {name} took {_dur(time.monotonic() - start)}", file=sys.stderr, flush=True)
     print(f"\n# vr-teleop-server benchmarks{' (--quick)' if q else ''}, {time.strftime('%Y-%m-%d %H:%M')}")
     print(f"# machine: {machine()}")
     print(f"| {'figure':<56} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")

@@ -15,6 +15,15 @@ from websockets.sync.client import ClientConnection, connect
 
 from vr_teleop_server.app import TeleopServer
 from vr_teleop_server.settings import ServerSettings
+from vr_teleop_server.teleop import TeleopSettings
+
+
+def patient_teleop() -> TeleopSettings:
+    """Explicit control whose stream timeouts are seconds instead of 0.2 s, for tests of replay and of the mapping:
+    on a loaded machine a client starved for a few hundred milliseconds must not look like a headset that
+    stopped (then the server rightly holds the robot, which an offline mapping of the session cannot know). The
+    timeouts themselves are tested with their defaults (test_faults.py, test_explicit_control.py)."""
+    return TeleopSettings(watchdog_timeout_s=2.0, controller_timeout_s=2.0)
 
 
 def wait_for(predicate: Callable[[], Any], timeout: float = 5.0) -> bool:

@@ -8,6 +8,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import asyncio
 import contextlib
+import math
 import time
 
 import cv2
@@ -87,10 +88,16 @@ async def test_calls_from_the_loop_return_fast(robot):
         robot.remove_camera_subscriber,
         robot.latest_frame,
     ]
+    # Non-blocking means no call waits for a render, a sleep or a physics run: each takes the state lock for
+    # at most one batch of steps. A preempted call on a loaded machine is slow once, a blocking call every time,
+    # so each call's fastest of 20 tries must be well under a camera frame (bench/standin.py prints the figures).
     for call in calls:
-        t0 = time.perf_counter()
-        call()
-        assert time.perf_counter() - t0 < 0.02, call
+        fastest = math.inf
+        for _ in range(20):
+            t0 = time.perf_counter()
+            call()
+            fastest = min(fastest, time.perf_counter() - t0)
+        assert fastest < 0.02, (call, fastest)
 
 
 async def test_joint_state_orders(robot):
@@ -159,26 +166,36 @@ async def test_gesture_plays_its_waypoints_in_time_without_blocking_the_loop(rob
     gesture = Gesture("nod_right", tuple(
         Waypoint(t, {"HeadYaw": 20.0 * np.sin(np.pi * t / 0.8), "HeadPitch": 10.0 * t})
         for t in np.arange(0.0, 0.85, 0.05)))
-    gaps = []
+    events: list[str] = []  # in the order they happened on the loop: "tick" (another task ran), "wp" (a waypoint)
+    send = robot.set_joint_targets
+
+    def recorded(targets):
+        events.append("wp")
+        return send(targets)
 
     async def ticker():
-        last = time.monotonic()
         while True:
             await asyncio.sleep(0.01)
-            now = time.monotonic()
-            gaps.append(now - last)
-            last = now
+            events.append("tick")
 
+    robot.set_joint_targets = recorded
     tick = asyncio.create_task(ticker())
     t0 = time.monotonic()
-    result = await robot.play_gesture(gesture)
-    elapsed = time.monotonic() - t0
-    tick.cancel()
+    try:
+        result = await robot.play_gesture(gesture)
+    finally:
+        elapsed = time.monotonic() - t0
+        tick.cancel()
+        del robot.set_joint_targets
     assert result.completed and not result.stopped, result
     assert result.waypoints_sent == len(gesture.waypoints) and not result.clamps
     assert result.final_error_deg <= 1.0
-    assert elapsed >= gesture.duration_s
-    assert max(gaps) < 0.1  # the loop kept running throughout
+    assert elapsed >= gesture.duration_s  # never ahead of its schedule
+    # The loop kept running throughout: other tasks ran between the waypoints, not only before or after them.
+    wps = [i for i, e in enumerate(events) if e == "wp"]
+    assert len(wps) >= len(gesture.waypoints), events
+    between = events[wps[0]:wps[len(gesture.waypoints) - 1]]
+    assert between.count("tick") >= 2, events
     assert abs(robot.joint_state().as_dict()["HeadPitch"] - 8.0) < 1.0
 
 

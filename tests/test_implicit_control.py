@@ -151,7 +151,9 @@ def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_serve
         assert select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})["success"]
         for yaw in (0, 10, 20, 30, 20, 0, -15, -30, -15, 0):
             headset.head_orientation = unity_yaw_pitch(yaw)
-            time.sleep(0.3)
+            # Each pose held until the robot's head is there (not for a fixed time: a loaded machine is slower).
+            assert wait_for(lambda yaw=yaw: abs(joints(js).get("HeadYaw", 99) - yaw) < 2.0, 30), yaw
+            time.sleep(0.1)
         reply = select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})
         assert reply["message"] == "saved as look_around"
     finally:
@@ -166,32 +168,24 @@ def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_serve
     roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
         roslibpy.Message({"data": [float(recorded[0, 1]), 0.0]}))
     assert wait_for(lambda: abs(joints(js).get("HeadYaw", 99) - recorded[0, 1]) < 1.0, 10)
-    samples = []
-    stop = False
-
-    def sample() -> None:
-        while not stop:
-            j = joints(js)
-            if j:
-                samples.append((time.monotonic(), j["HeadYaw"]))
-            time.sleep(1 / 60)
-
-    sampler = threading.Thread(target=sample)
-    sampler.start()
-    t0 = time.monotonic()
-    try:
-        assert select(ros, "motion.play.list.look_around")["message"] == "played look_around"
-    finally:
-        stop = True
-        sampler.join()
-    played = np.array([(t - t0, v) for t, v in samples])
-    # Allow the playback a constant start delay (the first command and the joint-state rate); find the best one.
+    # The joint states' own stamps (when the server sampled them), not their arrival: a loaded machine delays
+    # the client, not the robot.
+    with js.lock:
+        first = len(js.messages)
+    t0 = time.time()
+    assert select(ros, "motion.play.list.look_around")["message"] == "played look_around"
+    with js.lock:
+        messages = js.messages[first:]
+    played = np.array([(m["header"]["stamp"]["secs"] + m["header"]["stamp"]["nsecs"] * 1e-9 - t0,
+                        dict(zip(m["name"], m["position"]))["HeadYaw"]) for m in messages])
+    # Allow the playback a constant start delay (the first command, the joint-state rate, and whatever a loaded
+    # machine adds); find the best one. It never leads: the search starts at 0.
     errors = []
-    for lag in np.arange(0.0, 0.3, 0.01):
+    for lag in np.arange(0.0, 1.0, 0.01):
         want = np.interp(played[:, 0] - lag, recorded[:, 0], recorded[:, 1])
         inside = (played[:, 0] - lag >= 0) & (played[:, 0] - lag <= recorded[-1, 0])
-        errors.append(np.abs(played[inside, 1] - want[inside]).max())
-    assert min(errors) < 4.0, min(errors)
+        errors.append(float(np.sqrt(np.mean((played[inside, 1] - want[inside]) ** 2))))
+    assert min(errors) < 2.0, min(errors)  # degrees RMS: the trajectory's shape, whatever the delay
     js.close()
 
 
