@@ -254,6 +254,12 @@ def test_one_operator_on_several_connections_engages_from_any(token_sim_server):
         _settle_head_ahead(joints)
         head.rotation = _yaw_left(20.0)
         assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 20.0) < 3.0, 15), _joints(joints)
+        # the right hand forward with the grip held (the scene's readers give the grip as the fourth axis)
+        before = _joints(joints)
+        right.position = (0.19, 1.4, 0.55)
+        joy.axes[3] = 1.0
+        arm = MODEL.part_joints("right_arm")
+        assert wait_for(lambda: max(abs(_joints(joints)[n] - before[n]) for n in arm) > 20.0, 15), _joints(joints)
         assert _engage(buttons, False)["success"] is True
     finally:
         for component in reversed(components):
