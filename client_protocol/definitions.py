@@ -20,6 +20,7 @@ MESSAGES: dict[str, str] = {
     "std_msgs/Float64MultiArray": "MultiArrayLayout layout\nfloat64[] data",
     # geometry_msgs
     "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z",
+    "geometry_msgs/PointStamped": "Header header\nPoint point",
     "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z",
     "geometry_msgs/Quaternion": "float64 x\nfloat64 y\nfloat64 z\nfloat64 w",
     "geometry_msgs/Pose": "Point position\nQuaternion orientation",
@@ -136,6 +137,25 @@ MESSAGES: dict[str, str] = {
         "# Faces found in one head-camera frame, on /perception/faces. detector: what found them.\n"
         "Header header\nuint32 frame_seq\nuint32 image_width\nuint32 image_height\nstring detector\nFace[] faces"
     ),
+    # ROS 1 actionlib (actionlib_msgs), as roslibpy's ActionClient and SimpleActionServer speak it
+    "actionlib_msgs/GoalID": "time stamp\nstring id",
+    "actionlib_msgs/GoalStatus": (
+        "uint8 PENDING=0\nuint8 ACTIVE=1\nuint8 PREEMPTED=2\nuint8 SUCCEEDED=3\nuint8 ABORTED=4\nuint8 REJECTED=5\n"
+        "uint8 PREEMPTING=6\nuint8 RECALLING=7\nuint8 RECALLED=8\nuint8 LOST=9\n"
+        "GoalID goal_id\nuint8 status\nstring text"
+    ),
+    "actionlib_msgs/GoalStatusArray": "Header header\nGoalStatus[] status_list",
+    # actionlib's test action (actionlib/TestAction: int32 goal, int32 result, int32 feedback), the type of
+    # roslibpy's own actionlib tests, in the message family ROS 1 generates from an .action file
+    "actionlib/TestGoal": "int32 goal",
+    "actionlib/TestResult": "int32 result",
+    "actionlib/TestFeedback": "int32 feedback",
+    "actionlib/TestActionGoal": "Header header\nactionlib_msgs/GoalID goal_id\nTestGoal goal",
+    "actionlib/TestActionResult": "Header header\nactionlib_msgs/GoalStatus status\nTestResult result",
+    "actionlib/TestActionFeedback": "Header header\nactionlib_msgs/GoalStatus status\nTestFeedback feedback",
+    "actionlib/TestAction": (
+        "TestActionGoal action_goal\nTestActionResult action_result\nTestActionFeedback action_feedback"
+    ),
     # rosapi's own message
     "rosapi/TypeDef": (
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
@@ -161,7 +181,21 @@ SERVICES: dict[str, str] = {
     "qt_gesture_controller/gesture_stop": "---\nbool status",
     "qt_motors_controller/home": "string[] parts\n---\nbool status",
     "qt_motors_controller/set_control_mode": "string[] parts\nuint8 mode\n---\nbool status",
-    # this server's own
+    # ROS's file_server package (ROS#'s URDF importer fetches every package:// resource through it)
+    "file_server/GetBinaryFile": "string name\n---\nuint8[] value",
+    # rospy_tutorials' example service (roslibpy's own service tests use it)
+    "rospy_tutorials/AddTwoInts": "int64 a\nint64 b\n---\nint64 sum",
+    # this server's own. Every vr_teleop_msgs response carries `bool success` and `string message`: a refusal is a
+    # successful call whose response says `success: false` and why (ROS's convention, what ROS# can read);
+    # rosbridge's `result: false` is kept for calls that could not run at all. LuxAI's types above keep LuxAI's
+    # `bool status` (a real robot answers them so): a refusal there is `status: false`.
+    "vr_teleop_msgs/WhoAmI": (
+        "# Who the server takes the calling connection to be. connection: this connection's name (as events and\n"
+        "# logs name it); role: operator, supervisor or spectator; operator: the operator key the connection\n"
+        "# belongs to (every connection of one operator shares it; empty when the role is not operator), the\n"
+        "# value /vr_teleop/teleop_state's holder names when this operator holds control; holding: whether it does.\n"
+        "---\nbool success\nstring message\nstring connection\nstring role\nstring operator\nbool holding"
+    ),
     "vr_teleop_msgs/MenuSelect": (
         "# Run a menu item by id. args: a JSON object merged over the item's own (e.g. {\"text\": \"...\"})\n"
         "string id\nstring args\n---\nbool success\nstring message"
