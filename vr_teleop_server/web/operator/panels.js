@@ -1,0 +1,116 @@
+// Text panels drawn on 2D canvases, shown in the 3D view as textures: the heads-up display and the radial menu.
+// Large type on dark backgrounds: a headset's pixels are big, and the camera image behind is busy.
+
+const COLORS = {info: "#e8eef5", ok: "#7ee2a8", warning: "#ffd166", error: "#ff6b6b", muted: "#9fb0c3"};
+const FONT = "system-ui, 'DejaVu Sans', sans-serif";
+
+function roundRect(ctx, x, y, w, h, r) {
+  ctx.beginPath();
+  ctx.moveTo(x + r, y);
+  ctx.arcTo(x + w, y, x + w, y + h, r);
+  ctx.arcTo(x + w, y + h, x, y + h, r);
+  ctx.arcTo(x, y + h, x, y, r);
+  ctx.arcTo(x, y, x + w, y, r);
+  ctx.closePath();
+}
+
+function fitText(ctx, text, maxWidth) {
+  if (ctx.measureText(text).width <= maxWidth) return text;
+  let t = text;
+  while (t.length > 1 && ctx.measureText(t + "…").width > maxWidth) t = t.slice(0, -1);
+  return t + "…";
+}
+
+/** lines: [{text, level}] (level: info, ok, warning, error, muted). */
+export function drawHud(canvas, lines) {
+  const ctx = canvas.getContext("2d");
+  const {width, height} = canvas;
+  ctx.clearRect(0, 0, width, height);
+  ctx.fillStyle = "rgba(10, 16, 24, 0.82)";
+  roundRect(ctx, 0, 0, width, height, 28);
+  ctx.fill();
+  const size = Math.floor(height / (lines.length + 0.8));
+  ctx.font = `600 ${Math.min(44, size * 0.78)}px ${FONT}`;
+  ctx.textBaseline = "middle";
+  lines.forEach((line, i) => {
+    ctx.fillStyle = COLORS[line.level] || COLORS.info;
+    ctx.fillText(fitText(ctx, line.text, width - 56), 28, size * (i + 0.9));
+  });
+}
+
+/** The open menu: nav (a MenuNavigator), toggles (item id -> true/false), footer (the last result). */
+export function drawMenu(canvas, nav, toggles, footer, hint) {
+  const ctx = canvas.getContext("2d");
+  const {width, height} = canvas;
+  ctx.clearRect(0, 0, width, height);
+  if (!nav.open) return;
+  ctx.fillStyle = "rgba(10, 16, 24, 0.88)";
+  roundRect(ctx, 0, 0, width, height, 40);
+  ctx.fill();
+  ctx.textAlign = "center";
+  ctx.textBaseline = "middle";
+  ctx.fillStyle = COLORS.info;
+  ctx.font = `700 54px ${FONT}`;
+  ctx.fillText(fitText(ctx, nav.title, width - 80), width / 2, 64);
+  const level = nav.level;
+  const label = (item) => {
+    const on = toggles.get(item.id);
+    const more = nav.tree.children.has(item.id) ? " ›" : "";
+    return on === undefined ? item.label + more : `${item.label}: ${on ? "ON" : "off"}`;
+  };
+  if (level.kind === "ring") {
+    const cx = width / 2, cy = height / 2 + 20, r = 300;
+    ctx.strokeStyle = "rgba(159, 176, 195, 0.35)";
+    ctx.lineWidth = 6;
+    ctx.beginPath();
+    ctx.arc(cx, cy, r, 0, 2 * Math.PI);
+    ctx.stroke();
+    ctx.fillStyle = COLORS.muted;
+    ctx.font = `500 30px ${FONT}`;
+    hint.forEach((h, i) => ctx.fillText(h, cx, cy - 20 + 40 * i));
+    level.entries.forEach((e, i) => {
+      const a = e.angle * Math.PI / 180;
+      const x = cx + r * Math.cos(a), y = cy - r * Math.sin(a);
+      const w = 330, h = 104;
+      const lit = i === nav.highlight;
+      ctx.fillStyle = lit ? "#2f80ed" : "rgba(40, 52, 68, 0.95)";
+      roundRect(ctx, x - w / 2, y - h / 2, w, h, 22);
+      ctx.fill();
+      const on = toggles.get(e.item.id);
+      if (on !== undefined) {
+        ctx.fillStyle = on ? COLORS.ok : "#58667a";
+        ctx.beginPath();
+        ctx.arc(x - w / 2 + 30, y, 14, 0, 2 * Math.PI);
+        ctx.fill();
+      }
+      ctx.fillStyle = "#ffffff";
+      ctx.font = `${lit ? 700 : 600} 40px ${FONT}`;
+      ctx.fillText(fitText(ctx, label(e.item), w - 70), x + (on !== undefined ? 14 : 0), y);
+    });
+  } else {
+    const rows = 8, rowH = 92, top = 120;
+    const first = Math.max(0, Math.min(nav.highlight - 3, level.entries.length - rows));
+    ctx.textAlign = "left";
+    level.entries.slice(first, first + rows).forEach((e, k) => {
+      const i = first + k, y = top + k * rowH;
+      const lit = i === nav.highlight;
+      ctx.fillStyle = lit ? "#2f80ed" : "rgba(40, 52, 68, 0.95)";
+      roundRect(ctx, 60, y, width - 120, rowH - 14, 18);
+      ctx.fill();
+      ctx.fillStyle = "#ffffff";
+      ctx.font = `${lit ? 700 : 600} 40px ${FONT}`;
+      ctx.fillText(fitText(ctx, label(e.item), width - 180), 90, y + (rowH - 14) / 2);
+    });
+    ctx.textAlign = "center";
+    ctx.fillStyle = COLORS.muted;
+    ctx.font = `500 30px ${FONT}`;
+    const shown = nav.highlight < 0 ? "–" : nav.highlight + 1;
+    ctx.fillText(`${shown} / ${level.entries.length}   ·   ${hint.join("   ·   ")}`, width / 2, top + rows * rowH + 20);
+  }
+  if (footer) {
+    ctx.fillStyle = footer.level === "error" ? COLORS.error : COLORS.ok;
+    ctx.font = `600 34px ${FONT}`;
+    ctx.textAlign = "center";
+    ctx.fillText(fitText(ctx, footer.text, width - 80), width / 2, height - 44);
+  }
+}
