@@ -43,7 +43,7 @@ const state = {
   head: {position: new THREE.Vector3(0, EYE_HEIGHT, 0), quaternion: new THREE.Quaternion()},
   flat: {yaw: 0, pitch: 0, dragging: false},
   xr: null, joy: {left: null, right: null}, joySent: {left: 0, right: 0},
-  posesSent: 0, frames: 0, fps: 0, frameTimes: [], lastFrameAt: null, lastClamped: new Set(),
+  posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], lastFrameAt: null, lastClamped: new Set(),
 };
 
 // ---- the scene ----------------------------------------------------------------------------------------------------
@@ -111,12 +111,12 @@ const hud = new THREE.Mesh(new THREE.PlaneGeometry(0.95, 0.95 * 340 / 1400),
 hud.position.set(0, -0.48, -1.0);
 hud.renderOrder = 10;
 headLocked.add(hud);
-const menuCanvas = canvas(1024, 1024);
+const menuCanvas = canvas(1400, 1000);
 const menuTexture = textTexture(menuCanvas);
-const menuMesh = new THREE.Mesh(new THREE.PlaneGeometry(0.62, 0.62),
+const menuMesh = new THREE.Mesh(new THREE.PlaneGeometry(0.84, 0.6),
                                 new THREE.MeshBasicMaterial({map: menuTexture, transparent: true, toneMapped: false,
                                                              depthTest: false}));
-menuMesh.position.set(0, 0.02, -0.9);
+menuMesh.position.set(0, 0.04, -0.85);
 menuMesh.renderOrder = 11;
 menuMesh.visible = false;
 headLocked.add(menuMesh);
@@ -393,6 +393,7 @@ function placePanels() {
   headLocked.position.copy(head.position);
   headLocked.quaternion.copy(head.quaternion);
   hud.visible = !!state.xr;  // the flat view has the page's own HUD
+  menuMesh.position.set(0, state.xr ? 0.04 : 0.16, state.xr ? -0.85 : -1.0);  // flat: above the page's HUD
   if (menuDirty) {
     drawMenu(menuCanvas, nav, toggles, state.footer, menuHint());
     menuTexture.needsUpdate = true;
@@ -439,6 +440,10 @@ function hudLines() {
   const talking = audio.talking ? " · TALKING" : "";
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
               level: "info"});
+  if (!state.xr) {
+    lines.push({id: "keys", text: "drag: look · E: control · X Y A B: menus · hold T: talk · Esc: STOP",
+                level: "muted"});
+  }
   const m = state.message;
   if (state.menusProblem) lines.push({id: "message", text: state.menusProblem, level: "error"});
   else if (m && performance.now() - m.at < MESSAGE_KEEP_MS) lines.push({id: "message", text: m.text, level: m.level});
@@ -492,6 +497,7 @@ renderer.setAnimationLoop((time, frame) => {
   }
   state.lastFrameAt = now;
   state.frames += 1;
+  state.frameCount += 1;
   if (frame) xrFrame(frame, now);
   else flatFrame();
   placePanels();
@@ -552,15 +558,15 @@ async function checkVr() {
   } catch { /* no WebXR */ }
   button.disabled = !ok;
   $("vr-note").textContent = ok ? "" : window.isSecureContext
-    ? "no headset found: this is the flat view"
-    : "VR needs https:// (see the README: vr-teleop cert) — this is the flat view";
+    ? "no headset: flat view"
+    : "flat view (VR needs https://: see vr-teleop cert)";
 }
 checkVr();
 
 // ---- the flat view: mouse-look and keys -------------------------------------------------------------------------
 const view = renderer.domElement;
 view.addEventListener("pointerdown", (e) => {
-  state.flat.dragging = true;
+  state.flat.dragging = {x: e.clientX, y: e.clientY};
   view.setPointerCapture(e.pointerId);
   audio.unlock();
 });
@@ -569,10 +575,11 @@ view.addEventListener("pointerup", (e) => {
   view.releasePointerCapture(e.pointerId);
 });
 view.addEventListener("pointermove", (e) => {
-  if (!state.flat.dragging || state.xr) return;
-  const f = state.flat;
-  f.yaw -= THREE.MathUtils.degToRad(e.movementX * FLAT_LOOK_DEG_PER_PX);
-  f.pitch = THREE.MathUtils.clamp(f.pitch - THREE.MathUtils.degToRad(e.movementY * FLAT_LOOK_DEG_PER_PX),
+  const f = state.flat, from = f.dragging;
+  if (!from || state.xr) return;
+  f.dragging = {x: e.clientX, y: e.clientY};
+  f.yaw -= THREE.MathUtils.degToRad((e.clientX - from.x) * FLAT_LOOK_DEG_PER_PX);
+  f.pitch = THREE.MathUtils.clamp(f.pitch - THREE.MathUtils.degToRad((e.clientY - from.y) * FLAT_LOOK_DEG_PER_PX),
                                   -Math.PI * 0.45, Math.PI * 0.45);
 });
 

@@ -59,33 +59,40 @@ export function drawMenu(canvas, nav, toggles, footer, hint) {
     return on === undefined ? item.label + more : `${item.label}: ${on ? "ON" : "off"}`;
   };
   if (level.kind === "ring") {
-    const cx = width / 2, cy = height / 2 + 20, r = 300;
+    // Eight places on an ellipse, wide enough that a diagonal box never overlaps its compass neighbours.
+    const cx = width / 2, cy = height / 2 + 40, rx = 0.365 * width, ry = 0.33 * height;
+    const w = 0.24 * width, h = 116;
     ctx.strokeStyle = "rgba(159, 176, 195, 0.35)";
     ctx.lineWidth = 6;
     ctx.beginPath();
-    ctx.arc(cx, cy, r, 0, 2 * Math.PI);
+    ctx.ellipse(cx, cy, rx, ry, 0, 0, 2 * Math.PI);
     ctx.stroke();
     ctx.fillStyle = COLORS.muted;
-    ctx.font = `500 30px ${FONT}`;
-    hint.forEach((h, i) => ctx.fillText(h, cx, cy - 20 + 40 * i));
+    ctx.font = `500 36px ${FONT}`;
+    hint.forEach((line, i) => ctx.fillText(line, cx, cy - 44 + 44 * i));
     level.entries.forEach((e, i) => {
       const a = e.angle * Math.PI / 180;
-      const x = cx + r * Math.cos(a), y = cy - r * Math.sin(a);
-      const w = 330, h = 104;
+      const x = cx + rx * Math.cos(a), y = cy - ry * Math.sin(a);
       const lit = i === nav.highlight;
-      ctx.fillStyle = lit ? "#2f80ed" : "rgba(40, 52, 68, 0.95)";
+      ctx.fillStyle = lit ? "#2f80ed" : "rgba(40, 52, 68, 0.97)";
       roundRect(ctx, x - w / 2, y - h / 2, w, h, 22);
       ctx.fill();
-      const on = toggles.get(e.item.id);
-      if (on !== undefined) {
-        ctx.fillStyle = on ? COLORS.ok : "#58667a";
-        ctx.beginPath();
-        ctx.arc(x - w / 2 + 30, y, 14, 0, 2 * Math.PI);
-        ctx.fill();
+      if (lit) {
+        ctx.strokeStyle = "#ffffff";
+        ctx.lineWidth = 5;
+        ctx.stroke();
       }
+      const on = toggles.get(e.item.id);
       ctx.fillStyle = "#ffffff";
-      ctx.font = `${lit ? 700 : 600} 40px ${FONT}`;
-      ctx.fillText(fitText(ctx, label(e.item), w - 70), x + (on !== undefined ? 14 : 0), y);
+      ctx.font = `${lit ? 700 : 600} 37px ${FONT}`;
+      if (on === undefined) {
+        ctx.fillText(fitText(ctx, label(e.item), w - 28), x, y);
+        return;
+      }
+      ctx.fillText(fitText(ctx, e.item.label, w - 28), x, y - 20);
+      ctx.fillStyle = on ? COLORS.ok : "#c3ccd6";
+      ctx.font = `700 32px ${FONT}`;
+      ctx.fillText(on ? "● ON" : "○ off", x, y + 28);
     });
   } else {
     const rows = 8, rowH = 92, top = 120;
