@@ -16,6 +16,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "vr_teleop_server.questionnaires.cli",
     "vr_teleop_server.study.metrics.cli",
     "vr_teleop_server.study.cli",
+    "vr_teleop_server.cert_cli",
 )
 
 
