@@ -43,7 +43,7 @@ const state = {
   head: {position: new THREE.Vector3(0, EYE_HEIGHT, 0), quaternion: new THREE.Quaternion()},
   flat: {yaw: 0, pitch: 0, dragging: false},
   xr: null, joy: {left: null, right: null}, joySent: {left: 0, right: 0},
-  posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], lastFrameAt: null, lastClamped: new Set(),
+  posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], workTimes: [], lastFrameAt: null, lastClamped: new Set(),
 };
 
 // ---- the scene ----------------------------------------------------------------------------------------------------
@@ -504,6 +504,8 @@ renderer.setAnimationLoop((time, frame) => {
   updateHud();
   renderer.render(scene, camera);
   if (pixelRequests.length) readPixels(pixelRequests.splice(0));
+  state.workTimes.push(performance.now() - now);
+  if (state.workTimes.length > 5000) state.workTimes.splice(0, 1000);
 });
 
 function readPixels(requests) {
