@@ -61,7 +61,7 @@ def close_page(page) -> None:
 
 def enter_vr(page) -> None:
     page.get_by_role("button", name="Enter VR").click()
-    page.wait_for_function("window.operator.state.xr !== null && window.operator.state.posesSent > 10",
+    page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
                            timeout=SLOW)
 
 

@@ -36,7 +36,7 @@ const scheme = location.protocol === "https:" ? "wss" : "ws";
 const ros = new Rosbridge(`${scheme}://${location.host}/`, {token, idPrefix: "operator"});
 
 const state = {
-  teleop: null, me: null, claimHolder: false, rtt: null, message: null, menusProblem: null,
+  teleop: null, me: null, claimHolder: false, engaging: false, rtt: null, message: null, menusProblem: null,
   headOn: true, armsOn: true, recording: false, footer: null,
   zero: {yaw: 0, pitch: 0},            // the operator's head (XR yaw, pitch) when control was taken
   robotHead: {yaw: 0, pitch: 0},       // degrees, from the joint states
@@ -144,9 +144,11 @@ function say(text, level = "info") {
   updateHud(true);
 }
 
+let pulsedAt = -1e9;
 function pulse(intensity = 0.7, ms = 80) {
   const session = renderer.xr.getSession();
-  if (!session) return;
+  if (!session || performance.now() - pulsedAt < 500) return;  // a short pulse, not a buzz
+  pulsedAt = performance.now();
   for (const source of session.inputSources) {
     const actuator = source.gamepad?.hapticActuators?.[0];
     try {
@@ -165,7 +167,10 @@ ros.onclose = (reason, delay) => {
   updateHud(true);
 };
 ros.onstatus = (msg) => {
-  if (msg.level === "error" || msg.level === "warning") say(`server: ${msg.msg}`, msg.level);
+  if (msg.level !== "error" && msg.level !== "warning") return;
+  const m = state.message;  // the page's own word on a refusal (just said) is clearer than the stream's echo
+  if (m && m.level === "error" && performance.now() - m.at < 1500 && !m.text.startsWith("server:")) return;
+  say(`server: ${msg.msg}`, msg.level);
 };
 
 // ---- the robot's state ----------------------------------------------------------------------------------------------
@@ -268,6 +273,11 @@ function holding() {
   return !!(state.me && state.teleop?.engaged && state.teleop.holder === state.me);
 }
 
+function othersHoldBefore() {
+  const s = state.teleop;
+  return !!(s && s.engaged && s.holder && s.holder !== state.me);
+}
+
 async function toggleControl() {
   if (holding()) {
     try {
@@ -280,7 +290,9 @@ async function toggleControl() {
     return;
   }
   const zero = headAngles(state.head.quaternion);
+  state.engaging = true;  // our poses flow meanwhile: the server needs a fresh one
   try {
+    if (othersHoldBefore()) await new Promise((resolve) => setTimeout(resolve, 100));  // a pose first
     const r = await ros.call(SERVICES.engage, {data: true});
     if (r.success === false) throw new Error(r.message);
     state.zero = zero;
@@ -288,6 +300,8 @@ async function toggleControl() {
     say(r.message || "you have control", "ok");
   } catch (err) {
     say(`taking control refused: ${err.message}`, "error");
+  } finally {
+    state.engaging = false;
   }
 }
 
@@ -336,12 +350,20 @@ function headAngles(q) {
   return {yaw: e.y, pitch: e.x};
 }
 
+// While another client holds control the server refuses our streams (with an error a second): wait instead.
+function othersHold() {
+  const s = state.teleop;
+  return !!(s && s.engaged && s.holder && s.holder !== state.me && !state.engaging);
+}
+
 function publishPose(topic, position, orientation) {
+  if (othersHold()) return;
   if (ros.publish(topic, poseStamped(position, orientation))) state.posesSent += 1;
 }
 
 function publishJoy(hand, gamepad, now) {
   const joy = joyFromGamepad(gamepad);
+  if (othersHold()) return;
   if (sameJoy(joy, state.joy[hand]) && now - state.joySent[hand] < JOY_KEEPALIVE_MS) return;
   if (ros.publish(hand === "left" ? TOPICS.leftJoy : TOPICS.rightJoy, joyMessage(joy))) {
     state.joy[hand] = joy;
@@ -429,7 +451,9 @@ function hudLines() {
     const following = parts.filter(Boolean).join(", ") || "nothing";
     lines.push({id: "control", text: `YOU HAVE CONTROL · ${s.state} · following: ${following}`,
                 level: s.state === "active" ? "ok" : "warning"});
-  } else if (s.holder) lines.push({id: "control", text: `control held by ${s.holder} · ${s.state}`, level: "warning"});
+  } else if (s.holder && s.engaged) {
+    lines.push({id: "control", text: `control held by ${s.holder} · ${s.state} · your poses wait`, level: "warning"});
+  }
   else lines.push({id: "control", text: `nobody has control (${s.state}) · ${hint}: take control`, level: "info"});
   if (s && !s.robot_connected) lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
   const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";
