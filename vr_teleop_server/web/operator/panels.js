@@ -21,7 +21,8 @@ function fitText(ctx, text, maxWidth) {
   return t + "…";
 }
 
-/** lines: [{text, level}] (level: info, ok, warning, error, muted). */
+/** lines: [{text, level}] (level: info, ok, warning, error, muted); the last line (the latest message) may wrap
+ * onto a second line rather than lose its end. */
 export function drawHud(canvas, lines) {
   const ctx = canvas.getContext("2d");
   const {width, height} = canvas;
@@ -29,12 +30,26 @@ export function drawHud(canvas, lines) {
   ctx.fillStyle = "rgba(10, 16, 24, 0.82)";
   roundRect(ctx, 0, 0, width, height, 28);
   ctx.fill();
-  const size = Math.floor(height / (lines.length + 0.8));
-  ctx.font = `600 ${Math.min(44, size * 0.78)}px ${FONT}`;
+  const maxWidth = width - 56;
+  let rows = lines.map((line) => ({...line}));
+  let size = Math.min(44, Math.floor(height / (rows.length + 0.8)) * 0.8);
+  ctx.font = `600 ${size}px ${FONT}`;
+  const last = rows[rows.length - 1];
+  if (last && ctx.measureText(last.text).width > maxWidth && rows.length < 6) {
+    const words = last.text.split(" ");
+    let first = "";
+    while (words.length && ctx.measureText(`${first} ${words[0]}`.trim()).width <= maxWidth) {
+      first = `${first} ${words.shift()}`.trim();
+    }
+    rows = [...rows.slice(0, -1), {...last, text: first}, {...last, text: words.join(" ")}];
+    size = Math.min(44, Math.floor(height / (rows.length + 0.8)) * 0.8);
+    ctx.font = `600 ${size}px ${FONT}`;
+  }
+  const step = height / (rows.length + 0.6);
   ctx.textBaseline = "middle";
-  lines.forEach((line, i) => {
+  rows.forEach((line, i) => {
     ctx.fillStyle = COLORS[line.level] || COLORS.info;
-    ctx.fillText(fitText(ctx, line.text, width - 56), 28, size * (i + 0.9));
+    ctx.fillText(fitText(ctx, line.text, maxWidth), 28, step * (i + 0.8));
   });
 }
 
