@@ -27,7 +27,6 @@ import subprocess
 import sys
 import threading
 import time
-import warnings
 from pathlib import Path
 
 from websockets.sync.client import connect
@@ -95,43 +94,42 @@ class Counter:
     """A rosbridge subscriber on the server: head poses received, and camera frames' age on arrival."""
 
     def __init__(self, port: int) -> None:
-        with warnings.catch_warnings():  # a plain connection object, closed in close()
-            warnings.simplefilter("ignore", DeprecationWarning)
-            self.ws = connect(f"ws://127.0.0.1:{port}/", max_size=None)
-        self.ws.send(json.dumps({"op": "subscribe", "topic": "/vr/head/pose"}))
-        self.ws.send(json.dumps({"op": "subscribe", "topic": "/camera/color/image_raw/compressed",
-                                 "queue_length": 1}))
+        self.port = port
         self.poses = 0
         self.arrival_ages: list[float] = []
         self.counting = False
         self.done = threading.Event()
+        self.ready = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
+        self.ready.wait(10)
 
     def run(self) -> None:
-        while not self.done.is_set():
-            try:
-                frame = json.loads(self.ws.recv(timeout=0.5))
-            except TimeoutError:
-                continue
-            except Exception:
-                return
-            if frame.get("topic") == "/vr/head/pose":
-                if self.counting:
-                    self.poses += 1
-            elif frame.get("topic", "").startswith("/camera") and self.counting:
-                stamp = frame["msg"]["header"]["stamp"]
-                secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
-                self.arrival_ages.append(time.time() - secs)
+        with connect(f"ws://127.0.0.1:{self.port}/", max_size=None) as ws:
+            ws.send(json.dumps({"op": "subscribe", "topic": "/vr/head/pose"}))
+            ws.send(json.dumps({"op": "subscribe", "topic": "/camera/color/image_raw/compressed",
+                                "queue_length": 1}))
+            self.ready.set()
+            while not self.done.is_set():
+                try:
+                    frame = json.loads(ws.recv(timeout=0.5))
+                except TimeoutError:
+                    continue
+                if frame.get("topic") == "/vr/head/pose":
+                    if self.counting:
+                        self.poses += 1
+                elif frame.get("topic", "").startswith("/camera") and self.counting:
+                    stamp = frame["msg"]["header"]["stamp"]
+                    secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
+                    self.arrival_ages.append(time.time() - secs)
 
     def close(self) -> None:
         self.done.set()
         self.thread.join(2)
-        self.ws.close()
 
 
-def run_rate(browser, port: int, rate: int, seconds: float) -> dict:
-    context = browser.new_context(viewport={"width": 960, "height": 600})
+def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict) -> dict:
+    context = browser.new_context(viewport=viewport)
     page = context.new_page()
     page.add_init_script(script=PACED_FRAMES % {"rate": rate})
     page.add_init_script(path=str(IWER))
@@ -166,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="4 s per rate instead of 10")
     parser.add_argument("--seconds", type=float, default=None)
     parser.add_argument("--rates", default="72,90")
+    parser.add_argument("--viewport", default="960x600", help="the emulated headset's canvas, WxH (SwiftShader "
+                        "shades every pixel on the CPU)")
     args = parser.parse_args(argv)
     seconds = args.seconds or (4.0 if args.quick else 10.0)
     if not IWER.is_file():
@@ -179,13 +179,16 @@ def main(argv: list[str] | None = None) -> int:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=chromium,
                                         args=["--no-sandbox", "--enable-unsafe-swiftshader"])
-            results = [run_rate(browser, server.port, int(r), seconds) for r in args.rates.split(",")]
+            width, height = (int(v) for v in args.viewport.split("x"))
+            results = [run_rate(browser, server.port, int(r), seconds, {"width": width, "height": height})
+                       for r in args.rates.split(",")]
             browser.close()
     finally:
         server.stop()
 
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
-    print(f"operator page, {seconds:g} s per rate, camera 640x480 at 30 fps, SwiftShader, {os.cpu_count()} cores, "
+    print(f"operator page, {seconds:g} s per rate, canvas {args.viewport}, camera 640x480 at 30 fps, SwiftShader, "
+          f"{os.cpu_count()} cores, "
           f"load average {load}")
     print(f"{'figure':58s} {'value':>10s} {'baseline':>10s} {'ratio':>7s}")
 
@@ -197,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         rate = r["rate"]
         row(f"{rate} Hz: head poses/s arriving at the server", r["poses"] / r["wall"], rate)
         row(f"{rate} Hz: page XR frames/s", r["frames"] / r["wall"], rate)
+        row(f"{rate} Hz: head poses per XR frame", r["poses"] / max(1, r["frames"]), 1.0)
         period = 1000 / rate
         row(f"{rate} Hz: frame interval p50 (ms)", percentile(r["frame_ms"], 50), period)
         row(f"{rate} Hz: frame interval p99 (ms)", percentile(r["frame_ms"], 99), period)
