@@ -363,3 +363,56 @@ console.log(JSON.stringify(out));
     assert out["error"] == "item a: its parent x is unknown"
     assert out["up"] == "m.t" and out["diagonal"] is None and out["entered"] == "M › S"
     assert out["listItem"] == "m.s.1"
+
+
+def test_sound_both_ways(browser, sim_server):
+    """The robot's speech plays in the page; the operator's voice (Chromium's fake microphone) reaches the server
+    while push-to-talk is held, logged as a WAV like any client's."""
+    page = open_page(browser, sim_server, viewport={"width": 1000, "height": 640})
+    try:
+        page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
+        page.keyboard.press("y")  # Y: the speech menu
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Speech'", timeout=SLOW)
+        page.keyboard.down("ArrowUp")
+        page.keyboard.down("ArrowLeft")  # up and left together: the diagonal item, Sentences
+        page.keyboard.up("ArrowLeft")
+        page.keyboard.up("ArrowUp")
+        page.keyboard.press("Enter")
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Speech › Sentences'",
+                               timeout=SLOW)
+        page.keyboard.press("ArrowDown")
+        page.keyboard.press("Enter")  # "Hello everyone, I am QT."
+        page.wait_for_function("window.operator.audio.played >= 5", timeout=SLOW)
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_push_to_talk_streams_the_microphone(browser_type_with_fake_microphone, sim_server):
+    audio_dir = Path(sim_server.settings.audio_dir)
+    before = set(audio_dir.glob("*.wav")) if audio_dir.exists() else set()
+    page = open_page(browser_type_with_fake_microphone, sim_server)
+    try:
+        page.get_by_role("button", name="Hold to talk").hover()
+        page.mouse.down()
+        page.wait_for_function("window.operator.audio.sentChunks >= 5", timeout=SLOW)
+        page.mouse.up()
+        sent = page.evaluate("window.operator.audio.sentChunks")
+        frames(page, 20)
+        assert page.evaluate("window.operator.audio.sentChunks") == sent  # released: silence
+        assert wait_for(lambda: any(p.stat().st_size > 44 for p in set(audio_dir.glob("*.wav")) - before), 10)
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+@pytest.fixture
+def browser_type_with_fake_microphone(browser):
+    """A second Chromium from the same Playwright, with Chromium's fake microphone (a beep) allowed."""
+    import shutil
+
+    b = browser.browser_type.launch(executable_path=shutil.which("chromium") or shutil.which("chromium-browser"),
+                                    args=["--no-sandbox", "--enable-unsafe-swiftshader",
+                                          "--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream"])
+    yield b
+    b.close()

@@ -616,7 +616,8 @@ window.addEventListener("keydown", (e) => {
   const key = e.key.length === 1 ? e.key.toUpperCase() : e.key;
   if (e.key === "Escape") estop();
   else if (["X", "Y", "A", "B"].includes(key)) pressMenuButton(null, key);
-  else if (ARROWS[e.key] && nav.open) { nav.direction(ARROWS[e.key]); menuDirty = true; }
+  else if (ARROWS[e.key] && nav.open) { arrows(e.key, true); menuDirty = true; }
+  else if (e.key === "Tab" && nav.open) { nav.step(e.shiftKey ? -1 : 1); menuDirty = true; }
   else if (e.key === "Enter" && nav.open) selectInMenu();
   else if (e.key === "Backspace" && nav.open) { nav.back(); menuDirty = true; }
   else if (key === "E" && !e.repeat) toggleControl();
@@ -627,7 +628,23 @@ window.addEventListener("keydown", (e) => {
 });
 window.addEventListener("keyup", (e) => {
   if (e.key.toUpperCase() === "T") talk(false);
+  if (ARROWS[e.key]) arrows(e.key, false);
 });
+
+// On a ring the arrow keys are a digital thumbstick: two held together point at a diagonal item. In a list,
+// up and down step.
+const heldArrows = new Set();
+function arrows(key, down) {
+  if (!down) { heldArrows.delete(key); return; }
+  heldArrows.add(key);
+  if (nav.level?.kind !== "ring") { nav.direction(ARROWS[key]); return; }
+  let x = 0, y = 0;
+  for (const k of heldArrows) {
+    x += {ArrowLeft: -1, ArrowRight: 1}[k] || 0;
+    y += {ArrowDown: -1, ArrowUp: 1}[k] || 0;
+  }
+  if (x || y) nav.stick(x / Math.hypot(x, y), y / Math.hypot(x, y), performance.now());
+}
 $("talk").addEventListener("pointerdown", () => talk(true));
 for (const type of ["pointerup", "pointerleave", "pointercancel"]) {
   $("talk").addEventListener(type, () => { if (audio.talking) talk(false); });
