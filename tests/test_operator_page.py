@@ -162,6 +162,26 @@ def test_the_head_follows_the_headset_and_the_panel_shows_the_robots_view(browse
     assert abs(standin.joint_positions()["HeadYaw"] - held) < 1.0
 
 
+def test_a_clamped_joint_is_shown_and_felt(browser, iwer, sim_server):
+    standin = sim_server.server.robot.standin
+    page = open_page(browser, sim_server, headset=iwer)
+    try:
+        enter_vr(page)
+        take_control(page)
+        pulses = page.evaluate("window.operator.state.pulses")
+        set_head(page, 85.0)  # past HeadYaw's 60 degree limit
+        page.wait_for_function("document.getElementById('hud-clamped').textContent === 'clamped joints: HeadYaw'",
+                               timeout=SLOW)
+        page.wait_for_function(f"window.operator.state.pulses > {pulses}", timeout=SLOW)  # a haptic pulse
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 60.0, 2.0)
+        set_head(page, 0.0)
+        page.wait_for_function("document.getElementById('hud-clamped').textContent === 'clamped joints: none'",
+                               timeout=SLOW)
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
 def test_the_grip_moves_the_right_arm_and_releasing_it_holds(browser, iwer, sim_server):
     standin = sim_server.server.robot.standin
     arm = ("RightShoulderPitch", "RightShoulderRoll", "RightElbowRoll")

@@ -36,7 +36,7 @@ const scheme = location.protocol === "https:" ? "wss" : "ws";
 const ros = new Rosbridge(`${scheme}://${location.host}/`, {token, idPrefix: "operator"});
 
 const state = {
-  teleop: null, me: null, claimHolder: false, engaging: false, rtt: null, message: null, menusProblem: null,
+  teleop: null, me: null, claimHolder: false, engaging: false, pulses: 0, rtt: null, message: null, menusProblem: null,
   headOn: true, armsOn: true, recording: false, footer: null,
   zero: {yaw: 0, pitch: 0},            // the operator's head (XR yaw, pitch) when control was taken
   robotHead: {yaw: 0, pitch: 0},       // degrees, from the joint states
@@ -149,6 +149,7 @@ function pulse(intensity = 0.7, ms = 80) {
   const session = renderer.xr.getSession();
   if (!session || performance.now() - pulsedAt < 500) return;  // a short pulse, not a buzz
   pulsedAt = performance.now();
+  state.pulses += 1;
   for (const source of session.inputSources) {
     const actuator = source.gamepad?.hapticActuators?.[0];
     try {
