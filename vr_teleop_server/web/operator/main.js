@@ -36,14 +36,18 @@ const scheme = location.protocol === "https:" ? "wss" : "ws";
 const ros = new Rosbridge(`${scheme}://${location.host}/`, {token, idPrefix: "operator"});
 
 const state = {
-  teleop: null, me: null, claimHolder: false, engaging: false, pulses: 0, rtt: null, message: null, menusProblem: null,
-  headOn: true, armsOn: true, recording: false, footer: null,
+  teleop: null,                        // the newest /vr_teleop/teleop_state
+  me: null,                            // our session's name once we hold control (the holder field says it)
+  claimHolder: false, engaging: false, pulses: 0, disconnectReason: "",
+  rtt: null, message: null, menusProblem: null, footer: null,
+  headOn: true, armsOn: true, recording: false,  // the menu switches' states, from the events
   zero: {yaw: 0, pitch: 0},            // the operator's head (XR yaw, pitch) when control was taken
   robotHead: {yaw: 0, pitch: 0},       // degrees, from the joint states
   head: {position: new THREE.Vector3(0, EYE_HEIGHT, 0), quaternion: new THREE.Quaternion()},
   flat: {yaw: 0, pitch: 0, dragging: false},
   xr: null, joy: {left: null, right: null}, joySent: {left: 0, right: 0},
-  posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], workTimes: [], lastFrameAt: null, lastClamped: new Set(),
+  posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], workTimes: [], lastFrameAt: null,
+  lastClamped: new Set(),
 };
 
 // ---- the scene ----------------------------------------------------------------------------------------------------
@@ -153,8 +157,9 @@ function pulse(intensity = 0.7, ms = 80) {
   for (const source of session.inputSources) {
     const actuator = source.gamepad?.hapticActuators?.[0];
     try {
-      if (actuator?.pulse) actuator.pulse(intensity, ms);
-      else source.gamepad?.vibrationActuator?.playEffect?.("dual-rumble", {duration: ms, strongMagnitude: intensity});
+      const done = actuator?.pulse ? actuator.pulse(intensity, ms)
+        : source.gamepad?.vibrationActuator?.playEffect?.("dual-rumble", {duration: ms, strongMagnitude: intensity});
+      done?.catch?.(() => {});
     } catch { /* haptics are a courtesy */ }
   }
 }
@@ -163,8 +168,9 @@ ros.onopen = () => {
   audio.sendInfo();
   say("connected to the server", "ok");
 };
-ros.onclose = (reason, delay) => {
+ros.onclose = (reason) => {
   state.me = null;
+  state.disconnectReason = reason;
   updateHud(true);
 };
 ros.onstatus = (msg) => {
@@ -441,7 +447,8 @@ function hudLines() {
   if (ros.connected) lines.push({id: "connection", text: `● connected to ${location.host}`, level: "ok"});
   else {
     const wait = ros.nextRetryAt ? Math.max(0, (ros.nextRetryAt - performance.now()) / 1000).toFixed(1) : "?";
-    lines.push({id: "connection", text: `○ DISCONNECTED: reconnecting in ${wait} s`, level: "error"});
+    lines.push({id: "connection", text: `○ DISCONNECTED (${state.disconnectReason}): reconnecting in ${wait} s`,
+                level: "error"});
   }
   const hint = state.xr ? "right trigger" : "E";
   if (!s) lines.push({id: "control", text: "control: waiting for the server", level: "muted"});
