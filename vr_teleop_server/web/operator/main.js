@@ -462,7 +462,7 @@ function hudLines() {
   } else if (s.holder && s.engaged) {
     lines.push({id: "control", text: `control held by ${s.holder} · ${s.state} · your poses wait`, level: "warning"});
   }
-  else lines.push({id: "control", text: `nobody has control (${s.state}) · ${hint}: take control`, level: "info"});
+  else lines.push({id: "control", text: `no one in control · ${hint} takes control`, level: "info"});
   if (s && !s.robot_connected) lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
   const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";
   lines.push({id: "clamped", text: `clamped joints: ${clamped}`, level: s?.clamped?.length ? "warning" : "muted"});

@@ -59,7 +59,7 @@ export function drawMenu(canvas, nav, toggles, footer, hint) {
   const {width, height} = canvas;
   ctx.clearRect(0, 0, width, height);
   if (!nav.open) return;
-  ctx.fillStyle = "rgba(10, 16, 24, 0.88)";
+  ctx.fillStyle = "rgba(10, 16, 24, 0.93)";
   roundRect(ctx, 0, 0, width, height, 40);
   ctx.fill();
   ctx.textAlign = "center";
