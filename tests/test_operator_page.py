@@ -182,6 +182,42 @@ def test_a_clamped_joint_is_shown_and_felt(browser, iwer, sim_server):
         close_page(page)
 
 
+def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_server, watch):
+    state = watch("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState")
+    events = watch("/vr_teleop/events", "vr_teleop_msgs/Event")
+    page = open_page(browser, sim_server, headset=iwer)
+    try:
+        enter_vr(page)
+        take_control(page)
+        press(page, "right", "trigger")  # again: release
+        page.wait_for_function("document.getElementById('hud-control').textContent.startsWith('no one in control')",
+                               timeout=SLOW)
+        assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 10)
+
+        take_control(page)
+        page.evaluate("xrDevice.controllers.left.position.set(-0.75, 1.45, 0.0);"
+                      "xrDevice.controllers.right.position.set(0.75, 1.45, 0.0)")  # a T-pose
+        frames(page, 5)
+        press(page, "right", "thumbstick")  # the right stick alone: calibrate
+        page.wait_for_function("document.getElementById('hud-message').textContent.startsWith('calibrated: ')",
+                               timeout=SLOW)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "calibrate"), 10)
+
+        page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 1);"
+                      "xrDevice.controllers.right.updateButtonValue('thumbstick', 1)")  # both sticks: e-stop
+        frames(page)
+        page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 0);"
+                      "xrDevice.controllers.right.updateButtonValue('thumbstick', 0)")
+        page.wait_for_function("document.getElementById('hud-control').textContent.startsWith('E-STOPPED')",
+                               timeout=SLOW)
+        assert wait_for(lambda: state.latest.get("state") == "estopped" and not state.latest["engaged"], 10)
+        frames(page, 30)  # the right stick's release, part of the e-stop, did not calibrate as well
+        assert sum(1 for e in events.messages if e["source"] == "teleop" and e["kind"] == "calibrate") == 1
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
 def test_the_grip_moves_the_right_arm_and_releasing_it_holds(browser, iwer, sim_server):
     standin = sim_server.server.robot.standin
     arm = ("RightShoulderPitch", "RightShoulderRoll", "RightElbowRoll")
