@@ -258,6 +258,18 @@ def test_the_emotion_menu_shows_happy_on_the_robots_face(browser, iwer, sim_serv
         other.send({"op": "publish", "topic": "/qt_robot/emotion/show", "msg": {"data": "sad"}})
         assert wait_for(lambda: standin.emotion == "sad", 10)
         other.close()
+    # A spy on the server's /qt_robot/emotion/show service (the menu command calls it on the bus), restored after.
+    calls: list[tuple[str, str]] = []
+    service = sim_server.call(lambda: sim_server.server.bus.services["/qt_robot/emotion/show"])
+    provider = service.provider
+
+    async def spy(request, timeout):
+        from vr_teleop_server.bus import Bus
+
+        calls.append((request.name, Bus.caller()))
+        return await provider(request, timeout)
+
+    sim_server.call(lambda: setattr(service, "provider", spy))
     page = open_page(browser, sim_server, headset=iwer)
     try:
         enter_vr(page)
@@ -274,8 +286,11 @@ def test_the_emotion_menu_shows_happy_on_the_robots_face(browser, iwer, sim_serv
         assert wait_for(lambda: events.any(lambda e: e["source"] == "menu" and e["kind"] == "select" and json.loads(
             e["detail"]).get("result") == "showing happy"), 10)  # /qt_robot/emotion/show ran for the menu
         page.wait_for_function("window.operator.state.footer?.text === 'Happy: showing happy'", timeout=SLOW)
+        assert [name for name, _caller in calls] == ["happy"]  # /qt_robot/emotion/show carried it, once
+        assert calls[0][1].startswith("/rosbridge_websocket/client_")  # on behalf of the page's session
         assert page.errors == []
     finally:
+        sim_server.call(lambda: setattr(service, "provider", provider))
         close_page(page)
 
 
