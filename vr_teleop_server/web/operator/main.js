@@ -229,7 +229,8 @@ const toggles = {
   get(id) {
     const item = nav.tree?.byId.get(id);
     if (!item || !TOGGLE_COMMANDS.has(item.command)) return undefined;
-    return {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording}[item.command];
+    const states = {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording};
+    return states[item.command];
   },
 };
 
@@ -455,7 +456,8 @@ function hudLines() {
   else if (s.state === "estopped") {
     lines.push({id: "control", text: `E-STOPPED: the robot holds (${hint}: take control again)`, level: "error"});
   } else if (holding()) {
-    const parts = [s.head_following && "head", s.left_arm_following && "left arm", s.right_arm_following && "right arm"];
+    const parts = [s.head_following && "head", s.left_arm_following && "left arm",
+                   s.right_arm_following && "right arm"];
     const following = parts.filter(Boolean).join(", ") || "nothing";
     lines.push({id: "control", text: `YOU HAVE CONTROL · ${s.state} · following: ${following}`,
                 level: s.state === "active" ? "ok" : "warning"});
@@ -463,7 +465,9 @@ function hudLines() {
     lines.push({id: "control", text: `control held by ${s.holder} · ${s.state} · your poses wait`, level: "warning"});
   }
   else lines.push({id: "control", text: `no one in control · ${hint} takes control`, level: "info"});
-  if (s && !s.robot_connected) lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
+  if (s && !s.robot_connected) {
+    lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
+  }
   const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";
   lines.push({id: "clamped", text: `clamped joints: ${clamped}`, level: s?.clamped?.length ? "warning" : "muted"});
   const rtt = state.rtt === null ? "–" : `${state.rtt.toFixed(0)} ms`;

@@ -42,7 +42,9 @@ export function parseMenus(msg) {
   }
   for (const item of byId.values()) {
     if (item.isMenu) continue;
-    if (!byId.has(item.parent)) throw new MenuError(`item ${item.id}: its parent ${item.parent || "(none)"} is unknown`);
+    if (!byId.has(item.parent)) {
+      throw new MenuError(`item ${item.id}: its parent ${item.parent || "(none)"} is unknown`);
+    }
     if (!children.has(item.parent)) children.set(item.parent, []);
     children.get(item.parent).push(item);
   }

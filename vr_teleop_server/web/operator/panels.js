@@ -127,7 +127,8 @@ export function drawMenu(canvas, nav, toggles, footer, hint) {
     ctx.fillStyle = COLORS.muted;
     ctx.font = `500 30px ${FONT}`;
     const shown = nav.highlight < 0 ? "–" : nav.highlight + 1;
-    ctx.fillText(`${shown} / ${level.entries.length}   ·   ${hint.join("   ·   ")}`, width / 2, top + rows * rowH + 20);
+    const where = `${shown} / ${level.entries.length}`;
+    ctx.fillText(`${where}   ·   ${hint.join("   ·   ")}`, width / 2, top + rows * rowH + 20);
   }
   if (footer) {
     ctx.fillStyle = footer.level === "error" ? COLORS.error : COLORS.ok;
