@@ -22,16 +22,25 @@ schema: $(STAMP)
 	$(VENV)/bin/vr-teleop schema --out client_protocol/schemas
 
 # Debian packages: espeak-ng for text-to-speech, Mesa's EGL for MuJoCo's offscreen camera, Chromium for the
-# dashboard's browser tests.
+# dashboard's browser tests, Node's npm for the operator page's JavaScript.
 $(SYSTEM): scripts/install-system-packages.sh
 	bash scripts/install-system-packages.sh
 	mkdir -p $(VENV) && touch $@
 
-$(STAMP): pyproject.toml $(SYSTEM)
+# The operator page's JavaScript (three.js, pinned in package.json/package-lock.json) is copied into the package, so
+# the page loads nothing from the internet; `npm ci` also brings IWER, the emulated headset of the browser tests.
+WEB_VENDOR := vr_teleop_server/web/vendor/three/three.module.js
+$(WEB_VENDOR): package.json package-lock.json $(SYSTEM)
+	npm ci --no-audit --no-fund --loglevel=error
+	mkdir -p $(@D)
+	cp node_modules/three/build/three.module.js node_modules/three/build/three.core.js node_modules/three/LICENSE $(@D)/
+	touch $@
+
+$(STAMP): pyproject.toml $(SYSTEM) $(WEB_VENDOR)
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $@
 
 clean:
-	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis node_modules vr_teleop_server/web/vendor

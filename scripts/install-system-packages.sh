@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Installs the Debian packages the project needs, only those missing. Runs as root (or via sudo where present).
 set -euo pipefail
-needed=(espeak-ng libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 chromium openssl)
+needed=(espeak-ng libegl1 libegl-mesa0 libgl1-mesa-dri libgles2 chromium openssl nodejs)
 missing=()
 for p in "${needed[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+command -v npm >/dev/null || missing+=(npm)  # Debian's npm; NodeSource's nodejs brings its own
 [ ${#missing[@]} -eq 0 ] && exit 0
 sudo=""; [ "$(id -u)" -ne 0 ] && sudo="sudo"
 export DEBIAN_FRONTEND=noninteractive

@@ -104,6 +104,7 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
+        # WebGL (the operator page) by SwiftShader on the CPU: Chromium asks for the flag before it falls back to it
+        b = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--enable-unsafe-swiftshader"])
         yield b
         b.close()

@@ -18,6 +18,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "vr_teleop_server.cli.questionnaires",
     "vr_teleop_server.cli.metrics",
     "vr_teleop_server.cli.study",
+    "vr_teleop_server.cli.cert",
 )
 
 

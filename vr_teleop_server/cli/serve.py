@@ -152,9 +152,12 @@ async def _serve(settings: ServerSettings) -> int:
     web = server.url.replace("ws", "http", 1) + "/"
     if server.access.open:
         print(f"vr-teleop: open access (no tokens), loopback only; dashboard at {web}", flush=True)
+        print(f"vr-teleop: operator page (headset) at {web}operator", flush=True)
     else:
         for token, role in server.access.tokens.items():
             print(f"vr-teleop: {role} token {token}  (dashboard: {web}#token={token})", flush=True)
+            if role == "operator":
+                print(f"vr-teleop: operator page (headset): {web}operator#token={token}", flush=True)
     await stop.wait()
     await server.stop()
     print("vr-teleop: stopped", flush=True)

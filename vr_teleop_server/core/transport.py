@@ -25,6 +25,7 @@ from .settings import CoreSettings
 
 log = logging.getLogger(__name__)
 WEB_ROOT = Path(__file__).parent.parent / "web"
+PAGES = {"": "index.html", "/operator": "operator.html"}  # the dashboard, and the headset's page
 
 
 class WebSocketTransport:
@@ -57,7 +58,7 @@ class WebSocketTransport:
         if "websocket" in request.headers.get("Upgrade", "").lower():
             return None
         path = request.path.split("?", 1)[0].split("#", 1)[0]
-        relative = "index.html" if path in ("", "/") else path.lstrip("/")
+        relative = PAGES.get(path.rstrip("/"), path.lstrip("/"))
         target = (WEB_ROOT / relative).resolve()
         if WEB_ROOT.resolve() not in target.parents or not target.is_file():
             return _response(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain")

@@ -154,6 +154,8 @@ class LuxaiApi:
     async def _pump_camera(self) -> None:
         async with contextlib.aclosing(self.robot.live_frames()) as frames:
             async for frame in frames:
+                if self._camera_task is not asyncio.current_task():
+                    break  # cancelled: Python 3.11's wait_for can swallow a cancel that meets a frame's arrival
                 secs = int(frame.stamp_wall)
                 self.bus.publish(names.CAMERA_TOPIC, {
                     "header": {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,

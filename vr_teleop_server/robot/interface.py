@@ -150,9 +150,12 @@ class FrameMailbox:
         with self._lock:
             if self._newest is not None and self._newest.seq > after_seq:
                 return self._newest
-            if self.closed:
-                return None
-            self._waiters.append(entry)
+            closed = self.closed
+            if not closed:
+                self._waiters.append(entry)
+        if closed:  # no frame will come: wait as a waiter would, so that a caller polling in a loop cannot spin
+            await asyncio.sleep(timeout or 0)  # the event loop (it used to starve it, hanging the server's stop)
+            return None
         try:
             return await asyncio.wait_for(fut, timeout)
         except asyncio.TimeoutError:

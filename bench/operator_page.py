@@ -1,0 +1,223 @@
+"""The operator page (/operator) in Chromium with an emulated headset (IWER), against `vr-teleop serve` (the MuJoCo
+stand-in, camera at 30 fps) in its own process.
+
+Figures, each against the baseline it should meet:
+- head poses per second arriving at the server (a plain rosbridge subscriber counts them) at 72 and 90 Hz
+  emulated display rates: ratio to the display rate (1.00 = one pose per frame);
+- the page's frame interval p50/p99 (ratio to the display period) and its work per frame (the animation-loop
+  callback: poses, Joy, panels, rendering) p50/p99, while the camera streams at 30 fps;
+- camera frame age at display (header stamp to the texture upload, server and page on one clock) p50/p99, with
+  the age on arrival at a plain Python subscriber in the same run as the baseline.
+
+The emulated display clock is an init script (like IWER, test-side only) that paces requestAnimationFrame at the
+chosen rate; IWER runs its XR frames off it. Rendering is SwiftShader (CPU), so on a small machine the page may
+not keep up at 90 Hz: the frame interval figures say so. `--quick` runs 4 s per rate instead of 10.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import os
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from websockets.sync.client import connect
+
+ROOT = Path(__file__).resolve().parent.parent
+IWER = ROOT / "node_modules" / "iwer" / "build" / "iwer.min.js"
+PACED_FRAMES = """(() => {
+  const period = 1000 / %(rate)s;
+  const queue = new Map();
+  let ids = 0, next = performance.now() + period, timer = null;
+  function tick() {
+    timer = null;
+    const now = performance.now();
+    next = Math.max(next + period, now + 1);  // a late frame is not made up for with a burst
+    const callbacks = [...queue.values()];
+    queue.clear();
+    for (const cb of callbacks) { try { cb(now); } catch (e) { console.error(e); } }
+    if (queue.size) schedule();
+  }
+  function schedule() { if (timer === null) timer = setTimeout(tick, Math.max(0, next - performance.now())); }
+  window.requestAnimationFrame = (cb) => { queue.set(++ids, cb); schedule(); return ids; };
+  window.cancelAnimationFrame = (id) => { queue.delete(id); };
+})();"""
+INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
+                   "window.xrDevice.installRuntime({forceInstall: true});")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def percentile(values: list[float], p: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(p / 100 * (len(ordered) - 1))))]
+
+
+class Server:
+    def __init__(self) -> None:
+        self.port = free_port()
+        env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        self.proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(self.port),
+                                      "--log-level", "warning"], stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                                     env=env)
+        for line in self.proc.stdout:
+            if "listening on" in line:
+                break
+        else:
+            raise RuntimeError("vr-teleop serve did not start")
+        threading.Thread(target=lambda: [None for _ in self.proc.stdout], daemon=True).start()
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+class Counter:
+    """A rosbridge subscriber on the server: head poses received, and camera frames' age on arrival."""
+
+    def __init__(self, port: int) -> None:
+        self.port = port
+        self.poses = 0
+        self.arrival_ages: list[float] = []
+        self.counting = False
+        self.done = threading.Event()
+        self.ready = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+        self.ready.wait(10)
+
+    def run(self) -> None:
+        with connect(f"ws://127.0.0.1:{self.port}/", max_size=None) as ws:
+            ws.send(json.dumps({"op": "subscribe", "topic": "/vr/head/pose"}))
+            ws.send(json.dumps({"op": "subscribe", "topic": "/camera/color/image_raw/compressed",
+                                "queue_length": 1}))
+            self.ready.set()
+            while not self.done.is_set():
+                try:
+                    frame = json.loads(ws.recv(timeout=0.5))
+                except TimeoutError:
+                    continue
+                if frame.get("topic") == "/vr/head/pose":
+                    if self.counting:
+                        self.poses += 1
+                elif frame.get("topic", "").startswith("/camera") and self.counting:
+                    stamp = frame["msg"]["header"]["stamp"]
+                    secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
+                    self.arrival_ages.append(time.time() - secs)
+
+    def close(self) -> None:
+        self.done.set()
+        self.thread.join(2)
+
+
+def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict) -> dict:
+    context = browser.new_context(viewport=viewport)
+    page = context.new_page()
+    page.add_init_script(script=PACED_FRAMES % {"rate": rate})
+    page.add_init_script(path=str(IWER))
+    page.add_init_script(script=INSTALL_HEADSET)
+    page.goto(f"http://127.0.0.1:{port}/operator")
+    page.wait_for_function("window.operator && window.operator.ros.connected", timeout=60_000)
+    page.get_by_role("button", name="Enter VR").click()
+    page.wait_for_function("window.operator.state.xr !== null && window.operator.camera.uploaded > 5",
+                           timeout=60_000)
+    time.sleep(1.0)  # settle
+    counter = Counter(port)
+    time.sleep(0.5)
+    page.evaluate("() => { const s = window.operator.state; s.frameTimes.length = 0; s.workTimes.length = 0;"
+                  " window.operator.camera.ages.length = 0; window.__count0 = s.frameCount; }")
+    counter.counting = True
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    counter.counting = False
+    wall = time.monotonic() - t0
+    result = page.evaluate("() => ({frames: window.operator.state.frameCount - window.__count0,"
+                           " frameTimes: window.operator.state.frameTimes, workTimes: window.operator.state.workTimes,"
+                           " ages: window.operator.camera.ages, stats: window.operator.camera.stats()})")
+    counter.close()
+    context.close()
+    return {"rate": rate, "wall": wall, "poses": counter.poses, "frames": result["frames"],
+            "frame_ms": result["frameTimes"], "work_ms": result["workTimes"], "ages": result["ages"],
+            "arrival_ages": counter.arrival_ages, "camera": result["stats"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="4 s per rate instead of 10")
+    parser.add_argument("--seconds", type=float, default=None)
+    parser.add_argument("--rates", default="72,90")
+    parser.add_argument("--viewport", default="960x600", help="the emulated headset's canvas, WxH (SwiftShader "
+                        "shades every pixel on the CPU)")
+    args = parser.parse_args(argv)
+    seconds = args.seconds or (4.0 if args.quick else 10.0)
+    if not IWER.is_file():
+        print(f"{IWER} is missing: run `npm ci` (make does)", file=sys.stderr)
+        return 2
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    from playwright.sync_api import sync_playwright
+
+    server = Server()
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=chromium,
+                                        args=["--no-sandbox", "--enable-unsafe-swiftshader"])
+            width, height = (int(v) for v in args.viewport.split("x"))
+            results = [run_rate(browser, server.port, int(r), seconds, {"width": width, "height": height})
+                       for r in args.rates.split(",")]
+            browser.close()
+    finally:
+        server.stop()
+
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    print(f"operator page, {seconds:g} s per rate, canvas {args.viewport}, camera 640x480 at 30 fps, SwiftShader, "
+          f"{os.cpu_count()} cores, "
+          f"load average {load}")
+    print(f"{'figure':58s} {'value':>10s} {'baseline':>10s} {'ratio':>7s}")
+
+    def row(name: str, value: float, baseline: float, unit: str = "") -> None:
+        ratio = value / baseline if baseline else float("nan")
+        print(f"{name:58s} {value:>9.1f}{unit:1s} {baseline:>9.1f}{unit:1s} {ratio:>7.2f}")
+
+    for r in results:
+        rate = r["rate"]
+        row(f"{rate} Hz: head poses/s arriving at the server", r["poses"] / r["wall"], rate)
+        row(f"{rate} Hz: page XR frames/s", r["frames"] / r["wall"], rate)
+        row(f"{rate} Hz: head poses per XR frame", r["poses"] / max(1, r["frames"]), 1.0)
+        period = 1000 / rate
+        row(f"{rate} Hz: frame interval p50 (ms)", percentile(r["frame_ms"], 50), period)
+        row(f"{rate} Hz: frame interval p99 (ms)", percentile(r["frame_ms"], 99), period)
+        row(f"{rate} Hz: work per frame p50 (ms)", percentile(r["work_ms"], 50), period)
+        row(f"{rate} Hz: work per frame p99 (ms)", percentile(r["work_ms"], 99), period)
+        arrival50 = 1000 * percentile(r["arrival_ages"], 50)
+        arrival99 = 1000 * percentile(r["arrival_ages"], 99)
+        row(f"{rate} Hz: camera age at display p50 (ms) vs at arrival", 1000 * percentile(r["ages"], 50), arrival50)
+        row(f"{rate} Hz: camera age at display p99 (ms) vs at arrival", 1000 * percentile(r["ages"], 99), arrival99)
+        shown = len(r["ages"]) / r["wall"]
+        row(f"{rate} Hz: camera frames shown/s (vs arriving at Python)", shown,
+            len(r["arrival_ages"]) / r["wall"])
+        cam = r["camera"]
+        print(f"{'':4s}camera frames received {cam['received']}, replaced while decoding {cam['replaced']}, "
+              f"uploaded {cam['uploaded']} (whole run)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,50 @@
+"""`vr-teleop cert`: a self-signed certificate that names the machine, with which `serve` speaks https:// and wss://
+on one port (what a headset on the LAN needs for WebXR and the microphone)."""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import socket
+import ssl
+import urllib.request
+
+from cryptography import x509
+from websockets.sync.client import connect
+
+from support import RunningServer
+from vr_teleop_server.cli import main
+from vr_teleop_server.settings import ServerSettings
+
+
+def test_cert_names_the_machine_and_serve_speaks_https_and_wss(tmp_path, capsys):
+    assert main(["cert", "--out", str(tmp_path), "--name", "qt-classroom.example", "--ip", "10.1.2.3"]) == 0
+    printed = capsys.readouterr().out
+    certfile, keyfile = tmp_path / "vr-teleop.crt", tmp_path / "vr-teleop.key"
+    assert f"--certfile {certfile} --keyfile {keyfile}" in printed and "/operator" in printed
+    assert keyfile.stat().st_mode & 0o077 == 0  # the key is its owner's alone
+    cert = x509.load_pem_x509_certificate(certfile.read_bytes())
+    san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    names = san.get_values_for_type(x509.DNSName)
+    addresses = san.get_values_for_type(x509.IPAddress)
+    assert socket.gethostname() in names and "localhost" in names and "qt-classroom.example" in names
+    assert ipaddress.ip_address("127.0.0.1") in addresses and ipaddress.ip_address("10.1.2.3") in addresses
+
+    # Written again only when asked.
+    assert main(["cert", "--out", str(tmp_path)]) == 1
+    assert "--force" in capsys.readouterr().err
+
+    server = RunningServer(ServerSettings(port=0, backend="none", certfile=certfile, keyfile=keyfile))
+    try:
+        trust = ssl.create_default_context(cafile=str(certfile))  # the headset's "accept this certificate"
+        with urllib.request.urlopen(f"https://127.0.0.1:{server.port}/operator", context=trust) as r:
+            assert r.status == 200 and b"Enter VR" in r.read()
+        with urllib.request.urlopen(f"https://localhost:{server.port}/vendor/three/three.module.js",
+                                    context=trust) as r:
+            assert "javascript" in r.headers["Content-Type"]
+        with connect(f"wss://127.0.0.1:{server.port}/", ssl=trust) as ws:
+            ws.send(json.dumps({"op": "call_service", "id": "t", "service": "/rosapi/get_time", "args": {}}))
+            reply = json.loads(ws.recv(timeout=10))
+            assert reply["op"] == "service_response" and reply["result"] is True
+    finally:
+        server.stop()

@@ -1,0 +1,132 @@
+// Sound both ways. The robot's speech (/vr_teleop/audio/robot, PCM chunks in the format of the latched /info
+// topic) is played with WebAudio, each chunk scheduled right after the previous one; the operator's microphone
+// (getUserMedia, an AudioWorklet cutting PCM S16LE chunks) goes to /vr_teleop/audio/operator while push-to-talk is
+// held.
+
+const ROBOT_TOPIC = "/vr_teleop/audio/robot";
+const OPERATOR_TOPIC = "/vr_teleop/audio/operator";
+const CHUNK_S = 0.1;
+const START_LEAD_S = 0.08;  // a first chunk starts this far ahead, so the next one is there in time
+
+export function base64ToBytes(text) {
+  if (typeof Uint8Array.fromBase64 === "function") return Uint8Array.fromBase64(text);
+  const raw = atob(text);
+  const bytes = new Uint8Array(raw.length);
+  for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
+  return bytes;
+}
+
+export function bytesToBase64(bytes) {
+  if (typeof bytes.toBase64 === "function") return bytes.toBase64();
+  let text = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(text);
+}
+
+export class Audio {
+  constructor(ros, {onError = () => {}} = {}) {
+    this.ros = ros;
+    this.onError = onError;
+    this.context = null;
+    this.format = {sampleRate: 22050, channels: 1, bytes: 2};
+    this.nextTime = 0;
+    this.played = 0;
+    this.talking = false;
+    this.mic = null;        // {stream, node} once granted
+    this.micState = "off";  // off, asking, ready, denied
+    this.sentChunks = 0;
+    ros.subscribe(`${ROBOT_TOPIC}/info`, "audio_common_msgs/AudioInfo", (info) => this.setFormat(info));
+    ros.subscribe(ROBOT_TOPIC, "audio_common_msgs/AudioData", (msg) => this.play(msg));
+    ros.advertise(OPERATOR_TOPIC, "audio_common_msgs/AudioData");
+    ros.advertise(`${OPERATOR_TOPIC}/info`, "audio_common_msgs/AudioInfo");
+  }
+
+  /** WebAudio starts only after a user gesture: call from a click or key handler. */
+  unlock() {
+    if (!this.context) {
+      try {
+        this.context = new AudioContext();
+      } catch (err) {
+        this.onError(`sound cannot play: ${err.message}`);
+        return;
+      }
+    }
+    if (this.context.state === "suspended") this.context.resume().catch(() => {});
+  }
+
+  setFormat(info) {
+    const format = String(info.sample_format || "S16LE").toUpperCase();
+    if (format !== "S16LE" || !(info.channels >= 1) || !(info.sample_rate > 0)) {
+      this.onError(`the robot's audio is ${format}, ${info.channels} channel(s), ${info.sample_rate} Hz: ` +
+                   "only PCM S16LE can be played");
+      this.format = null;
+      return;
+    }
+    this.format = {sampleRate: info.sample_rate, channels: info.channels, bytes: 2};
+  }
+
+  play(msg) {
+    if (!this.format || !this.context || this.context.state !== "running") return;  // nobody to hear it yet
+    const bytes = base64ToBytes(msg.data);
+    const {channels, sampleRate} = this.format;
+    const frames = Math.floor(bytes.byteLength / (2 * channels));
+    if (frames === 0) return;
+    const samples = new Int16Array(bytes.buffer, bytes.byteOffset, frames * channels);
+    const buffer = this.context.createBuffer(channels, frames, sampleRate);
+    for (let c = 0; c < channels; c++) {
+      const out = buffer.getChannelData(c);
+      for (let i = 0; i < frames; i++) out[i] = samples[i * channels + c] / 32768;
+    }
+    const source = this.context.createBufferSource();
+    source.buffer = buffer;
+    source.connect(this.context.destination);
+    const now = this.context.currentTime;
+    if (this.nextTime < now) this.nextTime = now + START_LEAD_S;  // a new utterance, or we fell behind
+    source.start(this.nextTime);
+    this.nextTime += buffer.duration;
+    this.played += 1;
+  }
+
+  /** Push-to-talk pressed (true) or released (false). The first press asks for the microphone. */
+  async talk(on) {
+    this.talking = on;
+    if (!on || this.mic || this.micState === "asking") return;
+    if (this.micState === "denied") {
+      this.onError("the microphone was denied: allow it in the browser's site settings, then reload");
+      return;
+    }
+    this.unlock();
+    this.micState = "asking";
+    try {
+      if (!navigator.mediaDevices?.getUserMedia) throw new Error("this page is not a secure context (use https)");
+      const stream = await navigator.mediaDevices.getUserMedia(
+        {audio: {channelCount: 1, echoCancellation: true, noiseSuppression: true}});
+      await this.context.audioWorklet.addModule(new URL("./mic_worklet.js", import.meta.url));
+      const source = this.context.createMediaStreamSource(stream);
+      const node = new AudioWorkletNode(this.context, "mic-chunker",
+        {processorOptions: {chunkSamples: Math.round(this.context.sampleRate * CHUNK_S)}});
+      node.port.onmessage = (event) => this.chunk(event.data);
+      source.connect(node);
+      this.mic = {stream, node};
+      this.micState = "ready";
+      this.sendInfo();
+    } catch (err) {
+      this.micState = "denied";
+      this.talking = false;
+      this.onError(`microphone: ${err.name === "NotAllowedError" ? "denied" : err.message}; push-to-talk is off`);
+    }
+  }
+
+  /** The format of our chunks: sent again on every connection, before the first chunk. */
+  sendInfo() {
+    if (!this.mic) return;
+    const rate = Math.round(this.context.sampleRate);
+    this.ros.publish(`${OPERATOR_TOPIC}/info`, {channels: 1, sample_rate: rate, sample_format: "S16LE",
+                                                bitrate: rate * 16, coding_format: "pcm"});
+  }
+
+  chunk(buffer) {
+    if (!this.talking) return;
+    if (this.ros.publish(OPERATOR_TOPIC, {data: bytesToBase64(new Uint8Array(buffer))})) this.sentChunks += 1;
+  }
+}

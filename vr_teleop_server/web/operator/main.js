@@ -1,0 +1,670 @@
+// The operator's seat in a headset's browser (issue 19). It speaks rosbridge to the server that serves it, like
+// the Unity client: head and controller poses and Joy once per XR frame, the engage/calibrate/e-stop services,
+// the menus from /vr_teleop/menus, the robot's camera on a panel, sound both ways and a heads-up display.
+// Without a headset the same page is a flat view: mouse-look drives the head, the keyboard the menus.
+
+import * as THREE from "three";
+import {Rosbridge, stampSeconds} from "./rosbridge.js";
+import {poseStamped, joyFromGamepad, joyMessage, sameJoy} from "./ros_axes.js";
+import {JpegCameraSource} from "./camera.js";
+import {MenuError, MenuNavigator, TOGGLE_COMMANDS, parseMenus} from "./menus.js";
+import {drawHud, drawMenu} from "./panels.js";
+import {Audio} from "./audio.js";
+import {ControllerActions} from "./controls.js";
+
+const TOPICS = {
+  head: "/vr/head/pose", left: "/vr/left_controller/pose", right: "/vr/right_controller/pose",
+  leftJoy: "/vr/left_controller/joy", rightJoy: "/vr/right_controller/joy",
+};
+const SERVICES = {
+  engage: "/vr_teleop/control/engage", calibrate: "/vr_teleop/control/calibrate",
+  estop: "/vr_teleop/control/estop", select: "/vr_teleop/menu/select", time: "/rosapi/get_time",
+};
+const JOY_KEEPALIVE_MS = 33;   // Joy goes out on every change, and at least at 30 Hz
+const HUD_PERIOD_MS = 200;     // the heads-up display is redrawn five times a second
+const RTT_PERIOD_MS = 1000;
+const MESSAGE_KEEP_MS = 8000;
+const PANEL_DISTANCE = 2.0;    // metres from the eyes to the camera panel
+const CAMERA_HFOV_DEG = 80;    // the head camera's horizontal field of view (D435 colour, fx 376 at 640 px):
+                               // the panel spans the same angle, so the view is the robot's, degree for degree
+const FLAT_LOOK_DEG_PER_PX = 0.25;
+const EYE_HEIGHT = 1.6;
+
+const $ = (id) => document.getElementById(id);
+const token = new URLSearchParams(location.hash.slice(1)).get("token");
+const scheme = location.protocol === "https:" ? "wss" : "ws";
+const ros = new Rosbridge(`${scheme}://${location.host}/`, {token, idPrefix: "operator"});
+
+const state = {
+  teleop: null,                        // the newest /vr_teleop/teleop_state
+  me: null,                            // our session's name once we hold control (the holder field says it)
+  claimHolder: false, engaging: false, pulses: 0, disconnectReason: "",
+  rtt: null, message: null, menusProblem: null, footer: null,
+  headOn: true, armsOn: true, recording: false,  // the menu switches' states, from the events
+  zero: {yaw: 0, pitch: 0},            // the operator's head (XR yaw, pitch) when control was taken
+  robotHead: {yaw: 0, pitch: 0},       // degrees, from the joint states
+  head: {position: new THREE.Vector3(0, EYE_HEIGHT, 0), quaternion: new THREE.Quaternion()},
+  flat: {yaw: 0, pitch: 0, dragging: false},
+  xr: null, joy: {left: null, right: null}, joySent: {left: 0, right: 0},
+  posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], workTimes: [], lastFrameAt: null,
+  lastClamped: new Set(),
+};
+
+// ---- the scene ----------------------------------------------------------------------------------------------------
+// No multisampling: the scene is flat panels facing the eyes, whose text is sharp from texture filtering; MSAA would
+// cost every frame (and a software renderer dearly).
+const renderer = new THREE.WebGLRenderer({antialias: false});
+renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+renderer.setSize(window.innerWidth, window.innerHeight);
+renderer.xr.enabled = true;
+renderer.xr.setReferenceSpaceType("local-floor");
+$("view").append(renderer.domElement);
+
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x0d141c);
+scene.add(new THREE.GridHelper(12, 24, 0x3a4a5c, 0x1f2b38));
+const camera = new THREE.PerspectiveCamera(70, window.innerWidth / window.innerHeight, 0.05, 50);
+camera.position.set(0, EYE_HEIGHT, 0);
+scene.add(camera);
+
+function canvas(width, height) {
+  const c = document.createElement("canvas");
+  c.width = width;
+  c.height = height;
+  return c;
+}
+
+function textTexture(c) {
+  const t = new THREE.CanvasTexture(c);
+  t.colorSpace = THREE.SRGBColorSpace;
+  t.minFilter = THREE.LinearFilter;
+  t.generateMipmaps = false;
+  return t;
+}
+
+// The camera panel hangs in the direction the robot looks: when the robot's head lags the operator's, the panel
+// lags, instead of the whole world swimming. Its anchor sits at the operator's eyes.
+const placeholder = canvas(640, 480);
+{
+  const ctx = placeholder.getContext("2d");
+  ctx.fillStyle = "#1b2633";
+  ctx.fillRect(0, 0, 640, 480);
+  ctx.fillStyle = "#c9d6e3";
+  ctx.font = "600 34px system-ui, sans-serif";
+  ctx.textAlign = "center";
+  ctx.fillText("waiting for the robot's camera…", 320, 240);
+}
+const cameraSource = new JpegCameraSource(ros, {onError: (text) => say(text, "error"), placeholder});
+const panelAnchor = new THREE.Group();
+const panelWidth = 2 * PANEL_DISTANCE * Math.tan(THREE.MathUtils.degToRad(CAMERA_HFOV_DEG / 2));
+const panel = new THREE.Mesh(new THREE.PlaneGeometry(panelWidth, panelWidth),
+                             new THREE.MeshBasicMaterial({map: cameraSource.texture, toneMapped: false}));
+panel.position.set(0, 0, -PANEL_DISTANCE);
+panelAnchor.add(panel);
+scene.add(panelAnchor);
+
+// Head-locked: the heads-up display low in the view, the menu in front when open. Placed from the head pose of
+// the same frame (children of the camera would trail by a frame in XR).
+const headLocked = new THREE.Group();
+scene.add(headLocked);
+const hudCanvas = canvas(1400, 340);
+const hudTexture = textTexture(hudCanvas);
+const hud = new THREE.Mesh(new THREE.PlaneGeometry(0.95, 0.95 * 340 / 1400),
+                           new THREE.MeshBasicMaterial({map: hudTexture, transparent: true, toneMapped: false,
+                                                        depthTest: false}));
+hud.position.set(0, -0.48, -1.0);
+hud.renderOrder = 10;
+headLocked.add(hud);
+const menuCanvas = canvas(1400, 1000);
+const menuTexture = textTexture(menuCanvas);
+const menuMesh = new THREE.Mesh(new THREE.PlaneGeometry(0.84, 0.6),
+                                new THREE.MeshBasicMaterial({map: menuTexture, transparent: true, toneMapped: false,
+                                                             depthTest: false}));
+menuMesh.position.set(0, 0.04, -0.85);
+menuMesh.renderOrder = 11;
+menuMesh.visible = false;
+headLocked.add(menuMesh);
+
+// The controllers, as small blocks where the hands are.
+const hands = [0, 1].map((i) => {
+  const grip = renderer.xr.getControllerGrip(i);
+  grip.add(new THREE.Mesh(new THREE.BoxGeometry(0.03, 0.025, 0.09), new THREE.MeshBasicMaterial({color: 0x9fb0c3})));
+  scene.add(grip);
+  return grip;
+});
+
+function resize() {
+  if (renderer.xr.isPresenting) return;
+  camera.aspect = window.innerWidth / window.innerHeight;
+  camera.updateProjectionMatrix();
+  renderer.setSize(window.innerWidth, window.innerHeight);
+}
+window.addEventListener("resize", resize);
+
+// ---- messages on the HUD ------------------------------------------------------------------------------------------
+function say(text, level = "info") {
+  state.message = {text, level, at: performance.now()};
+  if (level === "error") pulse();
+  updateHud(true);
+}
+
+let pulsedAt = -1e9;
+function pulse(intensity = 0.7, ms = 80) {
+  const session = renderer.xr.getSession();
+  if (!session || performance.now() - pulsedAt < 500) return;  // a short pulse, not a buzz
+  pulsedAt = performance.now();
+  state.pulses += 1;
+  for (const source of session.inputSources) {
+    const actuator = source.gamepad?.hapticActuators?.[0];
+    try {
+      const done = actuator?.pulse ? actuator.pulse(intensity, ms)
+        : source.gamepad?.vibrationActuator?.playEffect?.("dual-rumble", {duration: ms, strongMagnitude: intensity});
+      done?.catch?.(() => {});
+    } catch { /* haptics are a courtesy */ }
+  }
+}
+
+ros.onopen = () => {
+  audio.sendInfo();
+  say("connected to the server", "ok");
+};
+ros.onclose = (reason) => {
+  state.me = null;
+  state.disconnectReason = reason;
+  updateHud(true);
+};
+ros.onstatus = (msg) => {
+  if (msg.level !== "error" && msg.level !== "warning") return;
+  const m = state.message;  // the page's own word on a refusal (just said) is clearer than the stream's echo
+  if (m && m.level === "error" && performance.now() - m.at < 1500 && !m.text.startsWith("server:")) return;
+  say(`server: ${msg.msg}`, msg.level);
+};
+
+// ---- the robot's state ----------------------------------------------------------------------------------------------
+ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
+  if (state.claimHolder && s.engaged && s.holder) {
+    state.me = s.holder;
+    state.claimHolder = false;
+  }
+  if (state.me && s.holder !== state.me) state.me = null;
+  const clamped = new Set(s.clamped || []);
+  if (state.me && [...clamped].some((j) => !state.lastClamped.has(j))) pulse(0.5, 50);
+  state.lastClamped = clamped;
+  state.teleop = s;
+}, {throttle_rate: 100, queue_length: 1});
+ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (js) => {
+  js.name.forEach((name, i) => {
+    if (name === "HeadYaw") state.robotHead.yaw = js.position[i];
+    if (name === "HeadPitch") state.robotHead.pitch = js.position[i];
+  });
+}, {throttle_rate: 30, queue_length: 1});
+ros.subscribe("/vr_teleop/events", "vr_teleop_msgs/Event", (e) => {
+  let detail = {};
+  try { detail = e.detail ? JSON.parse(e.detail) : {}; } catch { /* free text */ }
+  if (e.source === "teleop" && /^(head|arms)_(on|off)$/.test(e.kind)) {
+    state[e.kind.startsWith("head") ? "headOn" : "armsOn"] = e.kind.endsWith("_on");
+  } else if (e.source === "menu" && e.kind === "select") {
+    if (detail.command === "record_toggle") state.recording = String(detail.result).startsWith("recording");
+    if (detail.command === "save_recording") state.recording = false;
+  } else return;
+  menuDirty = true;
+});
+
+// ---- menus ----------------------------------------------------------------------------------------------------------
+const nav = new MenuNavigator();
+let menuDirty = true;
+ros.subscribe("/vr_teleop/menus", "vr_teleop_msgs/Menus", (msg) => {
+  try {
+    nav.setTree(parseMenus(msg));
+    state.menusProblem = null;
+  } catch (err) {
+    if (!(err instanceof MenuError)) console.error(err);
+    state.menusProblem = `menus cannot be drawn (${err.message}); the last good menus stay`;
+    say(state.menusProblem, "error");
+  }
+  menuDirty = true;
+});
+
+const toggles = {
+  get(id) {
+    const item = nav.tree?.byId.get(id);
+    if (!item || !TOGGLE_COMMANDS.has(item.command)) return undefined;
+    const states = {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording};
+    return states[item.command];
+  },
+};
+
+function pressMenuButton(hand, letter) {
+  const menu = nav.menuFor(hand, letter);
+  if (!menu) {
+    if (!nav.tree) say("the menus have not arrived from the server yet", "warning");
+    return;
+  }
+  nav.press(menu.id);
+  state.footer = null;
+  menuDirty = true;
+}
+
+async function runItem(item) {
+  state.footer = {text: `${item.label}…`, level: "ok"};
+  menuDirty = true;
+  try {
+    const reply = await ros.call(SERVICES.select, {id: item.id, args: ""});
+    let text = reply.message || "done";
+    if (item.command === "show_status") text = summariseStatus(text);
+    state.footer = {text: `${item.label}: ${text}`, level: "ok"};
+  } catch (err) {
+    state.footer = {text: `${item.label}: ${err.message}`, level: "error"};
+    say(`${item.label} refused: ${err.message}`, "error");
+  }
+  menuDirty = true;
+}
+
+function summariseStatus(text) {
+  try {
+    const data = JSON.parse(text);
+    return Object.entries(data).filter(([k, v]) => typeof v !== "object" && k !== "header")
+      .slice(0, 4).map(([k, v]) => `${k} ${typeof v === "number" ? +v.toFixed(1) : v}`).join(", ") || text;
+  } catch {
+    return text;
+  }
+}
+
+function selectInMenu() {
+  const item = nav.select();
+  menuDirty = true;
+  if (item) runItem(item);
+}
+
+// ---- control: engage, release, calibrate, e-stop ---------------------------------------------------------------
+function holding() {
+  return !!(state.me && state.teleop?.engaged && state.teleop.holder === state.me);
+}
+
+function othersHoldBefore() {
+  const s = state.teleop;
+  return !!(s && s.engaged && s.holder && s.holder !== state.me);
+}
+
+async function toggleControl() {
+  if (holding()) {
+    try {
+      const r = await ros.call(SERVICES.engage, {data: false});
+      state.me = null;
+      say(r.message || "released", "ok");
+    } catch (err) {
+      say(`release refused: ${err.message}`, "error");
+    }
+    return;
+  }
+  const zero = headAngles(state.head.quaternion);
+  state.engaging = true;  // our poses flow meanwhile: the server needs a fresh one
+  try {
+    if (othersHoldBefore()) await new Promise((resolve) => setTimeout(resolve, 100));  // a pose first
+    const r = await ros.call(SERVICES.engage, {data: true});
+    if (r.success === false) throw new Error(r.message);
+    state.zero = zero;
+    state.claimHolder = true;
+    say(r.message || "you have control", "ok");
+  } catch (err) {
+    say(`taking control refused: ${err.message}`, "error");
+  } finally {
+    state.engaging = false;
+  }
+}
+
+async function calibrate() {
+  say("calibrating: hold a T-pose…");
+  try {
+    const r = await ros.call(SERVICES.calibrate, {});
+    say(`calibrated: ${r.message}`, "ok");
+  } catch (err) {
+    say(`calibration refused: ${err.message}`, "error");
+  }
+}
+
+async function estop() {
+  try {
+    const r = await ros.call(SERVICES.estop, {});
+    state.me = null;
+    say(`EMERGENCY STOP: ${r.message}`, "error");
+  } catch (err) {
+    say(`emergency stop failed: ${err.message}`, "error");
+  }
+}
+
+const audio = new Audio(ros, {onError: (text) => say(text, "error")});
+function talk(on) {
+  audio.talk(on);
+  $("talk").classList.toggle("on", on);
+  updateHud(true);
+}
+
+const controllers = new ControllerActions({
+  menuButton: pressMenuButton, menuOpen: () => nav.open, select: selectInMenu, toggleControl, calibrate, estop,
+  talk,
+  stick: (hand, x, y, now) => {
+    const menu = nav.menu;
+    if (!menu || (menu.controller !== hand && menu.controller !== "any")) return;
+    const before = nav.highlight;
+    nav.stick(x, y, now);
+    if (nav.highlight !== before) menuDirty = true;
+  },
+});
+
+// ---- poses, once per frame ------------------------------------------------------------------------------------
+function headAngles(q) {
+  const e = new THREE.Euler().setFromQuaternion(q, "YXZ");
+  return {yaw: e.y, pitch: e.x};
+}
+
+// While another client holds control the server refuses our streams (with an error a second): wait instead.
+function othersHold() {
+  const s = state.teleop;
+  return !!(s && s.engaged && s.holder && s.holder !== state.me && !state.engaging);
+}
+
+function publishPose(topic, position, orientation) {
+  if (othersHold()) return;
+  if (ros.publish(topic, poseStamped(position, orientation))) state.posesSent += 1;
+}
+
+function publishJoy(hand, gamepad, now) {
+  const joy = joyFromGamepad(gamepad);
+  if (othersHold()) return;
+  if (sameJoy(joy, state.joy[hand]) && now - state.joySent[hand] < JOY_KEEPALIVE_MS) return;
+  if (ros.publish(hand === "left" ? TOPICS.leftJoy : TOPICS.rightJoy, joyMessage(joy))) {
+    state.joy[hand] = joy;
+    state.joySent[hand] = now;
+  }
+}
+
+for (const [key, topic] of Object.entries(TOPICS)) {
+  ros.advertise(topic, key.endsWith("Joy") ? "sensor_msgs/Joy" : "geometry_msgs/PoseStamped");
+}
+
+function xrFrame(frame, now) {
+  const refSpace = renderer.xr.getReferenceSpace();
+  const viewer = frame.getViewerPose(refSpace);
+  if (viewer) {
+    const {position: p, orientation: o} = viewer.transform;
+    state.head.position.set(p.x, p.y, p.z);
+    state.head.quaternion.set(o.x, o.y, o.z, o.w);
+    publishPose(TOPICS.head, p, o);
+  }
+  for (const source of frame.session.inputSources) {
+    const hand = source.handedness;
+    if (hand !== "left" && hand !== "right") continue;
+    if (source.gripSpace) {
+      const pose = frame.getPose(source.gripSpace, refSpace);
+      if (pose) publishPose(TOPICS[hand], pose.transform.position, pose.transform.orientation);
+    }
+    if (source.gamepad) {
+      publishJoy(hand, source.gamepad, now);
+      controllers.update(hand, source.gamepad, now);
+    }
+  }
+}
+
+function flatFrame() {
+  const f = state.flat;
+  camera.quaternion.setFromEuler(new THREE.Euler(f.pitch, f.yaw, 0, "YXZ"));
+  state.head.position.copy(camera.position);
+  state.head.quaternion.copy(camera.quaternion);
+  publishPose(TOPICS.head, camera.position, camera.quaternion);
+}
+
+function placePanels() {
+  const {zero, robotHead, head} = state;
+  panelAnchor.position.copy(head.position);
+  panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(robotHead.pitch),
+                           zero.yaw + THREE.MathUtils.degToRad(robotHead.yaw), 0, "YXZ");
+  panel.scale.y = 1 / cameraSource.aspect;
+  headLocked.position.copy(head.position);
+  headLocked.quaternion.copy(head.quaternion);
+  hud.visible = !!state.xr;  // the flat view has the page's own HUD
+  menuMesh.position.set(0, state.xr ? 0.04 : 0.16, state.xr ? -0.85 : -1.0);  // flat: above the page's HUD
+  if (menuDirty) {
+    drawMenu(menuCanvas, nav, toggles, state.footer, menuHint());
+    menuTexture.needsUpdate = true;
+    menuMesh.visible = nav.open;
+    $("menu-title").textContent = nav.open ? nav.title : "";
+    menuDirty = false;
+  }
+}
+
+function menuHint() {
+  const button = nav.menu?.button || "";
+  return state.xr ? ["stick: point", "trigger: select", `${button}: back`]
+                  : ["arrows: point", "Enter: select", `${button} or Backspace: back`];
+}
+
+// ---- the heads-up display -------------------------------------------------------------------------------------
+let hudText = "";
+let hudAt = 0;
+function hudLines() {
+  const lines = [];
+  const s = state.teleop;
+  if (ros.connected) lines.push({id: "connection", text: `● connected to ${location.host}`, level: "ok"});
+  else {
+    const wait = ros.nextRetryAt ? Math.max(0, (ros.nextRetryAt - performance.now()) / 1000).toFixed(1) : "?";
+    lines.push({id: "connection", text: `○ DISCONNECTED (${state.disconnectReason}): reconnecting in ${wait} s`,
+                level: "error"});
+  }
+  const hint = state.xr ? "right trigger" : "E";
+  if (!s) lines.push({id: "control", text: "control: waiting for the server", level: "muted"});
+  else if (s.state === "estopped") {
+    lines.push({id: "control", text: `E-STOPPED: the robot holds (${hint}: take control again)`, level: "error"});
+  } else if (holding()) {
+    const parts = [s.head_following && "head", s.left_arm_following && "left arm",
+                   s.right_arm_following && "right arm"];
+    const following = parts.filter(Boolean).join(", ") || "nothing";
+    lines.push({id: "control", text: `YOU HAVE CONTROL · ${s.state} · following: ${following}`,
+                level: s.state === "active" ? "ok" : "warning"});
+  } else if (s.holder && s.engaged) {
+    lines.push({id: "control", text: `control held by ${s.holder} · ${s.state} · your poses wait`, level: "warning"});
+  }
+  else lines.push({id: "control", text: `no one in control · ${hint} takes control`, level: "info"});
+  if (s && !s.robot_connected) {
+    lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
+  }
+  const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";
+  lines.push({id: "clamped", text: `clamped joints: ${clamped}`, level: s?.clamped?.length ? "warning" : "muted"});
+  const rtt = state.rtt === null ? "–" : `${state.rtt.toFixed(0)} ms`;
+  const age = cameraSource.frameAge();
+  const ageText = age === null ? "no frames yet" : `${Math.max(0, age * 1000).toFixed(0)} ms old`;
+  const talking = audio.talking ? " · TALKING" : "";
+  lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
+              level: "info"});
+  if (!state.xr) {
+    lines.push({id: "keys", text: "drag: look · E: control · X Y A B: menus · hold T: talk · Esc: STOP",
+                level: "muted"});
+  }
+  const m = state.message;
+  if (state.menusProblem) lines.push({id: "message", text: state.menusProblem, level: "error"});
+  else if (m && performance.now() - m.at < MESSAGE_KEEP_MS) lines.push({id: "message", text: m.text, level: m.level});
+  return lines;
+}
+
+function updateHud(force = false) {
+  const now = performance.now();
+  if (!force && now - hudAt < HUD_PERIOD_MS) return;
+  hudAt = now;
+  const lines = hudLines();
+  const text = JSON.stringify(lines);
+  if (text === hudText) return;
+  hudText = text;
+  drawHud(hudCanvas, lines);
+  hudTexture.needsUpdate = true;
+  $("hud").replaceChildren(...lines.map((l) => {
+    const p = document.createElement("p");
+    p.id = `hud-${l.id}`;
+    p.className = l.level;
+    p.textContent = l.text;
+    return p;
+  }));
+}
+
+async function measureRoundTrip() {
+  if (ros.connected) {
+    const t0 = performance.now();
+    try {
+      await ros.call(SERVICES.time, {}, 5000);
+      state.rtt = performance.now() - t0;
+    } catch {
+      state.rtt = null;
+    }
+  } else state.rtt = null;
+  setTimeout(measureRoundTrip, RTT_PERIOD_MS);
+}
+measureRoundTrip();
+setInterval(() => {
+  state.fps = state.frames;
+  state.frames = 0;
+}, 1000);
+
+// ---- the loop -------------------------------------------------------------------------------------------------
+const pixelRequests = [];
+renderer.setAnimationLoop((time, frame) => {
+  const now = performance.now();
+  if (state.lastFrameAt !== null) {
+    state.frameTimes.push(now - state.lastFrameAt);
+    if (state.frameTimes.length > 5000) state.frameTimes.splice(0, 1000);
+  }
+  state.lastFrameAt = now;
+  state.frames += 1;
+  state.frameCount += 1;
+  if (frame) xrFrame(frame, now);
+  else flatFrame();
+  placePanels();
+  updateHud();
+  renderer.render(scene, camera);
+  if (pixelRequests.length) readPixels(pixelRequests.splice(0));
+  state.workTimes.push(performance.now() - now);
+  if (state.workTimes.length > 5000) state.workTimes.splice(0, 1000);
+});
+
+function readPixels(requests) {
+  const gl = renderer.getContext();
+  const size = 64;
+  const eyes = state.xr ? Math.max(1, renderer.xr.getCamera().cameras.length) : 1;  // the left eye's centre
+  const x = Math.floor(gl.drawingBufferWidth / (2 * eyes) - size / 2);
+  const y = Math.floor(gl.drawingBufferHeight / 2 - size / 2);
+  const data = new Uint8Array(size * size * 4);
+  gl.readPixels(x, y, size, size, gl.RGBA, gl.UNSIGNED_BYTE, data);
+  for (const resolve of requests) resolve(Array.from(data));
+}
+
+// ---- entering VR ----------------------------------------------------------------------------------------------
+async function enterVr() {
+  audio.unlock();
+  try {
+    const session = await navigator.xr.requestSession("immersive-vr", {requiredFeatures: ["local-floor"]});
+    session.addEventListener("end", () => {
+      state.xr = null;
+      $("enter-vr").textContent = "Enter VR";
+      document.body.classList.remove("in-vr");
+      menuDirty = true;
+      resize();
+    });
+    await renderer.xr.setSession(session);
+    state.xr = session;
+    document.body.classList.add("in-vr");
+    $("enter-vr").textContent = "Exit VR";
+    const rates = Array.from(session.supportedFrameRates || []);
+    if (rates.length && session.updateTargetFrameRate) {
+      const best = Math.max(...rates);
+      session.updateTargetFrameRate(best).catch((err) => say(`frame rate ${best} Hz refused: ${err.message}`,
+                                                             "warning"));
+    }
+    menuDirty = true;
+  } catch (err) {
+    say(`VR could not start: ${err.message}`, "error");
+  }
+}
+
+$("enter-vr").addEventListener("click", () => {
+  if (state.xr) state.xr.end();
+  else enterVr();
+});
+
+async function checkVr() {
+  const button = $("enter-vr");
+  let ok = false;
+  try {
+    ok = !!navigator.xr && await navigator.xr.isSessionSupported("immersive-vr");
+  } catch { /* no WebXR */ }
+  button.disabled = !ok;
+  $("vr-note").textContent = ok ? "" : window.isSecureContext
+    ? "no headset: flat view"
+    : "flat view (VR needs https://: see vr-teleop cert)";
+}
+checkVr();
+
+// ---- the flat view: mouse-look and keys -------------------------------------------------------------------------
+const view = renderer.domElement;
+view.addEventListener("pointerdown", (e) => {
+  state.flat.dragging = {x: e.clientX, y: e.clientY};
+  view.setPointerCapture(e.pointerId);
+  audio.unlock();
+});
+view.addEventListener("pointerup", (e) => {
+  state.flat.dragging = false;
+  view.releasePointerCapture(e.pointerId);
+});
+view.addEventListener("pointermove", (e) => {
+  const f = state.flat, from = f.dragging;
+  if (!from || state.xr) return;
+  f.dragging = {x: e.clientX, y: e.clientY};
+  f.yaw -= THREE.MathUtils.degToRad((e.clientX - from.x) * FLAT_LOOK_DEG_PER_PX);
+  f.pitch = THREE.MathUtils.clamp(f.pitch - THREE.MathUtils.degToRad((e.clientY - from.y) * FLAT_LOOK_DEG_PER_PX),
+                                  -Math.PI * 0.45, Math.PI * 0.45);
+});
+
+const ARROWS = {ArrowLeft: "left", ArrowRight: "right", ArrowUp: "top", ArrowDown: "bottom"};
+window.addEventListener("keydown", (e) => {
+  if (e.target instanceof HTMLInputElement || e.metaKey || e.ctrlKey || e.altKey) return;
+  audio.unlock();
+  const key = e.key.length === 1 ? e.key.toUpperCase() : e.key;
+  if (e.key === "Escape") estop();
+  else if (["X", "Y", "A", "B"].includes(key)) pressMenuButton(null, key);
+  else if (ARROWS[e.key] && nav.open) { arrows(e.key, true); menuDirty = true; }
+  else if (e.key === "Tab" && nav.open) { nav.step(e.shiftKey ? -1 : 1); menuDirty = true; }
+  else if (e.key === "Enter" && nav.open) selectInMenu();
+  else if (e.key === "Backspace" && nav.open) { nav.back(); menuDirty = true; }
+  else if (key === "E" && !e.repeat) toggleControl();
+  else if (key === "C" && !e.repeat) calibrate();
+  else if (key === "T" && !e.repeat) talk(true);
+  else return;
+  e.preventDefault();
+});
+window.addEventListener("keyup", (e) => {
+  if (e.key.toUpperCase() === "T") talk(false);
+  if (ARROWS[e.key]) arrows(e.key, false);
+});
+
+// On a ring the arrow keys are a digital thumbstick: two held together point at a diagonal item. In a list,
+// up and down step.
+const heldArrows = new Set();
+function arrows(key, down) {
+  if (!down) { heldArrows.delete(key); return; }
+  heldArrows.add(key);
+  if (nav.level?.kind !== "ring") { nav.direction(ARROWS[key]); return; }
+  let x = 0, y = 0;
+  for (const k of heldArrows) {
+    x += {ArrowLeft: -1, ArrowRight: 1}[k] || 0;
+    y += {ArrowDown: -1, ArrowUp: 1}[k] || 0;
+  }
+  if (x || y) nav.stick(x / Math.hypot(x, y), y / Math.hypot(x, y), performance.now());
+}
+$("talk").addEventListener("pointerdown", () => talk(true));
+for (const type of ["pointerup", "pointerleave", "pointercancel"]) {
+  $("talk").addEventListener(type, () => { if (audio.talking) talk(false); });
+}
+$("estop").addEventListener("click", estop);
+
+// What tests and the bench read (no control goes through here).
+window.operator = {
+  ros, state, nav, camera: cameraSource, audio,
+  readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
+};
