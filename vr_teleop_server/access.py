@@ -22,7 +22,8 @@ ROLES: tuple[Role, ...] = ("operator", "supervisor", "spectator")
 ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
 # What a spectator may call: services that only read.
 READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
-READ_ONLY_SERVICES = {"/qt_robot/gesture/list"}
+# The media offer is a read, as the camera topic is: a spectator's microphone is not played (media/service.py).
+READ_ONLY_SERVICES = {"/qt_robot/gesture/list", "/vr_teleop/media/offer", "/vr_teleop/clock"}
 # What only a supervisor may do on top of an operator.
 SUPERVISOR_ONLY_SERVICES = {"/vr_teleop/motivation/set", "/vr_teleop/motivation/reset"}
 READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}

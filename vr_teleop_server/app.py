@@ -14,6 +14,7 @@ from .bus import Bus
 from .explicit_control import ExplicitControl, publish_event
 from .gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
 from .luxai_api import LuxaiApi
+from .media import MediaService
 from .menu_service import MenuService, check_commands_implemented
 from .motivation import Motivation
 from .motivation import load_config as load_motivation_config
@@ -51,6 +52,7 @@ class TeleopServer:
         self.faces: FacePublisher | None = None
         self.menu: MenuService | None = None
         self.recorder: Recorder | None = None
+        self.media: MediaService | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
                               "spectator": settings.spectator_token})
@@ -147,9 +149,12 @@ class TeleopServer:
         self._publish_description()
         self.bus.declare_topic(LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)  # the experimenter's labels
         await self._start_robot()
+        self._start_media()
         try:
             await self.transport.start()
         except BaseException:
+            if self.media is not None:
+                await self.media.stop()
             await self._stop_robot()
             raise
 
@@ -157,10 +162,26 @@ class TeleopServer:
         await self.transport.stop()
         for session in list(self.sessions.values()):
             self._close_session(session)
+        if self.media is not None:
+            await self.media.stop()
+            self.media = None
         await self._stop_robot()
         if self.recorder is not None:
             await self.recorder.close(self.bus)
             self.recorder = None
+
+    def _start_media(self) -> None:
+        """WebRTC (media/): the camera as video, the robot's audio out, the operator's voice in, telemetry."""
+        speaker = self.speaker
+        render_line = None
+        if speaker is not None and self.settings.backend == "sim":  # the stand-in's classroom has bystanders
+            async def render_line(text: str) -> tuple[bytes, int, int]:
+                wav = await speaker.tts.render(text)
+                return wav.pcm, wav.sample_rate, wav.channels
+        self.media = MediaService(self.bus, self.robot, self.access, lambda: self.sessions,
+                                  camera_fps=self.settings.camera_fps, render_line=render_line,
+                                  bystander_interval=self.settings.bystander_interval)
+        self.media.start()
 
     async def _stop_robot(self) -> None:
         for part in (self.faces, self.motivation, self.status, self.control):

@@ -141,6 +141,7 @@ class Session:
         self.tap: Callable[[str, str, Frame], None] | None = None
         self.policy = AccessPolicy({})  # set by the server; open until then
         self.role: Role | None = None  # set by a successful auth op
+        self.ping: Callable[[], Awaitable[float]] | None = None  # set by the transport: a WebSocket ping's round trip
         self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
             name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
         }

@@ -85,6 +85,7 @@ class WebSocketTransport:
         peer = "%s:%s" % ws.remote_address[:2] if ws.remote_address else "?"
         session = self._open_session(f"/rosbridge_websocket/client_{next(self._numbers)}", peer)
         log.info("client connected: %s from %s", session.name, peer)
+        session.ping = lambda: _ping(ws)
         writer = asyncio.create_task(self._write(ws, session))
         self._open.add(ws)
         try:
@@ -130,6 +131,11 @@ async def _send_batch(ws: ServerConnection, session: Session, frames: list[str |
         data = b"".join(ws.protocol.data_to_send())
         if data:
             ws.transport.write(data)
+
+
+async def _ping(ws: ServerConnection) -> float:
+    """One WebSocket ping; its pong's round trip in seconds (for the link telemetry)."""
+    return await (await ws.ping())
 
 
 def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:
