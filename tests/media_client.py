@@ -119,6 +119,7 @@ class MediaPeer:
         self.audio_frames: list[tuple[float, np.ndarray]] = []
         self.keep_frames = 5
         self.video_count = 0
+        self.first_rtp: int | None = None
         self._tasks: list[asyncio.Task[None]] = []
         if video:
             transceiver = self.pc.addTransceiver("video", direction="recvonly")
@@ -158,7 +159,27 @@ class MediaPeer:
         values = reply.get("values")
         if reply.get("op") == "service_response" and reply.get("result") and values["success"]:
             await self.pc.setRemoteDescription(RTCSessionDescription(values["sdp"], values["type"]))
+            self._watch_rtp()
         return reply
+
+    def _watch_rtp(self) -> None:
+        """aiortc's decoded frames count pts from the first frame's RTP timestamp: keep that timestamp, so that
+        a frame's RTP timestamp is first_rtp + pts (a browser sees it directly: rVFC's rtpTimestamp)."""
+        for transceiver in self.pc.getTransceivers():
+            if transceiver.kind != "video":
+                continue
+            receiver = transceiver.receiver
+            original = receiver._handle_rtp_packet
+
+            async def handle(packet, arrival_time_ms, original=original):
+                if self.first_rtp is None:
+                    self.first_rtp = packet.timestamp
+                await original(packet, arrival_time_ms)
+
+            receiver._handle_rtp_packet = handle
+
+    def rtp_timestamp(self, frame) -> int:
+        return (self.first_rtp + frame.pts) & 0xFFFFFFFF
 
     async def wait_video(self, count: int, timeout: float = 30.0) -> None:
         target = self.video_count + count

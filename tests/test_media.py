@@ -1,0 +1,310 @@
+"""WebRTC media (issue 20) with real peers: aiortc as the client negotiating through /vr_teleop/media/offer over
+its rosbridge connection, against the stand-in; Chromium for the dashboard's video."""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+import os
+import re
+import threading
+import time
+import wave
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import psutil
+import pytest
+from aiortc import RTCPeerConnection
+
+from media_client import MediaPeer, Rosbridge, Tone
+from support import RunningServer
+from vr_teleop_server.settings import ServerSettings
+
+pytestmark = pytest.mark.timeout(300)
+
+
+@pytest.fixture(scope="module")
+def media_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
+    """The stand-in with bystanders silent, so that the robot's audio holds only what the tests make it say."""
+    tmp = tmp_path_factory.mktemp("media")
+    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, gesture_dir=tmp / "gestures",
+                                          audio_dir=tmp / "audio"))
+    yield server
+    server.stop()
+
+
+async def connected(url: str, **peer_options) -> tuple[Rosbridge, MediaPeer]:
+    ros = await Rosbridge.open(url)
+    peer = MediaPeer(**peer_options)
+    reply = await peer.negotiate(ros)
+    assert reply["op"] == "service_response" and reply["result"], reply
+    assert reply["values"]["success"], reply["values"]["message"]
+    return ros, peer
+
+
+async def telemetry_of(ros: Rosbridge, predicate, timeout: float = 30.0) -> dict:
+    """The first telemetry entry of this client that satisfies predicate."""
+    queue = ros.topics.get("/vr_teleop/telemetry") or await ros.subscribe("/vr_teleop/telemetry",
+                                                                           "vr_teleop_msgs/Telemetry")
+    deadline = time.monotonic() + timeout
+    last = None
+    while time.monotonic() < deadline:
+        msg = await asyncio.wait_for(queue.get(), timeout)
+        mine = [c for c in msg["clients"] if c["webrtc"]]
+        for entry in mine:
+            last = entry
+            if predicate(entry):
+                return entry
+    raise AssertionError(f"no telemetry entry matched; last: {last}")
+
+
+async def until(predicate, timeout: float = 10.0) -> bool:
+    """wait_for without blocking this loop (the client's peers and sockets live on it)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if await asyncio.to_thread(predicate):
+            return True
+        await asyncio.sleep(0.05)
+    return False
+
+
+def gray(frame) -> np.ndarray:
+    return frame.to_ndarray(format="gray").astype(np.float32)
+
+
+async def test_video_is_decodable_and_follows_the_head(media_server: RunningServer) -> None:
+    ros, peer = await connected(media_server.url)
+    try:
+        await peer.wait_video(10)
+        before = peer.frames[-1][1]
+        assert (before.width, before.height) == (640, 480)
+        joints = await ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState")
+        await ros.publish("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", {"data": [45.0, 0.0]})
+        while True:  # until the head has arrived
+            state = await asyncio.wait_for(joints.get(), 10)
+            if abs(dict(zip(state["name"], state["position"]))["HeadYaw"] - 45.0) < 1.0:
+                break
+        await peer.wait_video(10)
+        after = peer.frames[-1][1]
+        difference = float(np.mean(np.abs(gray(after) - gray(before))))
+        assert difference > 10.0, f"the picture hardly changed ({difference:.1f} grey levels) when the head turned"
+        still = float(np.mean(np.abs(gray(peer.frames[-1][1]) - gray(peer.frames[-2][1]))))
+        assert still < difference / 3, "consecutive frames of a still head differ as much as a turned head"
+    finally:
+        await ros.publish("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", {"data": [0.0, 0.0]})
+        await peer.close()
+        await ros.close()
+
+
+async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -> None:
+    ros, peer = await connected(media_server.url, video=False)
+    try:
+        while len(peer.audio_frames) < 25:  # half a second of the robot being silent
+            await asyncio.sleep(0.05)
+        quiet = np.concatenate([f for _, f in peer.audio_frames[-25:]]).astype(np.float32)
+        said_at = time.monotonic()
+        reply = await ros.call("/qt_robot/speech/say", {"message": "Hello children, shall we count to ten together?"})
+        assert reply["values"]["status"] is True
+        await asyncio.sleep(0.5)  # the tail still in the jitter buffer
+        spoken = np.concatenate([f for t, f in peer.audio_frames if t >= said_at]).astype(np.float32)
+        rms_quiet = float(np.sqrt(np.mean(quiet ** 2)))
+        window = 4800  # 50 ms of 48 kHz stereo-interleaved samples
+        rms_windows = [float(np.sqrt(np.mean(spoken[i:i + window] ** 2))) for i in range(0, spoken.size - window,
+                                                                                           window)]
+        assert rms_quiet < 50, f"the robot was silent, yet its audio had RMS {rms_quiet:.0f}"
+        loud = [r for r in rms_windows if r > 500]
+        assert len(loud) >= 10, f"speech should be heard: {len(loud)} loud 50 ms windows of {len(rms_windows)}"
+    finally:
+        await peer.close()
+        await ros.close()
+
+
+async def test_a_tone_from_the_operator_moves_the_mouth_and_is_logged(media_server: RunningServer) -> None:
+    tone = Tone(440.0, 0.5)
+    ros, peer = await connected(media_server.url, video=False, mic=tone)
+    try:
+        entry = await telemetry_of(ros, lambda c: c["operator_voice_level"] > 0.5)
+        name = entry["client"]
+        robot = media_server.server.robot
+        assert media_server.call(lambda: robot.voice_level) > 0.5  # what the stand-in's face shows
+        assert media_server.call(lambda: robot.standin.is_talking()) is False  # not speech: the operator's voice
+        face_loud = await asyncio.to_thread(_face_after_redraw, robot.standin)
+        tone.amplitude = 0.0
+        await telemetry_of(ros, lambda c: c["client"] == name and c["operator_voice_level"] == 0.0)
+        face_quiet = await asyncio.to_thread(_face_after_redraw, robot.standin)
+        assert float(np.mean(np.abs(face_loud.astype(float) - face_quiet.astype(float)))) > 0.5, \
+            "the mouth did not move with the voice"
+        path = media_server.call(lambda: media_server.server.operator_audio.path_for(name))
+        assert path is not None, "the operator's voice was not logged"
+        with wave.open(str(path)) as w:
+            assert (w.getframerate(), w.getnchannels()) == (48000, 1)
+            samples = np.frombuffer(w.readframes(w.getnframes()), "<i2").astype(np.float32)
+        assert samples.size > 48000 // 2 and np.sqrt(np.mean(samples ** 2)) > 1000, "the logged voice is silent"
+    finally:
+        await peer.close()
+        await ros.close()
+
+
+def _face_after_redraw(standin) -> np.ndarray:
+    time.sleep(0.3)  # the face is redrawn at 12 Hz while the mouth moves, and once when it stops
+    standin.wait_face()
+    return standin.face_image()
+
+
+async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer) -> None:
+    ros, peer = await connected(media_server.url, mic=Tone())
+    try:
+        start_wall = time.time()
+        first = await telemetry_of(ros, lambda c: c["rtc_frames_sent"] > 0 and c["rtc_rtt"] > 0
+                                   and c["rtp_clock_rate"] == 90000 and c["ws_rtt"] > 0)
+        later = await telemetry_of(ros, lambda c: c["client"] == first["client"]
+                                   and c["rtc_frames_sent"] > first["rtc_frames_sent"] + 10)
+        assert later["video_codec"] in ("VP8", "H264") and later["rtc_state"] == "connected"
+        assert later["rtc_bitrate"] > 0 and later["camera_frames_sent"] >= later["rtc_frames_sent"]
+        assert 0 <= later["camera_frame_age"] < 5 and later["rtc_target_bitrate"] >= 150_000
+        # A received frame's RTP timestamp (aiortc's decoded pts) maps to a render time before it arrived.
+        await peer.wait_video(3)
+        received_at = time.time()
+        frame = peer.frames[-1][1]
+        delta = (peer.rtp_timestamp(frame) - later["rtp_timestamp"] + 2**31) % 2**32 - 2**31
+        rendered = later["rtp_render_time"] + delta / later["rtp_clock_rate"]
+        assert start_wall - 5 < rendered <= received_at, (start_wall, rendered, received_at)
+        # The clock: the server's receive and send times lie between the client's send and receive.
+        sent = time.time()
+        reply = await ros.call("/vr_teleop/clock", {"client_send": sent})
+        back = time.time()
+        values = reply["values"]
+        assert values["client_send"] == sent
+        assert sent <= values["server_receive"] <= values["server_send"] <= back  # one machine, one clock
+    finally:
+        await peer.close()
+        await ros.close()
+
+
+async def test_bad_offers_are_answered_inside_the_response(media_server: RunningServer) -> None:
+    ros = await Rosbridge.open(media_server.url)
+    try:
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": "v=0\r\nthis is not sdp", "type": "offer"})
+        assert reply["result"] and not reply["values"]["success"]
+        assert "malformed SDP" in reply["values"]["message"]
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": "v=0\r\nm=video 9 UDP/TLS/RTP/SAVPF 96\r\nm=x",
+                                                          "type": "offer"})
+        assert not reply["values"]["success"] and "SDP" in reply["values"]["message"]
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": "v=0", "type": "answer"})
+        assert not reply["values"]["success"] and "'offer'" in reply["values"]["message"]
+        # No common codec: the video section offers only codecs the server cannot encode.
+        pc = RTCPeerConnection()
+        pc.addTransceiver("video", direction="recvonly")
+        await pc.setLocalDescription(await pc.createOffer())
+        sdp = re.sub(r"VP8/90000", "VP9/90000", pc.localDescription.sdp)
+        sdp = re.sub(r"H264/90000", "AV1/90000", sdp)
+        await pc.close()
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": sdp, "type": "offer"})
+        assert not reply["values"]["success"]
+        message = reply["values"]["message"]
+        assert "no common codec" in message and "VP9" in message and "VP8" in message, message
+        assert media_server.call(lambda: len(media_server.server.media.peers)) == 0
+        # A second offer on a connection that has a peer connection.
+        peer = MediaPeer()
+        reply = await peer.negotiate(ros)
+        assert reply["values"]["success"], reply
+        second = MediaPeer()
+        reply = await second.negotiate(ros)
+        assert not reply["values"]["success"] and "already has a peer connection" in reply["values"]["message"]
+        await second.close()
+        await peer.wait_video(3)  # the first one is undisturbed
+        await peer.close()
+        # The connection keeps serving.
+        reply = await ros.call("/vr_teleop/clock", {"client_send": 1.0})
+        assert reply["result"]
+    finally:
+        await ros.close()
+
+
+async def test_a_peer_that_vanishes_is_torn_down(media_server: RunningServer) -> None:
+    ros, peer = await connected(media_server.url)
+    await peer.wait_video(3)
+    media = media_server.server.media
+    assert media_server.call(lambda: len(media.peers)) == 1
+    ros.ws.transport.abort()  # no close frame, no RTCP BYE, no DTLS close: the client is simply gone
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
+    assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5)
+    await peer.close()
+
+
+async def test_access_rules_are_the_cameras(tmp_path: Path) -> None:
+    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, operator_token="op-token",
+                                          spectator_token="spec-token", audio_dir=tmp_path))
+    try:
+        stranger = await Rosbridge.open(server.url)  # no token: no camera, no media
+        peer = MediaPeer()
+        reply = await peer.negotiate(stranger)
+        assert reply["op"] == "status" and "authenticate" in reply["msg"]
+        assert server.call(lambda: len(server.server.media.peers)) == 0
+        await peer.close()
+        await stranger.close()
+        # A spectator watches and listens; its microphone is neither played nor logged.
+        spectator = await Rosbridge.open(server.url, token="spec-token")
+        peer = MediaPeer(mic=Tone())
+        reply = await peer.negotiate(spectator)
+        assert reply["values"]["success"], reply
+        await peer.wait_video(3)
+        entry = await telemetry_of(spectator, lambda c: c["role"] == "spectator" and c["rtc_frames_sent"] > 0)
+        await asyncio.sleep(1.0)
+        assert server.call(lambda: server.server.robot.voice_level) == 0.0
+        assert server.call(lambda: server.server.operator_audio.path_for(entry["client"])) is None
+        await peer.close()
+        await spectator.close()
+    finally:
+        server.stop()
+
+
+def _resources(server: RunningServer) -> dict[str, int]:
+    process = psutil.Process()
+
+    def inside() -> dict[str, int]:
+        gc.collect()
+        return {"tasks": len(asyncio.all_tasks(server.loop)),
+                "peers": len(server.server.media.peers),
+                "peer_objects": sum(isinstance(o, RTCPeerConnection) for o in gc.get_objects())}
+
+    counts = server.call(inside)
+    names = [t.name for t in threading.enumerate()]
+    # The loops' default executors (aiortc encodes and decodes audio there) grow to their bound, then stay.
+    counts["threads"] = sum(not n.startswith("asyncio_") for n in names)
+    counts["executor_threads"] = sum(n.startswith("asyncio_") for n in names)
+    counts["sockets"] = len(process.net_connections(kind="inet"))
+    counts["fds"] = process.num_fds()
+    return counts
+
+
+async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: RunningServer) -> None:
+    async def cycle(watch: bool) -> None:
+        ros, peer = await connected(media_server.url)
+        if watch:
+            await peer.wait_video(1)
+        else:
+            while peer.pc.connectionState != "connected":
+                await asyncio.sleep(0.02)
+        await peer.close()
+        await ros.close()
+
+    for _ in range(2):  # warm-up: the executors' threads, the TTS, the camera's first start
+        await cycle(True)
+    media = media_server.server.media
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
+    baseline = _resources(media_server)
+    for i in range(50):
+        await cycle(i % 10 == 0)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
+    created = media_server.call(lambda: media.peers_created)
+    assert created >= 52
+    assert await until(lambda: _resources(media_server)["tasks"] <= baseline["tasks"], 10)
+    after = _resources(media_server)
+    assert after["peers"] == 0 and after["peer_objects"] <= baseline["peer_objects"], (baseline, after)
+    assert after["threads"] <= baseline["threads"], (baseline, after)
+    assert after["executor_threads"] <= 2 * min(32, (os.cpu_count() or 1) + 4), (baseline, after)
+    assert after["sockets"] <= baseline["sockets"] + 2, (baseline, after)
+    assert after["fds"] <= baseline["fds"] + 4, (baseline, after)
