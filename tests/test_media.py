@@ -308,3 +308,37 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
     assert after["executor_threads"] <= 2 * min(32, (os.cpu_count() or 1) + 4), (baseline, after)
     assert after["sockets"] <= baseline["sockets"] + 2, (baseline, after)
     assert after["fds"] <= baseline["fds"] + 4, (baseline, after)
+
+
+def test_the_dashboard_shows_webrtc_video(browser, media_server: RunningServer) -> None:
+    page = browser.new_page(viewport={"width": 1200, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        page.goto(f"http://127.0.0.1:{media_server.port}/#camera=webrtc")
+        page.wait_for_function("window.dashboard.videoFrames >= 10", timeout=30_000)  # requestVideoFrameCallback
+        assert page.evaluate("window.dashboard.camera.path") == "WebRTC"
+        size = page.evaluate("[document.getElementById('camera-video').videoWidth, "
+                             "document.getElementById('camera-video').videoHeight]")
+        assert size == [640, 480]
+        assert page.is_visible("#camera-video") and not page.is_visible("#camera")
+        # The telemetry's RTP mapping gives each shown frame its age.
+        page.wait_for_function("window.dashboard.camera.ages.length >= 5", timeout=20_000)
+        ages = page.evaluate("window.dashboard.camera.ages")
+        assert all(-0.05 < a < 5 for a in ages), ages
+        assert errors == []
+    finally:
+        page.close()
+
+
+def test_the_dashboard_falls_back_to_the_jpeg_topic(browser, media_server: RunningServer) -> None:
+    page = browser.new_page(viewport={"width": 1200, "height": 900})
+    page.add_init_script("delete window.RTCPeerConnection")  # a browser without WebRTC
+    try:
+        page.goto(f"http://127.0.0.1:{media_server.port}/")
+        page.wait_for_function("window.dashboard.frames >= 3", timeout=30_000)
+        assert page.evaluate("window.dashboard.camera.path") == "JPEG"
+        assert page.is_visible("#camera") and not page.is_visible("#camera-video")
+        page.wait_for_function("window.dashboard.camera.ages.length >= 2", timeout=20_000)
+    finally:
+        page.close()
