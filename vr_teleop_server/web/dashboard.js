@@ -102,7 +102,7 @@ const serverNow = () => Date.now() / 1000 + camera.offset;
 function showAge(age) {
   camera.ages.push(age);
   if (camera.ages.length > 600) camera.ages.shift();
-  $("camera-age").textContent = `${camera.path}, frame age ${Math.max(0, age).toFixed(3)} s`;
+  $("camera-age").textContent = `frame age ${Math.max(0, age).toFixed(3)} s (${camera.path})`;
 }
 async function syncClock() {
   const sent = Date.now() / 1000;
