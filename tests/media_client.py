@@ -194,3 +194,49 @@ class MediaPeer:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+
+
+class LinkShaper:
+    """A bottleneck link on the server's side of one peer connection: packets leave at `rate` bits a second
+    through a drop-tail queue of `queue_s` seconds, as through a router. Install it on the server's loop; it
+    wraps the DTLS transport's send (aiortc internals: tests and bench only)."""
+
+    def __init__(self, pc: RTCPeerConnection, rate: float, queue_s: float = 0.5) -> None:
+        self.rate = rate
+        self.limit = int(rate * queue_s / 8)
+        self.queued = 0
+        self.dropped = 0
+        self.sent = 0
+        self._queue: asyncio.Queue[tuple[Any, bytes]] = asyncio.Queue()
+        transports = {t.sender.transport for t in pc.getTransceivers()}
+        for transport in transports:
+            original = transport._send_rtp
+
+            async def send(data: bytes, original=original) -> None:
+                if self.queued + len(data) > self.limit:
+                    self.dropped += 1
+                    return
+                self.queued += len(data)
+                self._queue.put_nowait((original, data))
+
+            transport._send_rtp = send
+        self.task = asyncio.ensure_future(self._drain())
+
+    async def _drain(self) -> None:
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        while True:
+            original, data = await self._queue.get()
+            self.queued -= len(data)
+            next_at = max(next_at, loop.time()) + 8 * (len(data) + 28) / self.rate  # + IP/UDP headers
+            try:
+                await original(data)
+            except ConnectionError:
+                return
+            self.sent += 1
+            delay = next_at - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+
+    def close(self) -> None:
+        self.task.cancel()

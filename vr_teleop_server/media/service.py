@@ -123,12 +123,11 @@ class MediaService:
         if self._telemetry is not None:
             self._telemetry.cancel()
             self._telemetry = None
-        for owner in list(self.peers):
-            await self._close_peer(owner)
-        for task in list(self._tasks):
-            task.cancel()
+        # Closes under way finish (cancelling one would cancel aiortc's shared close future), then the rest.
         if self._tasks:
             await asyncio.gather(*self._tasks, return_exceptions=True)
+        for owner in list(self.peers):
+            await self._close_peer(owner)
         for link in self.links.values():
             if link.ping is not None:
                 link.ping.cancel()

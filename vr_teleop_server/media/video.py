@@ -47,10 +47,12 @@ VIDEO_TIME_BASE = fractions.Fraction(1, VIDEO_CLOCK_RATE)
 CODECS = ("VP8", "H264")
 MIN_BITRATE = 150_000
 MAX_BITRATE = 4_000_000
-START_BITRATE = 1_500_000
+START_BITRATE = 800_000  # before the first estimate: what a 1 Mbit/s link carries
 REOPEN_RATIO = 0.15  # the encoder is rebuilt (a keyframe) only when the target moves more than this
 REOPEN_INTERVAL_S = 1.0  # and at most this often
 QUEUE_BOUND = 3  # encoded frames waiting for one sender (100 ms at 30 fps)
+KEYFRAME_INTERVAL_S = 0.5  # keyframes asked for (PLI, joins) are granted at most this often: a PLI storm on a
+# congested link would otherwise make every frame a large keyframe and keep the link congested
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,7 @@ class VideoHub:
         self.fps = fps
         self._tracks: dict[str, set[CameraTrack]] = {codec: set() for codec in CODECS}
         self._keyframe: set[str] = set()
+        self._keyframe_at: dict[str, float] = {}
         self._encoders = {codec: _Encoder(codec, fps) for codec in CODECS}
         self._executor: ThreadPoolExecutor | None = None
         self._task: asyncio.Task[None] | None = None
@@ -152,6 +155,16 @@ class VideoHub:
     def request_keyframe(self, codec: str) -> None:
         self._keyframe.add(codec)
 
+    def _take_keyframe(self, codec: str) -> bool:
+        if codec not in self._keyframe:
+            return False
+        now = time.monotonic()
+        if now - self._keyframe_at.get(codec, -1e9) < KEYFRAME_INTERVAL_S:
+            return False  # kept asked: granted when the interval has passed
+        self._keyframe.discard(codec)
+        self._keyframe_at[codec] = now
+        return True
+
     def bitrate(self, codec: str) -> int:
         """The shared encoder's target: the lowest estimate of the peers that share it."""
         estimates = [t.estimate for t in self._tracks[codec] if t.estimate]
@@ -166,8 +179,7 @@ class VideoHub:
                     jobs = {}
                     for codec, tracks in self._tracks.items():
                         if tracks:
-                            jobs[codec] = (codec in self._keyframe, self.bitrate(codec))
-                            self._keyframe.discard(codec)
+                            jobs[codec] = (self._take_keyframe(codec), self.bitrate(codec))
                     if not jobs:
                         return
                     encoded = await loop.run_in_executor(self._executor, self._encode, frame, jobs)
