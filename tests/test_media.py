@@ -310,6 +310,38 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
     assert after["fds"] <= baseline["fds"] + 4, (baseline, after)
 
 
+async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: RunningServer) -> None:
+    """REMB in, a lower target out: the shared encoder is rebuilt at the estimate and frames keep flowing."""
+    from aiortc.rtp import RTCP_PSFB_APP, RtcpPsfbPacket, pack_remb_fci
+
+    ros, peer = await connected(media_server.url, audio=False)
+    try:
+        receiver = next(t.receiver for t in peer.pc.getTransceivers() if t.kind == "video")
+        receiver._RTCRtpReceiver__remote_bitrate_estimator = None  # only the test's estimates (aiortc internals)
+        await peer.wait_video(3)
+        entry = await telemetry_of(ros, lambda c: c["rtc_frames_sent"] > 0)
+        media = media_server.server.media
+        ssrc = media_server.call(lambda: media.peers[entry["client"]].video.sender._ssrc)
+        await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
+                                                 fci=pack_remb_fci(300_000, [ssrc])))
+        low = await telemetry_of(ros, lambda c: c["client"] == entry["client"] and c["rtc_target_bitrate"] == 300_000)
+        await until(lambda: media_server.call(lambda: media.video._encoders["VP8"].bitrate) == 300_000, 10)
+        assert media_server.call(lambda: media.video._encoders["VP8"].bitrate) == 300_000
+        count = peer.video_count
+        await peer.wait_video(10)  # still decodable after the rebuild (it starts with a keyframe)
+        assert peer.video_count >= count + 10
+        await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
+                                                 fci=pack_remb_fci(10_000, [ssrc])))
+        floor = await telemetry_of(ros, lambda c: c["client"] == entry["client"]
+                                   and c["rtc_target_bitrate"] < low["rtc_target_bitrate"])
+        assert floor["rtc_target_bitrate"] == 150_000  # clamped to MIN_BITRATE: the picture stays usable
+    finally:
+        await peer.close()
+        await ros.close()
+
+
+# The browser tests come last: sync Playwright keeps a loop running in this thread, which pytest-asyncio's
+# tests cannot share.
 def test_the_dashboard_shows_webrtc_video(browser, media_server: RunningServer) -> None:
     page = browser.new_page(viewport={"width": 1200, "height": 900})
     errors: list[str] = []
@@ -342,33 +374,3 @@ def test_the_dashboard_falls_back_to_the_jpeg_topic(browser, media_server: Runni
         page.wait_for_function("window.dashboard.camera.ages.length >= 2", timeout=20_000)
     finally:
         page.close()
-
-
-async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: RunningServer) -> None:
-    """REMB in, a lower target out: the shared encoder is rebuilt at the estimate and frames keep flowing."""
-    from aiortc.rtp import RTCP_PSFB_APP, RtcpPsfbPacket, pack_remb_fci
-
-    ros, peer = await connected(media_server.url, audio=False)
-    try:
-        receiver = next(t.receiver for t in peer.pc.getTransceivers() if t.kind == "video")
-        receiver._RTCRtpReceiver__remote_bitrate_estimator = None  # only the test's estimates (aiortc internals)
-        await peer.wait_video(3)
-        entry = await telemetry_of(ros, lambda c: c["rtc_frames_sent"] > 0)
-        media = media_server.server.media
-        ssrc = media_server.call(lambda: media.peers[entry["client"]].video.sender._ssrc)
-        await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
-                                                 fci=pack_remb_fci(300_000, [ssrc])))
-        low = await telemetry_of(ros, lambda c: c["client"] == entry["client"] and c["rtc_target_bitrate"] == 300_000)
-        await until(lambda: media_server.call(lambda: media.video._encoders["VP8"].bitrate) == 300_000, 10)
-        assert media_server.call(lambda: media.video._encoders["VP8"].bitrate) == 300_000
-        count = peer.video_count
-        await peer.wait_video(10)  # still decodable after the rebuild (it starts with a keyframe)
-        assert peer.video_count >= count + 10
-        await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
-                                                 fci=pack_remb_fci(10_000, [ssrc])))
-        floor = await telemetry_of(ros, lambda c: c["client"] == entry["client"]
-                                   and c["rtc_target_bitrate"] < low["rtc_target_bitrate"])
-        assert floor["rtc_target_bitrate"] == 150_000  # clamped to MIN_BITRATE: the picture stays usable
-    finally:
-        await peer.close()
-        await ros.close()
