@@ -57,15 +57,18 @@ def glass_rows(size: str, seconds: float) -> list[Row]:
     try:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=["--no-sandbox"])
-            for mode in ("webrtc", "jpeg"):
-                page = browser.new_page()
+            pages = {}
+            for mode in ("webrtc", "jpeg"):  # side by side: both watch at once, under the same load
+                pages[mode] = page = browser.new_page()
                 page.goto(f"http://127.0.0.1:{port}/#camera={mode}")
+            for page in pages.values():
                 page.wait_for_function("window.dashboard.camera.ages.length >= 10", timeout=60_000)
+            for page in pages.values():
                 page.evaluate("window.dashboard.camera.ages.length = 0")
-                time.sleep(seconds)
+            time.sleep(seconds)
+            for mode, page in pages.items():
                 ages = page.evaluate("window.dashboard.camera.ages")
-                path = page.evaluate("window.dashboard.camera.path")
-                results[mode] = ([1000 * a for a in ages], path)
+                results[mode] = ([1000 * a for a in ages], page.evaluate("window.dashboard.camera.path"))
                 page.close()
             browser.close()
     finally:
@@ -112,11 +115,6 @@ async def json_path(url: str, seconds: float) -> tuple[int, int]:
     return frames, size
 
 
-async def received_bytes(peer: MediaPeer) -> int:
-    stats = await peer.pc.getStats()
-    return sum(s.bytesReceived for s in stats.values() if s.type == "inbound-rtp" and s.kind == "video")
-
-
 async def webrtc_path(url: str, seconds: float) -> tuple[int, int]:
     ros = await Rosbridge.open(url)
     peer = MediaPeer(audio=False)
@@ -124,10 +122,10 @@ async def webrtc_path(url: str, seconds: float) -> tuple[int, int]:
     await peer.negotiate(ros)
     await peer.wait_video(10, 60)
     await asyncio.sleep(3)
-    count, size = peer.video_count, await received_bytes(peer)
+    count, size = peer.video_count, peer.video_bytes
     stop_at = time.monotonic() + seconds
     await sweep_head(url, stop_at)
-    frames, size = peer.video_count - count, await received_bytes(peer) - size
+    frames, size = peer.video_count - count, peer.video_bytes - size
     await peer.close()
     await ros.close()
     return frames, size

@@ -120,6 +120,7 @@ class MediaPeer:
         self.keep_frames = 5
         self.video_count = 0
         self.first_rtp: int | None = None
+        self.video_bytes = 0  # RTP received on the video transceiver
         self._tasks: list[asyncio.Task[None]] = []
         if video:
             transceiver = self.pc.addTransceiver("video", direction="recvonly")
@@ -174,6 +175,7 @@ class MediaPeer:
             async def handle(packet, arrival_time_ms, original=original):
                 if self.first_rtp is None:
                     self.first_rtp = packet.timestamp
+                self.video_bytes += len(packet.payload) + 12  # with the RTP header
                 await original(packet, arrival_time_ms)
 
             receiver._handle_rtp_packet = handle

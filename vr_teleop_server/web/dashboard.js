@@ -136,7 +136,8 @@ function onVideoFrame(now, meta) {
   if (m && meta.rtpTimestamp !== undefined) {
     const delta = ((meta.rtpTimestamp - m.rtp_timestamp + 2 ** 31) % 2 ** 32 + 2 ** 32) % 2 ** 32 - 2 ** 31;
     const rendered = m.rtp_render_time + delta / m.rtp_clock_rate;
-    const shown = (performance.timeOrigin + (meta.expectedDisplayTime ?? now)) / 1000 + camera.offset;
+    // presentationTime: the frame handed to the compositor (as the JPEG path's decode, before the next vsync)
+    const shown = (performance.timeOrigin + (meta.presentationTime ?? now)) / 1000 + camera.offset;
     showAge(shown - rendered);
   }
   $("camera-video").requestVideoFrameCallback(onVideoFrame);
@@ -167,6 +168,8 @@ async function useWebRtc() {
   const answer = await ros.call("/vr_teleop/media/offer", {sdp: pc.localDescription.sdp, type: "offer"});
   if (!answer.success) throw new Error(answer.message);
   await pc.setRemoteDescription({sdp: answer.sdp, type: answer.type});
+  // A live view, not a film: no jitter buffer beyond what decoding needs (Chromium's hints; others ignore them).
+  pc.getReceivers().forEach((r) => { r.playoutDelayHint = 0; r.jitterBufferTarget = 0; });
   await new Promise((resolve, reject) => {
     const check = () => {
       if (pc.connectionState === "connected") resolve();
