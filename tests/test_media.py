@@ -98,6 +98,40 @@ async def test_video_is_decodable_and_follows_the_head(media_server: RunningServ
         await ros.close()
 
 
+async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer) -> None:
+    """Two VP8 peers and one H.264 peer: the VP8 encoder runs once per frame for both, H.264 once for its own."""
+    clients = [await connected(media_server.url, audio=False, video_codec=codec) for codec in ("VP8", "VP8", "H264")]
+    hub = media_server.server.media.video
+    try:
+        for _, peer in clients:
+            await peer.wait_video(5)
+        entries = {}
+        for ros, _ in clients:
+            entry = await telemetry_of(ros, lambda c: c["rtc_frames_sent"] > 0 and c["client"] not in entries)
+            entries[entry["client"]] = entry
+        assert sorted(e["video_codec"] for e in entries.values()) == ["H264", "VP8", "VP8"]
+        media = media_server.server.media
+
+        def counts() -> tuple[dict[str, int], dict[str, int]]:
+            return dict(hub.encoded), {name: media.peers[name].video.frames_sent for name in entries}
+
+        encoded0, sent0 = media_server.call(counts)
+        for _, peer in clients:
+            await peer.wait_video(20)  # every peer decodes what it gets, H.264 included
+        encoded1, sent1 = media_server.call(counts)
+        vp8 = [sent1[n] - sent0[n] for n, e in entries.items() if e["video_codec"] == "VP8"]
+        h264 = [sent1[n] - sent0[n] for n, e in entries.items() if e["video_codec"] == "H264"]
+        vp8_encodes = encoded1["VP8"] - encoded0["VP8"]
+        assert min(vp8) >= 20 and h264[0] >= 20
+        # Shared: about one encode per frame each peer got (half their sum); per sender it would be the sum.
+        assert vp8_encodes < 0.75 * sum(vp8), f"{vp8_encodes} VP8 encodes for {vp8} frames sent: not shared"
+        assert encoded1["H264"] - encoded0["H264"] < 1.5 * h264[0]
+    finally:
+        for ros, peer in clients:
+            await peer.close()
+            await ros.close()
+
+
 async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -> None:
     ros, peer = await connected(media_server.url, video=False)
     try:

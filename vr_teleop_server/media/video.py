@@ -131,6 +131,7 @@ class VideoHub:
         self._task: asyncio.Task[None] | None = None
         self._epoch = time.time()
         self.frames_encoded = 0
+        self.encoded = {codec: 0 for codec in CODECS}  # frames each codec's encoder produced
         self.encode_seconds = 0.0  # thread time spent decoding and encoding, for the bench's CPU per frame
 
     @property
@@ -214,6 +215,7 @@ class VideoHub:
                 self._encoders[codec].context = None
                 continue
             if data:
+                self.encoded[codec] += 1
                 out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq,
                                           decode_s + time.thread_time() - e0, self._encoders[codec].bitrate)
         self.frames_encoded += 1
