@@ -198,6 +198,20 @@ async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer
         assert later["video_codec"] in ("VP8", "H264") and later["rtc_state"] == "connected"
         assert later["rtc_bitrate"] > 0 and later["camera_frames_sent"] >= later["rtc_frames_sent"]
         assert 0 <= later["camera_frame_age"] < 5 and later["rtc_target_bitrate"] >= 150_000
+        # Head poses from this client: their rate and age.
+        async def head() -> None:
+            while True:
+                await ros.publish("/vr/head/pose", "geometry_msgs/PoseStamped", {
+                    "header": {"frame_id": "unity"}, "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.0},
+                                                              "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}})
+                await asyncio.sleep(0.02)
+
+        headset = asyncio.ensure_future(head())
+        try:
+            posed = await telemetry_of(ros, lambda c: c["client"] == first["client"] and c["pose_rate"] > 0)
+        finally:
+            headset.cancel()
+        assert 0 <= posed["pose_age"] < 1.0
         # A received frame's RTP timestamp (aiortc's decoded pts) maps to a render time before it arrived.
         await peer.wait_video(3)
         received_at = time.time()
@@ -266,6 +280,33 @@ async def test_a_peer_that_vanishes_is_torn_down(media_server: RunningServer) ->
     assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
     assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5)
     await peer.close()
+
+
+async def test_a_peer_whose_packets_stop_is_torn_down_and_the_connection_may_offer_again(
+        media_server: RunningServer, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The WebSocket stays, the peer's network goes: ICE consent expires (RFC 7675; aioice's checks, shortened here
+    from 5 s x 6 to 0.2 s x 2) and the server closes that peer connection only."""
+    import aioice.ice
+
+    monkeypatch.setattr(aioice.ice, "CONSENT_INTERVAL", 0.2)
+    monkeypatch.setattr(aioice.ice, "CONSENT_FAILURES", 2)
+    ros, peer = await connected(media_server.url)
+    media = media_server.server.media
+    try:
+        await peer.wait_video(3)
+        ice = peer.pc.getTransceivers()[0].receiver.transport.transport
+        for protocol in list(ice._connection._protocols):  # the client's UDP sockets close: it is gone
+            protocol.transport.close()
+        assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30)
+        assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5)
+        again = MediaPeer()
+        reply = await again.negotiate(ros)  # the same rosbridge connection, still up
+        assert reply["values"]["success"], reply
+        await again.wait_video(3)
+        await again.close()
+    finally:
+        await peer.close()
+        await ros.close()
 
 
 async def test_access_rules_are_the_cameras(tmp_path: Path) -> None:
