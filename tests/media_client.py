@@ -121,6 +121,7 @@ class MediaPeer:
         self.video_count = 0
         self.first_rtp: int | None = None
         self.video_bytes = 0  # RTP received on the video transceiver
+        self.light = False  # True: count video frames without decoding them (a viewer on another machine)
         self._tasks: list[asyncio.Task[None]] = []
         if video:
             transceiver = self.pc.addTransceiver("video", direction="recvonly")
@@ -176,6 +177,9 @@ class MediaPeer:
                 if self.first_rtp is None:
                     self.first_rtp = packet.timestamp
                 self.video_bytes += len(packet.payload) + 12  # with the RTP header
+                if self.light:  # count frames by their last packet; no jitter buffer, no decoding
+                    self.video_count += packet.marker
+                    return
                 await original(packet, arrival_time_ms)
 
             receiver._handle_rtp_packet = handle
