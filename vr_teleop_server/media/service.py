@@ -28,6 +28,7 @@ from aiortc.exceptions import InvalidStateError, OperationError
 from ..access import AccessDenied, AccessPolicy, Role
 from ..bus import SERVER_NODE, Bus, Published
 from ..robot import Robot
+from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
 from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, EncodedFrame, VideoHub
 
@@ -351,10 +352,12 @@ class MediaService:
         self.bus.publish(TELEMETRY_TOPIC, {"header": {"stamp": _stamp(time.time())}, "clients": clients})
 
     async def _peer_stats(self, peer: Peer) -> None:
-        video = peer.video
-        sender = video.sender if video is not None else None
+        # The video sender's figures; without video (audio only), the audio sender's.
+        senders = [x for x in peer.pc.getSenders() if x.track is not None]
+        sender = next((x for x in senders if x.kind == "video"), None) or next(iter(senders), None)
         if sender is None:
             return
+        clock_rate = VIDEO_CLOCK_RATE if sender.kind == "video" else AUDIO_RATE
         try:
             report = await sender.getStats()
         except Exception:
@@ -367,7 +370,7 @@ class MediaService:
                 peer.bytes_sent, peer.stats_at = stats.bytesSent, now
             elif stats.type == "remote-inbound-rtp":
                 peer.rtt = stats.roundTripTime if stats.roundTripTime is not None else -1.0
-                peer.jitter = (stats.jitter or 0) / VIDEO_CLOCK_RATE
+                peer.jitter = (stats.jitter or 0) / clock_rate
                 peer.packets_lost = max(0, stats.packetsLost or 0)
                 peer.fraction_lost = (stats.fractionLost or 0) / 256.0
 
