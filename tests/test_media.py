@@ -44,15 +44,16 @@ async def connected(url: str, **peer_options) -> tuple[Rosbridge, MediaPeer]:
     return ros, peer
 
 
-async def telemetry_of(ros: Rosbridge, predicate, timeout: float = 30.0) -> dict:
-    """The first telemetry entry of this client that satisfies predicate."""
+async def telemetry_of(ros: Rosbridge, predicate, timeout: float = 30.0, webrtc: bool = True) -> dict:
+    """The first telemetry entry (of a client with a peer connection, unless webrtc=False) that satisfies
+    predicate."""
     queue = ros.topics.get("/vr_teleop/telemetry") or await ros.subscribe("/vr_teleop/telemetry",
                                                                            "vr_teleop_msgs/Telemetry")
     deadline = time.monotonic() + timeout
     last = None
     while time.monotonic() < deadline:
         msg = await asyncio.wait_for(queue.get(), timeout)
-        mine = [c for c in msg["clients"] if c["webrtc"]]
+        mine = [c for c in msg["clients"] if c["webrtc"] or not webrtc]
         for entry in mine:
             last = entry
             if predicate(entry):
@@ -155,6 +156,24 @@ async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -
         await ros.close()
 
 
+async def test_the_classroom_microphone_hears_the_bystanders(tmp_path: Path) -> None:
+    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=1.0, audio_dir=tmp_path))
+    try:
+        ros, peer = await connected(server.url, video=False)
+        try:
+            deadline = time.monotonic() + 30
+            loud = 0
+            while loud < 10 and time.monotonic() < deadline:  # nobody made the robot speak: these are bystanders
+                await asyncio.sleep(0.2)
+                loud = sum(float(np.sqrt(np.mean(f.astype(np.float32) ** 2))) > 300 for _, f in peer.audio_frames)
+            assert loud >= 10, "no bystander was heard in the robot's audio"
+        finally:
+            await peer.close()
+            await ros.close()
+    finally:
+        server.stop()
+
+
 async def test_a_tone_from_the_operator_moves_the_mouth_and_is_logged(media_server: RunningServer) -> None:
     tone = Tone(440.0, 0.5)
     ros, peer = await connected(media_server.url, video=False, mic=tone)
@@ -228,6 +247,20 @@ async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer
         assert sent <= values["server_receive"] <= values["server_send"] <= back  # one machine, one clock
     finally:
         await peer.close()
+        await ros.close()
+
+
+async def test_telemetry_counts_the_json_paths_camera_frames(media_server: RunningServer) -> None:
+    ros = await Rosbridge.open(media_server.url)
+    try:
+        frames = await ros.subscribe("/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage",
+                                     queue_length=1)
+        first = await asyncio.wait_for(frames.get(), 30)
+        stamp = first["header"]["stamp"]
+        assert stamp["secs"] > 0  # the JSON path's frames carry their render time
+        entry = await telemetry_of(ros, lambda c: not c["webrtc"] and c["camera_frames_sent"] >= 5, webrtc=False)
+        assert 0 <= entry["camera_frame_age"] < 5 and entry["ws_rtt"] > 0
+    finally:
         await ros.close()
 
 
