@@ -180,7 +180,8 @@ class TeleopServer:
                 return wav.pcm, wav.sample_rate, wav.channels
         self.media = MediaService(self.bus, self.robot, self.access, lambda: self.sessions,
                                   camera_fps=self.settings.camera_fps, render_line=render_line,
-                                  bystander_interval=self.settings.bystander_interval)
+                                  bystander_interval=self.settings.bystander_interval,
+                                  ice_servers=list(self.settings.ice_servers))
         self.media.start()
 
     async def _stop_robot(self) -> None:
