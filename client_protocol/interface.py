@@ -208,8 +208,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              example={"client_send": 1700000000.25}),
     Endpoint("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", "subscribe",
              "Every client's link: WebSocket round trip, pose rate and age, camera frames sent and dropped and "
-             "their age at send, and for a peer connection its RTT, jitter, loss, bitrate, frames sent and the "
-             "RTP timestamp to render time mapping of its video (see the type's comments).", "2 Hz",
+             "their age at send, and for a peer connection its RTT, jitter, loss, bitrate, frames sent and each "
+             "video frame's render time by RTP timestamp (see the type's comments).", "2 Hz",
              {"header": _stamp(), "clients": [{
                  "client": "/rosbridge_websocket/client_3", "role": "operator", "ws_rtt": 0.0021,
                  "pose_rate": 90.0, "pose_age": 0.011, "camera_frames_sent": 912, "camera_frames_dropped": 3,
@@ -217,7 +217,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
                  "rtc_rtt": 0.004, "rtc_jitter": 0.002, "rtc_packets_lost": 0, "rtc_fraction_lost": 0.0,
                  "rtc_bitrate": 840000.0, "rtc_target_bitrate": 900000.0, "rtc_frames_sent": 905,
                  "rtp_timestamp": 1772474006, "rtp_render_time": 1700000000.27, "rtp_clock_rate": 90000,
-                 "operator_voice_level": 0.42}]}),
+                 "frame_rtp_timestamps": [1772471006, 1772474006],
+                 "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

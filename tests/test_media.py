@@ -231,13 +231,18 @@ async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer
         finally:
             headset.cancel()
         assert 0 <= posed["pose_age"] < 1.0
-        # A received frame's RTP timestamp (aiortc's decoded pts) maps to a render time before it arrived.
-        await peer.wait_video(3)
-        received_at = time.time()
-        frame = peer.frames[-1][1]
-        delta = (peer.rtp_timestamp(frame) - later["rtp_timestamp"] + 2**31) % 2**32 - 2**31
-        rendered = later["rtp_render_time"] + delta / later["rtp_clock_rate"]
-        assert start_wall - 5 < rendered <= received_at, (start_wall, rendered, received_at)
+        # Received frames' RTP timestamps (aiortc's decoded pts) find their render times in the telemetry, before
+        # the frames arrived; the timestamps themselves count the send time, after the render.
+        await peer.wait_video(20)  # frames sent after the reports read so far: the next reports name them
+        received = [(time.time() - time.monotonic() + t, peer.rtp_timestamp(f)) for t, f in peer.frames[-3:]]
+        renders: dict[int, float] = {}
+        await telemetry_of(ros, lambda c: c["client"] == first["client"] and renders.update(
+            zip(c["frame_rtp_timestamps"], c["frame_render_times"])) is None and all(
+            rtp in renders for _, rtp in received))
+        for received_at, rtp in received:
+            assert start_wall - 5 < renders[rtp] <= received_at, (start_wall, renders[rtp], received_at)
+        send_times = sorted(received, key=lambda r: r[1])
+        assert all(renders[a[1]] <= renders[b[1]] for a, b in zip(send_times, send_times[1:]))
         # The clock: the server's receive and send times lie between the client's send and receive.
         sent = time.time()
         reply = await ros.call("/vr_teleop/clock", {"client_send": sent})

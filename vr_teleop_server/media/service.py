@@ -30,7 +30,7 @@ from ..bus import SERVER_NODE, Bus, Published
 from ..robot import Robot
 from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
-from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, EncodedFrame, VideoHub
+from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, VideoHub
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +40,7 @@ TELEMETRY_TOPIC = "/vr_teleop/telemetry"
 CAMERA_TOPIC = "/camera/color/image_raw/compressed"
 HEAD_POSE_TOPIC = "/vr/head/pose"
 TELEMETRY_PERIOD_S = 0.5
+MAX_FRAME_TIMES = 64  # render times per client per report (30 fps x 0.5 s is 15; a late report catches up)
 MEDIA_OWNER = "/vr_teleop_server/media"
 
 
@@ -73,6 +74,7 @@ class ClientLink:
     json_age_sum: float = 0.0
     json_age_n: int = 0
     webrtc_sent_reported: int = 0
+    frames_reported: int = 0  # video frames whose render times went out already
     webrtc_age_reported: float = 0.0
 
 
@@ -395,7 +397,7 @@ class MediaService:
             "webrtc": peer is not None, "video_codec": "", "rtc_state": "", "rtc_rtt": -1.0, "rtc_jitter": -1.0,
             "rtc_packets_lost": 0, "rtc_fraction_lost": 0.0, "rtc_bitrate": -1.0, "rtc_target_bitrate": -1.0,
             "rtc_frames_sent": 0, "rtp_timestamp": 0, "rtp_render_time": 0.0, "rtp_clock_rate": 0,
-            "operator_voice_level": 0.0}
+            "frame_rtp_timestamps": [], "frame_render_times": [], "operator_voice_level": 0.0}
         if peer is not None:
             entry.update(rtc_state=peer.pc.connectionState, rtc_rtt=peer.rtt, rtc_jitter=peer.jitter,
                          rtc_packets_lost=peer.packets_lost, rtc_fraction_lost=peer.fraction_lost,
@@ -409,11 +411,13 @@ class MediaService:
                 link.webrtc_age_reported, link.webrtc_sent_reported = video.age_sum, video.frames_sent
                 entry.update(video_codec=video.codec, rtc_frames_sent=video.frames_sent,
                              rtc_target_bitrate=float(self.video.bitrate(video.codec)) if video.codec else -1.0)
-                item: EncodedFrame | None = video.last_sent
-                rtp = video.rtp_timestamp(item) if item is not None else None
-                if rtp is not None:
-                    entry.update(rtp_timestamp=rtp, rtp_render_time=item.render_wall,
-                                 rtp_clock_rate=VIDEO_CLOCK_RATE)
+                recent = video.recent(min(MAX_FRAME_TIMES, video.frames_sent - link.frames_reported))
+                link.frames_reported = video.frames_sent
+                newest = video.recent(1)
+                if newest:
+                    entry.update(rtp_timestamp=newest[0][0], rtp_render_time=newest[0][1],
+                                 rtp_clock_rate=VIDEO_CLOCK_RATE, frame_rtp_timestamps=[r for r, _ in recent],
+                                 frame_render_times=[t for _, t in recent])
             if peer.voice is not None and peer.voice.task is not None and not peer.voice.task.done():
                 entry["operator_voice_level"] = (self.robot.voice_level if peer.voice.may_speak
                                                  and self.robot is not None else peer.voice.level)

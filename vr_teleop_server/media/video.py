@@ -13,9 +13,12 @@ The shared encoder's bitrate is the lowest of its peers' bandwidth estimates (RE
 RTCP), clamped to [MIN_BITRATE, MAX_BITRATE]: a congested peer lowers the quality for the peers that share its
 codec rather than building a backlog (simulcast would separate them; not done).
 
-Render time to RTP: a frame's pts is its render time (the camera's wall-clock stamp) in 90 kHz ticks from the
-hub's epoch; aiortc adds a random origin per sender, which a track learns from its sender after the first frame
-(`RTCRtpSender`'s private last RTP timestamp: aiortc's version is bounded in pyproject for this).
+RTP timestamps are send times: the wall clock when the frame goes to its sender, in 90 kHz ticks (plus aiortc's
+random origin per sender, which a track learns from its sender after the first frame: `RTCRtpSender`'s private
+last RTP timestamp, so aiortc's version is bounded in pyproject). Stamping the render time instead made Chromium's
+jitter buffer absorb the server's variable render-to-send delay (173 ms a frame against 45 on a loaded machine,
+measured with getStats' jitterBufferDelay). Each frame's render time goes out with the telemetry, keyed by its
+RTP timestamp.
 """
 
 from __future__ import annotations
@@ -58,7 +61,7 @@ KEYFRAME_INTERVAL_S = 0.5  # keyframes asked for (PLI, joins) are granted at mos
 @dataclass(frozen=True)
 class EncodedFrame:
     data: bytes
-    pts: int  # render time in 90 kHz ticks since the hub's epoch
+    pts: int  # render time in 90 kHz ticks since the hub's epoch (the encoder's clock)
     keyframe: bool
     render_wall: float  # the camera frame's wall-clock stamp (its render time)
     seq: int
@@ -129,7 +132,7 @@ class VideoHub:
         self._encoders = {codec: _Encoder(codec, fps) for codec in CODECS}
         self._executor: ThreadPoolExecutor | None = None
         self._task: asyncio.Task[None] | None = None
-        self._epoch = time.time()
+        self.epoch = time.time()
         self.frames_encoded = 0
         self.encoded = {codec: 0 for codec in CODECS}  # frames each codec's encoder produced
         self.encode_seconds = 0.0  # thread time spent decoding and encoding, for the bench's CPU per frame
@@ -201,7 +204,7 @@ class VideoHub:
         h, w = bgr.shape[:2]
         w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
         yuv = cv2.cvtColor(np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
-        pts = round((frame.stamp_wall - self._epoch) * VIDEO_CLOCK_RATE)
+        pts = round((frame.stamp_wall - self.epoch) * VIDEO_CLOCK_RATE)
         out = {}
         decode_s = time.thread_time() - c0
         for codec, (keyframe, bitrate) in jobs.items():
@@ -256,6 +259,8 @@ class CameraTrack(MediaStreamTrack):
         self.age_sum = 0.0  # render to send, over frames_sent
         self.last_sent: EncodedFrame | None = None
         self.rtp_origin: int | None = None
+        self.last_pts = -1  # send time of the newest frame, 90 kHz ticks since the hub's epoch
+        self.sent: deque[tuple[int, float]] = deque(maxlen=64)  # (pts, render time) of the newest frames sent
         self.on_sent: Callable[[EncodedFrame], None] | None = None
 
     def bind(self, codec: str, sender: RTCRtpSender) -> None:
@@ -306,8 +311,10 @@ class CameraTrack(MediaStreamTrack):
             raise MediaStreamError
         item = self._queue.popleft()
         packet = av.Packet(item.data)
-        packet.pts = item.pts
+        self.last_pts = max(self.last_pts + 1, round((time.time() - self.hub.epoch) * VIDEO_CLOCK_RATE))
+        packet.pts = self.last_pts
         packet.time_base = VIDEO_TIME_BASE
+        self.sent.append((self.last_pts, item.render_wall))
         self.frames_sent += 1
         self.age_sum += max(0.0, time.time() - item.render_wall)
         self.last_sent = item
@@ -316,16 +323,23 @@ class CameraTrack(MediaStreamTrack):
         return packet
 
     def _learn_rtp_origin(self) -> None:
-        """The sender has sent every packet of last_sent by now: its last RTP timestamp minus that frame's pts is
-        the random origin aiortc gave this sender."""
-        if self.rtp_origin is not None or self.last_sent is None or self.sender is None:
+        """The sender has sent every packet of the previous frame by now: its last RTP timestamp minus that frame's
+        pts is the random origin aiortc gave this sender."""
+        if self.rtp_origin is not None or self.last_pts < 0 or self.sender is None:
             return
         stamp = getattr(self.sender, "_RTCRtpSender__rtp_timestamp", None)
         if isinstance(stamp, int) and stamp:
-            self.rtp_origin = (stamp - self.last_sent.pts) & 0xFFFFFFFF
+            self.rtp_origin = (stamp - self.last_pts) & 0xFFFFFFFF
 
-    def rtp_timestamp(self, item: EncodedFrame) -> int | None:
-        return None if self.rtp_origin is None else (self.rtp_origin + item.pts) & 0xFFFFFFFF
+    def rtp_timestamp(self, pts: int) -> int | None:
+        return None if self.rtp_origin is None else (self.rtp_origin + pts) & 0xFFFFFFFF
+
+    def recent(self, count: int) -> list[tuple[int, float]]:
+        """(RTP timestamp, render time) of the newest `count` frames sent (as many as are kept), once known."""
+        if self.rtp_origin is None or count <= 0:
+            return []
+        frames = list(self.sent)[-count:]
+        return [((self.rtp_origin + pts) & 0xFFFFFFFF, render) for pts, render in frames]
 
     def stop(self) -> None:
         super().stop()

@@ -92,11 +92,11 @@ ros.onstatus = (msg) => {
 // ---- camera -----------------------------------------------------------------------------------------------------
 // WebRTC first (video like a call, negotiated through /vr_teleop/media/offer on this connection); the JPEG topic
 // when negotiation fails or the peer connection does not come up. #camera=jpeg in the URL forces the JPEG topic.
-// Frame age: JPEG frames carry their render time in the header stamp; WebRTC frames map their RTP timestamp
-// (requestVideoFrameCallback) to render time with the telemetry's rtp_timestamp/rtp_render_time. Server times are
-// put on this clock with /vr_teleop/clock.
+// Frame age: JPEG frames carry their render time in the header stamp; WebRTC frames find theirs by RTP timestamp
+// (requestVideoFrameCallback) in the telemetry's frame_rtp_timestamps/frame_render_times. Server times are put
+// on this clock with /vr_teleop/clock.
 const cameraMode = new URLSearchParams(location.hash.slice(1)).get("camera") || "webrtc";
-const camera = {path: "", pc: null, jpeg: false, offset: 0, mapping: null, ages: []};
+const camera = {path: "", pc: null, jpeg: false, offset: 0, ages: []};
 Object.assign(window.dashboard, {camera, videoFrames: 0});
 const serverNow = () => Date.now() / 1000 + camera.offset;
 function showAge(age) {
@@ -128,17 +128,25 @@ function useJpeg(reason) {
     window.dashboard.frames += 1;
   }, {throttle_rate: 0, queue_length: 1});
 }
+// Render times by RTP timestamp, from the telemetry; shown frames wait here until theirs arrives (every 0.5 s).
+const renders = new Map();
+const shownFrames = [];
+function resolveShown() {
+  while (shownFrames.length && renders.has(shownFrames[0].rtp)) {
+    const f = shownFrames.shift();
+    showAge(f.shown - renders.get(f.rtp));
+  }
+  while (shownFrames.length > 120) shownFrames.shift();  // never told: not ours, or lost
+}
 function onVideoFrame(now, meta) {
   window.dashboard.videoFrames += 1;
   window.dashboard.frames += 1;
-  if (meta.rtpTimestamp !== undefined) camera.lastRtp = meta.rtpTimestamp;
-  const m = camera.mapping;
-  if (m && meta.rtpTimestamp !== undefined) {
-    const delta = ((meta.rtpTimestamp - m.rtp_timestamp + 2 ** 31) % 2 ** 32 + 2 ** 32) % 2 ** 32 - 2 ** 31;
-    const rendered = m.rtp_render_time + delta / m.rtp_clock_rate;
+  if (meta.rtpTimestamp !== undefined) {
+    camera.lastRtp = meta.rtpTimestamp;
     // presentationTime: the frame handed to the compositor (as the JPEG path's decode, before the next vsync)
     const shown = (performance.timeOrigin + (meta.presentationTime ?? now)) / 1000 + camera.offset;
-    showAge(shown - rendered);
+    shownFrames.push({rtp: meta.rtpTimestamp, shown});
+    resolveShown();
   }
   $("camera-video").requestVideoFrameCallback(onVideoFrame);
 }
@@ -149,8 +157,11 @@ ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", (msg) => {
   for (const c of msg.clients) {
     if (!c.rtp_clock_rate) continue;
     const delta = ((rtp - c.rtp_timestamp + 2 ** 31) % 2 ** 32 + 2 ** 32) % 2 ** 32 - 2 ** 31;
-    if (Math.abs(delta) < 10 * c.rtp_clock_rate) camera.mapping = c;
+    if (Math.abs(delta) > 10 * c.rtp_clock_rate) continue;
+    c.frame_rtp_timestamps.forEach((r, i) => renders.set(r, c.frame_render_times[i]));
+    while (renders.size > 600) renders.delete(renders.keys().next().value);
   }
+  resolveShown();
 });
 async function useWebRtc() {
   const pc = camera.pc = new RTCPeerConnection({iceServers: []});
