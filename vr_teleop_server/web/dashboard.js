@@ -104,12 +104,20 @@ function showAge(age) {
   if (camera.ages.length > 600) camera.ages.shift();
   $("camera-age").textContent = `frame age ${Math.max(0, age).toFixed(3)} s (${camera.path})`;
 }
-async function syncClock() {
-  const sent = Date.now() / 1000;
-  const r = await ros.call("/vr_teleop/clock", {client_send: sent});
-  const back = Date.now() / 1000;
-  camera.offset = ((r.server_receive - sent) + (r.server_send - back)) / 2;
+async function syncClock(rounds = 8) {
+  // NTP's rule: of several exchanges, trust the one with the shortest round trip (the least room for asymmetry).
+  let best = null;
+  for (let i = 0; i < rounds; i++) {
+    const sent = Date.now() / 1000;
+    const r = await ros.call("/vr_teleop/clock", {client_send: sent});
+    const back = Date.now() / 1000;
+    const trip = (back - sent) - (r.server_send - r.server_receive);
+    if (!best || trip < best.trip) best = {trip, offset: ((r.server_receive - sent) + (r.server_send - back)) / 2};
+    await new Promise((resolve) => setTimeout(resolve, 50));
+  }
+  camera.offset = best.offset;
 }
+setInterval(() => syncClock().catch(() => {}), 30000);
 function useJpeg(reason) {
   if (camera.pc) { camera.pc.close(); camera.pc = null; }
   $("camera-video").hidden = true;
