@@ -176,9 +176,9 @@ async def viewers(url: str, n: int, seconds: float) -> list[float]:
     return rates
 
 
-def spawn_viewers(url: str, n: int, seconds: float) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds", str(seconds)],
-                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+def spawn_viewers(url: str, n: int, seconds: float, json_topic: bool = False) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds", str(seconds),
+                             *(["--json-topic"] if json_topic else [])], stdout=subprocess.PIPE, text=True, cwd=ROOT)
 
 
 def viewer_rows(seconds: float) -> list[Row]:
@@ -293,15 +293,38 @@ def speech_rows(trials: int) -> list[Row]:
 
 
 # ---- the control stream beside media -------------------------------------------------------------------------------
+async def json_viewer(url: str, seconds: float) -> list[float]:
+    """One JSON-topic camera subscriber: the stand-in renders as it does for WebRTC viewers."""
+    from websockets.asyncio.client import connect
+
+    ws = await connect(url, compression=None, max_size=None)
+    await ws.send(json.dumps({"op": "subscribe", "topic": CAMERA, "type": "sensor_msgs/CompressedImage",
+                              "queue_length": 1}))
+    frames = 0
+    stop_at = time.monotonic() + seconds
+    while time.monotonic() < stop_at:
+        await ws.recv()
+        frames += 1
+    await ws.close()
+    return [frames / seconds]
+
+
 def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
-    """Alternating rounds (none, five, none, five...), latencies pooled per condition: the machine's load drifts."""
+    """Alternating rounds, latencies pooled per condition (the machine's load drifts): no viewers; one JSON camera
+    subscriber (the stand-in renders, which on 2 cores with software GL costs the control stream as much as any
+    media work); five WebRTC viewers."""
     server = serve("--backend", "sim", "--bystander-interval", "0")
     none: list[float] = []
+    camera: list[float] = []
     five: list[float] = []
     rates: list[float] = []
     try:
         for _ in range(rounds):
             none += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True)
+            time.sleep(5)
+            camera += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            watcher.communicate()
             watchers = spawn_viewers(server.url, 5, seconds + 20)
             time.sleep(15)  # the five negotiate and reach steady video
             five += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
@@ -311,6 +334,10 @@ def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
     return [Row("pose round trip p50, 5 WebRTC viewers", pct(five, 50), pct(none, 50), "no viewers", "ms"),
             Row("pose round trip p99, 5 WebRTC viewers", pct(five, 99), pct(none, 99), "no viewers (<= 1.2x)",
                 "ms"),
+            Row("pose round trip p99, 1 JSON camera subscriber", pct(camera, 99), pct(none, 99), "no viewers",
+                "ms"),
+            Row("pose round trip p99, 5 WebRTC viewers", pct(five, 99), pct(camera, 99),
+                "1 JSON camera subscriber", "ms"),
             Row("(the viewers' fps meanwhile, mean)", float(np.mean(rates)), None, "-", "fps", "higher")]
 
 
@@ -321,9 +348,11 @@ def main(argv: list[str] | None = None) -> int:
                                                        "control"])
     parser.add_argument("--viewers", type=int, help=argparse.SUPPRESS)  # the viewer subprocess
     parser.add_argument("--url", help=argparse.SUPPRESS)
+    parser.add_argument("--json-topic", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.viewers:
-        print(json.dumps(asyncio.run(viewers(args.url, args.viewers, args.seconds))))
+        run = json_viewer(args.url, args.seconds) if args.json_topic else viewers(args.url, args.viewers, args.seconds)
+        print(json.dumps(asyncio.run(run)))
         return 0
     s = args.seconds
     parts = {"glass": lambda: glass_rows("640x480", s) + glass_rows("1280x720", s),

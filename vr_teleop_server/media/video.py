@@ -192,6 +192,9 @@ class VideoHub:
                     for codec, item in encoded.items():
                         for track in list(self._tracks[codec]):
                             track.offer(item)
+                            # One sender's burst of packets per turn of the loop, with the sockets polled between:
+                            # a pose arriving waits for one peer's frame at most, not for every peer's.
+                            await asyncio.sleep(0)
         except asyncio.CancelledError:
             raise
         except Exception:
