@@ -29,7 +29,6 @@ import fractions
 import logging
 import time
 from collections import deque
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -260,11 +259,9 @@ class CameraTrack(MediaStreamTrack):
         self.frames_sent = 0
         self.frames_dropped = 0
         self.age_sum = 0.0  # render to send, over frames_sent
-        self.last_sent: EncodedFrame | None = None
         self.rtp_origin: int | None = None
         self.last_pts = -1  # send time of the newest frame, 90 kHz ticks since the hub's epoch
         self.sent: deque[tuple[int, float]] = deque(maxlen=64)  # (pts, render time) of the newest frames sent
-        self.on_sent: Callable[[EncodedFrame], None] | None = None
 
     def bind(self, codec: str, sender: RTCRtpSender) -> None:
         """Start receiving the hub's frames for `codec`, and listen to the sender's RTCP (PLI, FIR, REMB)."""
@@ -320,9 +317,6 @@ class CameraTrack(MediaStreamTrack):
         self.sent.append((self.last_pts, item.render_wall))
         self.frames_sent += 1
         self.age_sum += max(0.0, time.time() - item.render_wall)
-        self.last_sent = item
-        if self.on_sent is not None:
-            self.on_sent(item)
         return packet
 
     def _learn_rtp_origin(self) -> None:
