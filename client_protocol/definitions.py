@@ -156,6 +156,29 @@ MESSAGES: dict[str, str] = {
     "actionlib/TestAction": (
         "TestActionGoal action_goal\nTestActionResult action_result\nTestActionFeedback action_feedback"
     ),
+    # media (WebRTC, vr_teleop_server/media)
+    "vr_teleop_msgs/ClientTelemetry": (
+        "# One client's link as the server sees it. Times in seconds; -1 where not known (yet).\n"
+        "# ws_rtt: WebSocket ping to pong. pose_rate/pose_age: the client's head poses (/vr/head/pose) per second\n"
+        "# over the last second, and the newest one's age. camera_*: head-camera frames the server handed to this\n"
+        "# client (JSON topic and WebRTC together), frames it dropped for it (slow reader or congestion), and the\n"
+        "# mean age (render to send) of those sent since the last report. rtc_*: the peer connection (webrtc true):\n"
+        "# video codec, RTCP round trip, jitter (s), packets lost (cumulative) and fraction lost (0..1, the newest\n"
+        "# receiver report), bits per second sent, the encoder's target bitrate (follows the peer's REMB\n"
+        "# estimate), video frames sent. Video RTP timestamps count the server's wall clock at send in\n"
+        "# rtp_clock_rate ticks (0 while unknown); frame_rtp_timestamps and frame_render_times give the render time\n"
+        "# (wall clock, s since 1970; /vr_teleop/clock puts it on the client's) of each frame sent since the last\n"
+        "# report; rtp_timestamp and rtp_render_time are the newest frame's.\n"
+        "string client\nstring role\nfloat64 ws_rtt\nfloat64 pose_rate\nfloat64 pose_age\n"
+        "uint32 camera_frames_sent\nuint32 camera_frames_dropped\nfloat64 camera_frame_age\nbool webrtc\n"
+        "string video_codec\nstring rtc_state\nfloat64 rtc_rtt\nfloat64 rtc_jitter\nuint32 rtc_packets_lost\n"
+        "float64 rtc_fraction_lost\nfloat64 rtc_bitrate\nfloat64 rtc_target_bitrate\nuint32 rtc_frames_sent\n"
+        "uint32 rtp_timestamp\nfloat64 rtp_render_time\nuint32 rtp_clock_rate\nuint32[] frame_rtp_timestamps\n"
+        "float64[] frame_render_times\nfloat32 operator_voice_level"
+    ),
+    "vr_teleop_msgs/Telemetry": (
+        "# Every client's link, on /vr_teleop/telemetry at 2 Hz\nHeader header\nClientTelemetry[] clients"
+    ),
     # rosapi's own message
     "rosapi/TypeDef": (
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
@@ -247,4 +270,17 @@ SERVICES: dict[str, str] = {
     "rosapi/DeleteParam": "string name\n---",
     "rosapi/GetParamNames": "---\nstring[] names",
     "rosapi/GetActionServers": "---\nstring[] action_servers",
+    # media (WebRTC, vr_teleop_server/media)
+    "vr_teleop_msgs/MediaOffer": (
+        "# A WebRTC offer from this connection's client (type offer), answered with the server's answer. The\n"
+        "# peer connection lives as long as the WebSocket. A refusal answers success false with the reason in\n"
+        "# message (sdp and type then empty).\n"
+        "string sdp\nstring type\n---\nbool success\nstring message\nstring sdp\nstring type"
+    ),
+    "vr_teleop_msgs/Clock": (
+        "# NTP-style clock exchange: the client's send time in (any clock, echoed), the server's wall-clock\n"
+        "# receive and send times out (s since 1970). offset = ((server_receive - client_send) +\n"
+        "# (server_send - client_receive)) / 2, on the client's own clock at client_receive.\n"
+        "float64 client_send\n---\nbool success\nstring message\nfloat64 client_send\nfloat64 server_receive\nfloat64 server_send"
+    ),
 }

@@ -192,6 +192,35 @@ ENDPOINTS: tuple[Endpoint, ...] = (
               "frame_seq": 42, "image_width": 640, "image_height": 480, "detector":
               "opencv-haar:haarcascade_frontalface_default", "faces": [{"x": 301, "y": 170, "width": 44,
                                                                         "height": 44, "confidence": 3.4}]}),
+    # ---- media: WebRTC video and voice beside the rosbridge stream (vr_teleop_server/media) ----
+    Endpoint(names.MEDIA_OFFER_SERVICE, "vr_teleop_msgs/MediaOffer", "call",
+             "WebRTC signalling over this rosbridge connection: send your RTCPeerConnection's offer (type 'offer', "
+             "all candidates gathered), get the server's answer. Offer video recvonly for the head camera (VP8 or "
+             "H264, --camera-size at --camera-fps), audio sendrecv for the robot's audio out (Opus: its speech and "
+             "what its microphone hears) and your microphone in (Opus: played on the robot and logged, for an "
+             "operator or supervisor). One peer connection per rosbridge connection, closed with it. Same access "
+             "as the camera topic. Refusals: success false and the reason in message (malformed SDP, no common "
+             "codec, no camera access, a second offer on this connection).",
+             example={"sdp": "v=0\r\no=- 1 1 IN IP4 0.0.0.0\r\ns=-\r\nt=0 0\r\n"
+                             "m=video 9 UDP/TLS/RTP/SAVPF 96\r\na=rtpmap:96 VP8/90000\r\na=recvonly\r\n",
+                      "type": "offer"}),
+    Endpoint(names.CLOCK_SERVICE, "vr_teleop_msgs/Clock", "call",
+             "NTP-style clock exchange: offset = ((server_receive - client_send) + (server_send - client_receive))"
+             " / 2 puts the server's stamps (camera headers, rtp_render_time) on the client's clock.",
+             example={"client_send": 1700000000.25}),
+    Endpoint(names.TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", "subscribe",
+             "Every client's link: WebSocket round trip, pose rate and age, camera frames sent and dropped and "
+             "their age at send, and for a peer connection its RTT, jitter, loss, bitrate, frames sent and each "
+             "video frame's render time by RTP timestamp (see the type's comments).", "2 Hz",
+             {"header": _stamp(), "clients": [{
+                 "client": "/rosbridge_websocket/client_3", "role": "operator", "ws_rtt": 0.0021,
+                 "pose_rate": 90.0, "pose_age": 0.011, "camera_frames_sent": 912, "camera_frames_dropped": 3,
+                 "camera_frame_age": 0.019, "webrtc": True, "video_codec": "VP8", "rtc_state": "connected",
+                 "rtc_rtt": 0.004, "rtc_jitter": 0.002, "rtc_packets_lost": 0, "rtc_fraction_lost": 0.0,
+                 "rtc_bitrate": 840000.0, "rtc_target_bitrate": 900000.0, "rtc_frames_sent": 905,
+                 "rtp_timestamp": 1772474006, "rtp_render_time": 1700000000.27, "rtp_clock_rate": 90000,
+                 "frame_rtp_timestamps": [1772471006, 1772474006],
+                 "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint(names.HEAD_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

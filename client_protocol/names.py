@@ -94,3 +94,8 @@ def all_names() -> dict[str, str]:
         if isinstance(value, MappingProxyType) and key != "COMMAND_TOPIC_PARTS":
             found.update({f"{key}[{k!r}]": v for k, v in value.items() if v not in spelled})
     return found
+
+# ---- media: WebRTC beside the rosbridge stream (vr_teleop_server/media) ----
+MEDIA_OFFER_SERVICE = "/vr_teleop/media/offer"
+CLOCK_SERVICE = "/vr_teleop/clock"
+TELEMETRY_TOPIC = "/vr_teleop/telemetry"

@@ -76,10 +76,13 @@ def normalise_emotion(name: str) -> str:
     return short
 
 
-def draw_face(emotion: str, width: int, height: int, *, talking_phase: float | None = None) -> np.ndarray:
+def draw_face(emotion: str, width: int, height: int, *, talking_phase: float | None = None,
+              voice_level: float | None = None) -> np.ndarray:
     """An RGB uint8 image (height x width) of the face for `emotion`.
 
     talking_phase (seconds) animates the mouth as if speaking; None draws the emotion's still mouth.
+    voice_level (0..1, the operator's voice played by the robot) opens the mouth in proportion; it wins over
+    talking_phase.
     """
     p = FACES[normalise_emotion(emotion)]
     img = np.zeros((height, width, 3), np.uint8)
@@ -95,6 +98,9 @@ def draw_face(emotion: str, width: int, height: int, *, talking_phase: float | N
         # Two incommensurate frequencies look less mechanical than one sine.
         wave = math.sin(2 * math.pi * 3.1 * talking_phase) * math.cos(2 * math.pi * 1.3 * talking_phase)
         mouth_open = 0.15 + 0.55 * abs(wave)
+    if voice_level is not None:
+        mouth_open = 0.05 + 0.8 * min(1.0, max(0.0, voice_level))
+        talking_phase = talking_phase if talking_phase is not None else 0.0  # an open mouth, not an "o"
 
     for side, sx in (("right", -1), ("left", 1)):  # robot's right eye is on the viewer's left
         ex = cx + sx * eye_dx

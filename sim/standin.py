@@ -157,6 +157,7 @@ class StandIn:
         self._camera_subscribers = 0
         self._emotion = normalise_emotion(initial_emotion)
         self._talking_until = 0.0
+        self._voice = (0.0, -math.inf)  # (level, monotonic time it was set)
         self._face_version = 0  # bumped on every request that changes the face
         self._face_applied = -1
         self._face_image: np.ndarray | None = None
@@ -286,6 +287,21 @@ class StandIn:
 
     def is_talking(self) -> bool:
         return time.monotonic() < self._talking_until
+
+    VOICE_HOLD_S = 0.25  # the mouth closes this long after the last piece of voice
+
+    def set_voice_level(self, level: float) -> None:
+        """The operator's voice, as the robot plays it (0..1): the mouth opens with it (returns at once)."""
+        level = min(1.0, max(0.0, float(level))) if math.isfinite(level) else 0.0
+        with self._render_cond:
+            self._voice = (level, time.monotonic())
+            self._render_cond.notify_all()
+
+    @property
+    def voice_level(self) -> float:
+        """The voice level the face shows now (0 once the voice has stopped for VOICE_HOLD_S)."""
+        level, at = self._voice
+        return level if time.monotonic() - at < self.VOICE_HOLD_S else 0.0
 
     def face_image(self) -> np.ndarray | None:
         """A copy of the face texture as last uploaded (RGB), or None before the first upload."""
@@ -475,7 +491,8 @@ class StandIn:
             while not self._stop.is_set():
                 with self._render_cond:
                     now = time.monotonic()
-                    talking = now < self._talking_until or self._emotion == "talking"
+                    voice = self._voice[0] if now - self._voice[1] < self.VOICE_HOLD_S else None
+                    talking = now < self._talking_until or self._emotion == "talking" or voice is not None
                     face_due = (self._face_applied < self._face_version or (talking and now >= next_face_tick)
                                 or (drawn_talking and not talking))  # speech ended: back to the still face
                     camera_due = self._camera_subscribers > 0 and now >= next_frame
@@ -492,7 +509,7 @@ class StandIn:
                     self._snapshots.clear()
                 if face_due:
                     phase = now if talking else None
-                    face = draw_face(emotion, tw, th, talking_phase=phase)
+                    face = draw_face(emotion, tw, th, talking_phase=phase, voice_level=voice)
                     drawn_talking = talking
                     m.tex_data[tex_slice] = face.reshape(-1)
                     for r in renderers.values():

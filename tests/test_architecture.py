@@ -39,6 +39,7 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     f"{SERVER}.teleop": LEAVES,  # pure mapping maths
     f"{SERVER}.recording.format": LEAVES,  # reading a recording needs no bus
     f"{SERVER}.questionnaires": ("client_protocol",),
+    f"{SERVER}.media": LEAVES + (f"{SERVER}.core", f"{SERVER}.robot"),  # never features or the app
 }
 PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", SERVER)
 

@@ -28,11 +28,12 @@ def dashboard_server(tmp_path_factory):
     server.stop()
 
 
-def open_page(browser, server: RunningServer, role: str):
+def open_page(browser, server: RunningServer, role: str, camera: str = "jpeg"):
+    """The dashboard; its camera on the JPEG topic unless camera="webrtc" (test_media.py tests that path)."""
     page = browser.new_page(viewport={"width": 1400, "height": 1000})
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
-    page.goto(f"http://127.0.0.1:{server.port}/#token={TOKENS[role]}")
+    page.goto(f"http://127.0.0.1:{server.port}/#token={TOKENS[role]}&camera={camera}")
     page.errors = errors  # type: ignore[attr-defined]
     return page
 

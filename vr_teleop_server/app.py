@@ -15,7 +15,7 @@ from .core.bus import Bus
 from .core.events import publish_event
 from .core.rosapi import RosApi
 from .core.session import Session
-from .core.transport import WebSocketTransport
+from .core.transport import Ping, WebSocketTransport
 from .features import Feature
 from .features.explicit_control import ExplicitControl
 from .features.faces import FacePublisher
@@ -25,6 +25,7 @@ from .features.motivation import Motivation
 from .features.motivation import load_config as load_motivation_config
 from .features.speech import OperatorAudioLog, Speaker, default_audio_dir
 from .features.status import StatusPublisher
+from .media import MediaService
 from .recording.recorder import Recorder
 from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
 from .robot.interface import Robot
@@ -45,6 +46,7 @@ class TeleopServer:
         self.luxai: LuxaiApi | None = None  # the parts tests and tools reach into
         self.control: ExplicitControl | None = None
         self.recorder: Recorder | None = None
+        self.media: MediaService | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
                               "spectator": settings.spectator_token})
@@ -58,9 +60,9 @@ class TeleopServer:
         self.motivation_config = load_motivation_config(settings.motivation_config)
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session)
 
-    def _open_session(self, name: str, peer: str) -> Session:
+    def _open_session(self, name: str, peer: str, ping: Ping) -> Session:
         recorder = self.recorder
-        session = Session(name, self.bus, self.settings, peer, policy=self.access,
+        session = Session(name, self.bus, self.settings, peer, policy=self.access, ping=ping,
                           tap=recorder.on_frame if recorder is not None else None)
         self.sessions[name] = session
         if recorder is not None:
@@ -97,10 +99,11 @@ class TeleopServer:
         feature.start()
         self.features.append(feature)
 
-    async def _start_robot(self) -> None:
+    async def _start_robot(self) -> Speaker | None:
+        """The robot and the features on it; returns the speaker (None without a robot) for the media."""
         s = self.settings
         if s.backend == "none":
-            return
+            return None
         if s.backend == "ros":
             from .robot.backends.ros import RosRobot
 
@@ -134,6 +137,7 @@ class TeleopServer:
                   "motivation": motivation.message}
         self._start(MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
                                 status=lambda which: panels[which](), luxai=self.luxai))
+        return speaker
 
     async def start(self) -> None:
         try:
@@ -146,7 +150,7 @@ class TeleopServer:
             self._publish_description()
             # the experimenter's labels
             self.bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
-            await self._start_robot()
+            self._start_media(await self._start_robot())
             await self.transport.start()
         except BaseException:
             await self._stop_parts()
@@ -165,6 +169,19 @@ class TeleopServer:
         if self.robot is not None:
             await self.robot.aclose()
         self.recorder = None
+
+    def _start_media(self, speaker: Speaker | None) -> None:
+        """WebRTC (media/): the camera as video, the robot's audio out, the operator's voice in, telemetry."""
+        render_line = None
+        if speaker is not None and self.settings.backend == "sim":  # the stand-in's classroom has bystanders
+            async def render_line(text: str) -> tuple[bytes, int, int]:
+                wav = await speaker.tts.render(text)
+                return wav.pcm, wav.sample_rate, wav.channels
+        self.media = MediaService(self.bus, self.robot, self.access, lambda: self.sessions,
+                                  camera_fps=self.settings.camera_fps, render_line=render_line,
+                                  bystander_interval=self.settings.bystander_interval,
+                                  ice_servers=list(self.settings.ice_servers))
+        self._start(self.media)
 
     @property
     def url(self) -> str:

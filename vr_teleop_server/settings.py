@@ -27,6 +27,10 @@ class ServerSettings(CoreSettings):
     audio_dir: Path | None = Field(None, description="where operator audio is logged; default: a directory in "
                                                      "the system's temporary directory")
     motivation_config: Path | None = Field(None, description="motivation variables file; default: the packaged")
+    bystander_interval: float = Field(20.0, ge=0, description="seconds between the stand-in's bystanders' lines "
+                                                              "in the robot's WebRTC audio (0: none)")
+    ice_servers: tuple[str, ...] = Field((), description="STUN servers for WebRTC (stun:HOST:PORT); none on a "
+                                                       "LAN, where host candidates reach the client")
     record: Path | None = Field(None, description="record the session to this MCAP file")
     record_camera_fps: float = Field(2.0, ge=0, le=120, description="camera frames a second kept in the "
                                                                      "recording (0: none)")

@@ -50,6 +50,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
     p.add_argument("--audio-dir", type=Path, default=None, metavar="DIR",
                    help="where the operator's voice is logged, one WAV per client (default: a temporary directory)")
+    p.add_argument("--bystander-interval", type=float, default=defaults.bystander_interval, metavar="S",
+                   help="the stand-in's bystanders speak a line every S seconds in the robot's WebRTC audio; 0: "
+                        "never (default %(default)s)")
+    p.add_argument("--ice-server", action="append", default=[], metavar="URL",
+                   help="a STUN server for WebRTC media, e.g. stun:stun.example.org:3478 (repeatable; "
+                        "default none: host candidates, enough on a LAN)")
     p.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
                    help="record every message of the session, both ways, per client, to an MCAP file")
     p.add_argument("--record-camera-fps", type=float, default=defaults.record_camera_fps, metavar="FPS",
@@ -99,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
                                   camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,
-                                  audio_dir=args.audio_dir, record=args.record,
+                                  audio_dir=args.audio_dir, bystander_interval=args.bystander_interval,
+                                  ice_servers=tuple(args.ice_server),
+                                  record=args.record,
                                   record_camera_fps=args.record_camera_fps)
     except ValidationError as exc:
         print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)

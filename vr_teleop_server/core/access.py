@@ -24,7 +24,8 @@ ROLES: tuple[Role, ...] = ("operator", "supervisor", "spectator")
 ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
 # What a spectator may call: services that only read.
 READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
-READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE}
+# The media offer is a read, as the camera topic is: a spectator's microphone is not played (media/service.py).
+READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, names.CLOCK_SERVICE}
 # What only a supervisor may do on top of an operator.
 SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE}
 READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}

@@ -11,7 +11,7 @@ import itertools
 import logging
 import mimetypes
 import ssl
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from http import HTTPStatus
 from pathlib import Path
 
@@ -24,12 +24,13 @@ from .session import Session
 from .settings import CoreSettings
 
 log = logging.getLogger(__name__)
+Ping = Callable[[], Awaitable[float]]  # one WebSocket ping: its round trip in seconds
 WEB_ROOT = Path(__file__).parent.parent / "web"
 PAGES = {"": "index.html", "/operator": "operator.html"}  # the dashboard, and the headset's page
 
 
 class WebSocketTransport:
-    def __init__(self, settings: CoreSettings, open_session: Callable[[str, str], Session],
+    def __init__(self, settings: CoreSettings, open_session: Callable[[str, str, Ping], Session],
                  close_session: Callable[[Session], None]) -> None:
         self.settings = settings
         self._open_session = open_session
@@ -84,7 +85,7 @@ class WebSocketTransport:
 
     async def _handle(self, ws: ServerConnection) -> None:
         peer = "%s:%s" % ws.remote_address[:2] if ws.remote_address else "?"
-        session = self._open_session(f"/rosbridge_websocket/client_{next(self._numbers)}", peer)
+        session = self._open_session(f"/rosbridge_websocket/client_{next(self._numbers)}", peer, lambda: _ping(ws))
         log.info("client connected: %s from %s", session.name, peer)
         writer = asyncio.create_task(self._write(ws, session))
         self._open.add(ws)
@@ -131,6 +132,11 @@ async def _send_batch(ws: ServerConnection, session: Session, frames: list[str |
         data = b"".join(ws.protocol.data_to_send())
         if data:
             ws.transport.write(data)
+
+
+async def _ping(ws: ServerConnection) -> float:
+    """One WebSocket ping; its pong's round trip in seconds (for the link telemetry)."""
+    return await (await ws.ping())
 
 
 def _response(status: HTTPStatus, body: bytes, kind: str) -> Response:

@@ -326,6 +326,17 @@ class Robot(abc.ABC):
         finally:
             self.remove_camera_subscriber()
 
+    # ------------------------------------------------------------------------------------------------ voice
+    def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
+        """Play a piece of the operator's voice (PCM S16LE) through the robot. Called on the loop: must return at
+        once. The default plays nothing (a backend without an audio path); the stand-in moves its mouth."""
+
+    @property
+    def voice_level(self) -> float:
+        """How loud the voice the robot plays is right now, 0..1, as the robot shows it (0: silent, or no
+        audio path)."""
+        return 0.0
+
     # ------------------------------------------------------------------------------------------------ lifecycle
     @abc.abstractmethod
     def close(self) -> None:

@@ -41,7 +41,8 @@ class Session(TopicOps, ServiceOps, ActionOps):
     """One client's session (the op handlers of topics, services and actions are in the mixins)."""
 
     def __init__(self, name: str, bus: Bus, settings: CoreSettings, peer: str = "", *,
-                 policy: AccessPolicy | None = None, tap: Callable[[str, str, Frame], None] | None = None) -> None:
+                 policy: AccessPolicy | None = None, tap: Callable[[str, str, Frame], None] | None = None,
+                 ping: Callable[[], Awaitable[float]] | None = None) -> None:
         self.name = name
         self.peer = peer
         self.bus = bus
@@ -67,6 +68,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
         self.tap = tap
         self.policy = policy if policy is not None else AccessPolicy({})  # none given: open
         self.role: Role | None = None  # set by a successful auth op
+        self.ping = ping  # a WebSocket ping's round trip, from the transport (link telemetry)
         self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
             name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
         }

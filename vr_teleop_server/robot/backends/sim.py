@@ -12,6 +12,8 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from robot_models import RobotModel, load_qtrobot
 from sim import StandIn
 
@@ -189,6 +191,17 @@ class SimRobot(Robot):
             self._gesture_stop.set()
             here = self._standin.joint_positions()
             self._standin.set_targets({n: here[n] for n in self._gesture_joints})
+
+    # ------------------------------------------------------------------------------------------------ voice
+    def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
+        """The stand-in has no speaker: its mouth opens with the voice's level (RMS, -50..-10 dBFS to 0..1)."""
+        samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % 2], "<i2").astype(np.float32) / 32768.0
+        rms = float(np.sqrt(np.mean(np.square(samples)))) if samples.size else 0.0
+        self._standin.set_voice_level(min(1.0, max(0.0, (20 * math.log10(max(rms, 1e-9)) + 50.0) / 40.0)))
+
+    @property
+    def voice_level(self) -> float:
+        return self._standin.voice_level
 
     # ------------------------------------------------------------------------------------------------ camera
     def add_camera_subscriber(self) -> None:

@@ -1,0 +1,371 @@
+"""WebRTC media against the JPEG topic, side by side in one run, on loopback (issue 20).
+
+Figures:
+- glass to glass: the stand-in's render time (frame stamp) to the frame shown in Chromium: the dashboard's camera
+  panel, WebRTC (requestVideoFrameCallback's expected display time, render time from the telemetry's RTP mapping)
+  against the JPEG topic (the image decoded), p50/p95, at 640x480 and 1280x720;
+- bandwidth per path at 30 fps (WebRTC: the server's bytes sent to one peer; JSON: bytes on the WebSocket);
+- server CPU per delivered frame per path (the server process's CPU time over frames delivered);
+- frames per second with 1 and 5 WebRTC viewers (aiortc peers in another process);
+- on a 1 Mbit/s bottleneck (LinkShaper, a drop-tail queue on the server's side) with the head sweeping: fps and
+  the encoder's bitrate;
+- speech text in to first audio sample (RMS above the floor) out at an aiortc peer, p50;
+- pose round trip p99 with 5 WebRTC viewers against none (the control stream must not suffer: within 1.2x).
+
+Servers run as subprocesses (`vr-teleop serve --backend sim`), as in bench/suite.py.
+
+    MUJOCO_GL=egl PYTHONPATH=. python bench/media.py [--seconds S] [--only NAME...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import psutil
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path[:0] = [str(HERE), str(ROOT / "tests")]
+
+import roundtrip  # noqa: E402
+from media_client import LinkShaper, MediaPeer, Rosbridge  # noqa: E402
+from suite import Row, serve, stop  # noqa: E402
+
+CAMERA = "/camera/color/image_raw/compressed"
+
+
+def pct(values: list[float], q: float) -> float:
+    return float(np.percentile(values, q)) if values else float("nan")
+
+
+# ---- glass to glass in Chromium --------------------------------------------------------------------------------
+def glass_rows(size: str, seconds: float) -> list[Row]:
+    from playwright.sync_api import sync_playwright
+
+    server = serve("--backend", "sim", "--camera-size", size, "--bystander-interval", "0")
+    port = server.url.rsplit(":", 1)[1]
+    results = {}
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=["--no-sandbox"])
+            pages = {}
+            for mode in ("webrtc", "jpeg"):  # side by side: both watch at once, under the same load
+                pages[mode] = page = browser.new_page()
+                page.goto(f"http://127.0.0.1:{port}/#camera={mode}")
+            for page in pages.values():
+                page.wait_for_function("window.dashboard.camera.ages.length >= 10", timeout=60_000)
+            for page in pages.values():
+                page.evaluate("window.dashboard.camera.ages.length = 0")
+            time.sleep(seconds)
+            for mode, page in pages.items():
+                ages = page.evaluate("window.dashboard.camera.ages")
+                results[mode] = ([1000 * a for a in ages], page.evaluate("window.dashboard.camera.path"))
+                page.close()
+            browser.close()
+    finally:
+        stop(server)
+    (rtc, rtc_path), (jpg, _) = results["webrtc"], results["jpeg"]
+    assert rtc_path == "WebRTC", f"the dashboard fell back to {rtc_path}"
+    return [Row(f"glass to glass {size}, WebRTC: p50", pct(rtc, 50), pct(jpg, 50), "JPEG topic p50", "ms"),
+            Row(f"glass to glass {size}, WebRTC: p95", pct(rtc, 95), pct(jpg, 95), "JPEG topic p95", "ms"),
+            Row(f"frames shown in {seconds:g} s {size}, WebRTC", len(rtc), len(jpg), "JPEG topic", "frames",
+                "higher")]
+
+
+# ---- bandwidth and server CPU per delivered frame -----------------------------------------------------------------
+async def sweep_head(url: str, stop_at: float) -> None:
+    """The operator looks around: the picture changes, as it does while teleoperating."""
+    ros = await Rosbridge.open(url)
+    yaw = 40.0
+    while time.monotonic() < stop_at:
+        yaw = -yaw
+        await ros.publish("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", {"data": [yaw, 0.0]})
+        await asyncio.sleep(1.5)
+    await ros.publish("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", {"data": [0.0, 0.0]})
+    await ros.close()
+
+
+async def json_path(url: str, seconds: float) -> tuple[int, int]:
+    from websockets.asyncio.client import connect
+
+    ws = await connect(url, compression=None, max_size=None)
+    await ws.send(json.dumps({"op": "subscribe", "topic": CAMERA, "type": "sensor_msgs/CompressedImage",
+                              "queue_length": 1}))
+    warm_until = time.monotonic() + 3
+    while time.monotonic() < warm_until:
+        await ws.recv()
+    frames = size = 0
+    stop_at = time.monotonic() + seconds
+    sweeper = asyncio.ensure_future(sweep_head(url, stop_at))
+    while time.monotonic() < stop_at:
+        frame = await ws.recv()
+        frames += 1
+        size += len(frame)
+    await sweeper
+    await ws.close()
+    return frames, size
+
+
+async def webrtc_path(url: str, seconds: float) -> tuple[int, int]:
+    ros = await Rosbridge.open(url)
+    peer = MediaPeer(audio=False)
+    peer.keep_frames = 1
+    await peer.negotiate(ros)
+    await peer.wait_video(10, 60)
+    await asyncio.sleep(3)
+    count, size = peer.video_count, peer.video_bytes
+    stop_at = time.monotonic() + seconds
+    await sweep_head(url, stop_at)
+    frames, size = peer.video_count - count, peer.video_bytes - size
+    await peer.close()
+    await ros.close()
+    return frames, size
+
+
+def bandwidth_rows(seconds: float) -> list[Row]:
+    server = serve("--backend", "sim", "--bystander-interval", "0")
+    proc = psutil.Process(server.pid)
+    out = {}
+    try:
+        for name, fn in (("webrtc", webrtc_path), ("json", json_path)):
+            cpu0 = sum(proc.cpu_times()[:2])
+            t0 = time.monotonic()
+            frames, size = asyncio.run(fn(server.url, seconds))
+            elapsed = time.monotonic() - t0
+            cpu = sum(proc.cpu_times()[:2]) - cpu0
+            out[name] = (frames, size, cpu, elapsed)
+    finally:
+        stop(server)
+    (rf, rs, rc, re_), (jf, js, jc, je) = out["webrtc"], out["json"]
+    return [Row("bandwidth 640x480 30 fps, head sweeping, WebRTC (VP8)", 8 * rs / seconds / 1e6, 8 * js / seconds / 1e6,
+                "JPEG topic", "Mbit/s"),
+            Row("server CPU per delivered frame, WebRTC", 1000 * rc / max(1, rf), 1000 * jc / max(1, jf),
+                "JPEG topic", "ms"),
+            Row("frames delivered a second, WebRTC", rf / seconds, jf / seconds, "JPEG topic", "fps", "higher")]
+
+
+# ---- viewers in another process ---------------------------------------------------------------------------------
+async def viewers(url: str, n: int, seconds: float) -> list[float]:
+    """n aiortc peers; each one's frames a second over `seconds` after the first frames. They count frames without
+    decoding them: on one 2-core machine, five decoders would starve the server being measured."""
+    pairs = []
+    for _ in range(n):
+        ros = await Rosbridge.open(url)
+        peer = MediaPeer(audio=False)
+        peer.keep_frames = 1
+        peer.light = True
+        await peer.negotiate(ros)
+        pairs.append((ros, peer))
+    for _, peer in pairs:
+        await peer.wait_video(5, 60)
+    counts = [peer.video_count for _, peer in pairs]
+    await asyncio.sleep(seconds)
+    rates = [(peer.video_count - c) / seconds for (_, peer), c in zip(pairs, counts)]
+    for ros, peer in pairs:
+        await peer.close()
+        await ros.close()
+    return rates
+
+
+def spawn_viewers(url: str, n: int, seconds: float, json_topic: bool = False) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds", str(seconds),
+                             *(["--json-topic"] if json_topic else [])], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+
+
+def viewer_rows(seconds: float) -> list[Row]:
+    server = serve("--backend", "sim", "--bystander-interval", "0")
+    try:
+        one = json.loads(spawn_viewers(server.url, 1, seconds).communicate()[0].splitlines()[-1])
+        five = json.loads(spawn_viewers(server.url, 5, seconds).communicate()[0].splitlines()[-1])
+    finally:
+        stop(server)
+    return [Row("WebRTC fps, 1 viewer", float(np.mean(one)), 30.0, "30 fps asked", "fps", "higher"),
+            Row("WebRTC fps, 5 viewers (each, mean)", float(np.mean(five)), float(np.mean(one)), "1 viewer", "fps",
+                "higher"),
+            Row("WebRTC fps, 5 viewers (slowest)", float(np.min(five)), float(np.mean(one)), "1 viewer", "fps",
+                "higher")]
+
+
+# ---- a 1 Mbit/s bottleneck ----------------------------------------------------------------------------------------
+def congested_rows(seconds: float) -> list[Row]:
+    """In-process server (the shaper wraps its peer's transport), head sweeping so that the picture keeps changing."""
+    from support import RunningServer
+    from vr_teleop_server.settings import ServerSettings
+
+    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0))
+
+    async def run() -> tuple[float, float, float, int]:
+        ros = await Rosbridge.open(server.url)
+        peer = MediaPeer(audio=False)
+        peer.keep_frames = 1
+        await peer.negotiate(ros)
+        await peer.wait_video(5, 60)
+        media = server.server.media
+        name = server.call(lambda: next(iter(media.peers)))
+
+        async def install() -> LinkShaper:
+            return LinkShaper(media.peers[name].pc, 1_000_000)
+
+        shaper = asyncio.run_coroutine_threadsafe(install(), server.loop).result()
+        tel = await ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry")
+        settle_until = time.monotonic() + 5
+        start_count, start = None, None
+        targets, rates = [], []
+        yaw, i = 50.0, 0
+        while True:
+            if i % 4 == 0:
+                yaw = -yaw
+                await ros.publish("/qt_robot/head_position/command", "std_msgs/Float64MultiArray",
+                                  {"data": [yaw, 0.0]})
+            i += 1
+            entry = next(c for c in (await tel.get())["clients"] if c["webrtc"])
+            now = time.monotonic()
+            if now < settle_until:
+                continue
+            if start is None:
+                start_count, start = peer.video_count, now
+                continue
+            targets.append(entry["rtc_target_bitrate"])
+            rates.append(entry["rtc_bitrate"])
+            if now - start >= seconds:
+                break
+        fps = (peer.video_count - start_count) / (time.monotonic() - start)
+        dropped = shaper.dropped
+        server.loop.call_soon_threadsafe(shaper.close)
+        await ros.publish("/qt_robot/head_position/command", "std_msgs/Float64MultiArray", {"data": [0.0, 0.0]})
+        await peer.close()
+        await ros.close()
+        return fps, float(np.median(targets)), float(np.median(rates)), dropped
+
+    try:
+        fps, target, rate, dropped = asyncio.run(run())
+    finally:
+        server.stop()
+    return [Row("1 Mbit/s bottleneck, head sweeping: fps received", fps, 20.0, "20 fps wanted", "fps", "higher"),
+            Row("1 Mbit/s bottleneck: encoder target (median)", target / 1e6, 1.0, "the link", "Mbit/s"),
+            Row("1 Mbit/s bottleneck: sent (median of 0.5 s windows)", rate / 1e6, 1.0, "the link", "Mbit/s"),
+            Row("1 Mbit/s bottleneck: packets dropped at the queue", float(dropped), None, "-", "packets")]
+
+
+# ---- speech to first audio sample ---------------------------------------------------------------------------------
+def speech_rows(trials: int) -> list[Row]:
+    server = serve("--backend", "sim", "--bystander-interval", "0")
+
+    async def run() -> list[float]:
+        ros = await Rosbridge.open(server.url)
+        peer = MediaPeer(video=False)
+        await peer.negotiate(ros)
+        while len(peer.audio_frames) < 50:
+            await asyncio.sleep(0.05)
+        delays = []
+        for k in range(trials):
+            peer.audio_frames.clear()
+            t0 = time.monotonic()
+            await ros.publish("/qt_robot/speech/say", "std_msgs/String", {"data": f"Hello number {k}, welcome."})
+            heard = None
+            while heard is None and time.monotonic() - t0 < 10:
+                for t, samples in list(peer.audio_frames):
+                    if np.sqrt(np.mean(samples.astype(np.float32) ** 2)) > 300:
+                        heard = t
+                        break
+                await asyncio.sleep(0.005)
+            if heard is not None:
+                delays.append(1000 * (heard - t0))
+            await asyncio.sleep(3.5)  # let the sentence finish
+        await peer.close()
+        await ros.close()
+        return delays
+
+    try:
+        delays = asyncio.run(run())
+    finally:
+        stop(server)
+    return [Row(f"speech text in to first audio at the peer, p50 of {len(delays)}", pct(delays, 50), None, "-", "ms")]
+
+
+# ---- the control stream beside media -------------------------------------------------------------------------------
+async def json_viewer(url: str, seconds: float) -> list[float]:
+    """One JSON-topic camera subscriber: the stand-in renders as it does for WebRTC viewers."""
+    from websockets.asyncio.client import connect
+
+    ws = await connect(url, compression=None, max_size=None)
+    await ws.send(json.dumps({"op": "subscribe", "topic": CAMERA, "type": "sensor_msgs/CompressedImage",
+                              "queue_length": 1}))
+    frames = 0
+    stop_at = time.monotonic() + seconds
+    while time.monotonic() < stop_at:
+        await ws.recv()
+        frames += 1
+    await ws.close()
+    return [frames / seconds]
+
+
+def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
+    """Alternating rounds, latencies pooled per condition (the machine's load drifts): no viewers; one JSON camera
+    subscriber (the stand-in renders, which on 2 cores with software GL costs the control stream as much as any
+    media work); five WebRTC viewers."""
+    server = serve("--backend", "sim", "--bystander-interval", "0")
+    none: list[float] = []
+    camera: list[float] = []
+    five: list[float] = []
+    rates: list[float] = []
+    try:
+        for _ in range(rounds):
+            none += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True)
+            time.sleep(5)
+            camera += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            watcher.communicate()
+            watchers = spawn_viewers(server.url, 5, seconds + 20)
+            time.sleep(15)  # the five negotiate and reach steady video
+            five += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            rates += json.loads(watchers.communicate()[0].splitlines()[-1])
+    finally:
+        stop(server)
+    return [Row("pose round trip p50, 5 WebRTC viewers", pct(five, 50), pct(none, 50), "no viewers", "ms"),
+            Row("pose round trip p99, 5 WebRTC viewers", pct(five, 99), pct(none, 99), "no viewers (<= 1.2x)",
+                "ms"),
+            Row("pose round trip p99, 1 JSON camera subscriber", pct(camera, 99), pct(none, 99), "no viewers",
+                "ms"),
+            Row("pose round trip p99, 5 WebRTC viewers", pct(five, 99), pct(camera, 99),
+                "1 JSON camera subscriber", "ms"),
+            Row("(the viewers' fps meanwhile, mean)", float(np.mean(rates)), None, "-", "fps", "higher")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--only", nargs="+", choices=["glass", "bandwidth", "viewers", "congested", "speech",
+                                                       "control"])
+    parser.add_argument("--viewers", type=int, help=argparse.SUPPRESS)  # the viewer subprocess
+    parser.add_argument("--url", help=argparse.SUPPRESS)
+    parser.add_argument("--json-topic", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.viewers:
+        run = json_viewer(args.url, args.seconds) if args.json_topic else viewers(args.url, args.viewers, args.seconds)
+        print(json.dumps(asyncio.run(run)))
+        return 0
+    s = args.seconds
+    parts = {"glass": lambda: glass_rows("640x480", s) + glass_rows("1280x720", s),
+             "bandwidth": lambda: bandwidth_rows(s), "viewers": lambda: viewer_rows(s),
+             "congested": lambda: congested_rows(s), "speech": lambda: speech_rows(5),
+             "control": lambda: control_rows(s)}
+    print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
+    print(f"| {'figure':<56} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")
+    for name in args.only or parts:
+        for row in parts[name]():
+            print(row.line(), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

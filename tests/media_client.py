@@ -1,0 +1,248 @@
+"""A media client for tests and the bench: an asyncio rosbridge connection and an aiortc peer that negotiates
+through /vr_teleop/media/offer, as a headset app would."""
+
+from __future__ import annotations
+
+import asyncio
+import fractions
+import itertools
+import json
+import time
+from typing import Any
+
+import av
+import numpy as np
+from aiortc import MediaStreamTrack, RTCConfiguration, RTCPeerConnection, RTCSessionDescription
+from aiortc.mediastreams import MediaStreamError
+from websockets.asyncio.client import ClientConnection, connect
+
+
+class Rosbridge:
+    """rosbridge v2 over websockets' asyncio client: calls, subscriptions and publishes."""
+
+    def __init__(self, ws: ClientConnection) -> None:
+        self.ws = ws
+        self._ids = itertools.count(1)
+        self._calls: dict[str, asyncio.Future[dict[str, Any]]] = {}
+        self.topics: dict[str, asyncio.Queue[dict[str, Any]]] = {}
+        self.statuses: list[dict[str, Any]] = []
+        self._reader = asyncio.ensure_future(self._read())
+
+    @classmethod
+    async def open(cls, url: str, token: str | None = None) -> Rosbridge:
+        client = cls(await connect(url, compression=None, max_size=None))
+        if token:
+            await client.send({"op": "auth", "mac": token})
+        return client
+
+    async def send(self, frame: dict[str, Any]) -> None:
+        await self.ws.send(json.dumps(frame))
+
+    async def _read(self) -> None:
+        try:
+            async for text in self.ws:
+                msg = json.loads(text)
+                if msg.get("op") == "service_response":
+                    fut = self._calls.pop(msg.get("id"), None)
+                    if fut is not None and not fut.done():
+                        fut.set_result(msg)
+                elif msg.get("op") == "publish":
+                    queue = self.topics.get(msg["topic"])
+                    if queue is not None:
+                        queue.put_nowait(msg["msg"])
+                elif msg.get("op") == "status":
+                    self.statuses.append(msg)
+                    fut = self._calls.pop(msg.get("id"), None)
+                    if fut is not None and not fut.done() and msg.get("level") == "error":
+                        fut.set_result({"op": "status", **msg})
+        except Exception:
+            pass
+
+    async def call(self, service: str, args: dict[str, Any], timeout: float = 30.0) -> dict[str, Any]:
+        """The service_response frame (or the status error that answered the call instead)."""
+        call_id = f"call:{next(self._ids)}"
+        fut = self._calls[call_id] = asyncio.get_running_loop().create_future()
+        await self.send({"op": "call_service", "id": call_id, "service": service, "args": args})
+        return await asyncio.wait_for(fut, timeout)
+
+    async def subscribe(self, topic: str, type_name: str, **options: Any) -> asyncio.Queue[dict[str, Any]]:
+        queue = self.topics[topic] = asyncio.Queue()
+        await self.send({"op": "subscribe", "topic": topic, "type": type_name, **options})
+        return queue
+
+    async def publish(self, topic: str, type_name: str, msg: dict[str, Any]) -> None:
+        await self.send({"op": "advertise", "topic": topic, "type": type_name})
+        await self.send({"op": "publish", "topic": topic, "msg": msg})
+
+    async def close(self) -> None:
+        await self.ws.close()
+        self._reader.cancel()
+
+
+class Tone(MediaStreamTrack):
+    """A sine tone (or silence) at 48 kHz in 20 ms frames, paced in real time: the operator's microphone."""
+
+    kind = "audio"
+
+    def __init__(self, frequency: float = 440.0, amplitude: float = 0.5) -> None:
+        super().__init__()
+        self.frequency = frequency
+        self.amplitude = amplitude
+        self._pts = 0
+        self._start: float | None = None
+
+    async def recv(self) -> av.AudioFrame:
+        if self.readyState != "live":
+            raise MediaStreamError
+        if self._start is None:
+            self._start = time.monotonic()
+        wait = self._start + self._pts / 48000 - time.monotonic()
+        if wait > 0:
+            await asyncio.sleep(wait)
+        t = (self._pts + np.arange(960)) / 48000
+        samples = (self.amplitude * 32767 * np.sin(2 * np.pi * self.frequency * t)).astype(np.int16)
+        frame = av.AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
+        frame.sample_rate = 48000
+        frame.pts = self._pts
+        frame.time_base = fractions.Fraction(1, 48000)
+        self._pts += 960
+        return frame
+
+
+class MediaPeer:
+    """An aiortc peer that receives the robot's video and audio and may send a microphone track."""
+
+    def __init__(self, video: bool = True, audio: bool = True, mic: MediaStreamTrack | None = None,
+                 video_codec: str | None = None) -> None:
+        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+        self.frames: list[tuple[float, Any]] = []  # (monotonic receive time, av.VideoFrame)
+        self.audio_frames: list[tuple[float, np.ndarray]] = []
+        self.keep_frames = 5
+        self.video_count = 0
+        self.first_rtp: int | None = None
+        self.video_bytes = 0  # RTP received on the video transceiver
+        self.light = False  # True: count video frames without decoding them (a viewer on another machine)
+        self._tasks: list[asyncio.Task[None]] = []
+        if video:
+            transceiver = self.pc.addTransceiver("video", direction="recvonly")
+            if video_codec:
+                from aiortc.rtcrtpsender import RTCRtpSender
+                caps = [c for c in RTCRtpSender.getCapabilities("video").codecs
+                        if c.mimeType.lower() in (f"video/{video_codec.lower()}", "video/rtx")]
+                transceiver.setCodecPreferences(caps)
+        if audio:
+            if mic is not None:
+                self.pc.addTrack(mic)
+            else:
+                self.pc.addTransceiver("audio", direction="recvonly")
+
+        @self.pc.on("track")
+        def on_track(track: MediaStreamTrack) -> None:
+            self._tasks.append(asyncio.ensure_future(self._consume(track)))
+
+    async def _consume(self, track: MediaStreamTrack) -> None:
+        try:
+            while True:
+                frame = await track.recv()
+                now = time.monotonic()
+                if track.kind == "video":
+                    self.video_count += 1
+                    self.frames.append((now, frame))
+                    del self.frames[:-self.keep_frames]
+                else:
+                    self.audio_frames.append((now, frame.to_ndarray().reshape(-1)))
+        except (MediaStreamError, asyncio.CancelledError):
+            pass
+
+    async def negotiate(self, ros: Rosbridge) -> dict[str, Any]:
+        await self.pc.setLocalDescription(await self.pc.createOffer())
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": self.pc.localDescription.sdp,
+                                                          "type": self.pc.localDescription.type})
+        values = reply.get("values")
+        if reply.get("op") == "service_response" and reply.get("result") and values["success"]:
+            await self.pc.setRemoteDescription(RTCSessionDescription(values["sdp"], values["type"]))
+            self._watch_rtp()
+        return reply
+
+    def _watch_rtp(self) -> None:
+        """aiortc's decoded frames count pts from the first frame's RTP timestamp: keep that timestamp, so that
+        a frame's RTP timestamp is first_rtp + pts (a browser sees it directly: rVFC's rtpTimestamp)."""
+        for transceiver in self.pc.getTransceivers():
+            if transceiver.kind != "video":
+                continue
+            receiver = transceiver.receiver
+            original = receiver._handle_rtp_packet
+
+            async def handle(packet, arrival_time_ms, original=original):
+                if self.first_rtp is None:
+                    self.first_rtp = packet.timestamp
+                self.video_bytes += len(packet.payload) + 12  # with the RTP header
+                if self.light:  # count frames by their last packet; no jitter buffer, no decoding
+                    self.video_count += packet.marker
+                    return
+                await original(packet, arrival_time_ms)
+
+            receiver._handle_rtp_packet = handle
+
+    def rtp_timestamp(self, frame) -> int:
+        return (self.first_rtp + frame.pts) & 0xFFFFFFFF
+
+    async def wait_video(self, count: int, timeout: float = 30.0) -> None:
+        target = self.video_count + count
+        deadline = time.monotonic() + timeout
+        while self.video_count < target:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.video_count} video frames, waited for {target}")
+            await asyncio.sleep(0.02)
+
+    async def close(self) -> None:
+        await self.pc.close()
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+
+
+class LinkShaper:
+    """A bottleneck link on the server's side of one peer connection: packets leave at `rate` bits a second
+    through a drop-tail queue of `queue_s` seconds, as through a router. Install it on the server's loop; it
+    wraps the DTLS transport's send (aiortc internals: tests and bench only)."""
+
+    def __init__(self, pc: RTCPeerConnection, rate: float, queue_s: float = 0.5) -> None:
+        self.rate = rate
+        self.limit = int(rate * queue_s / 8)
+        self.queued = 0
+        self.dropped = 0
+        self.sent = 0
+        self._queue: asyncio.Queue[tuple[Any, bytes]] = asyncio.Queue()
+        transports = {t.sender.transport for t in pc.getTransceivers()}
+        for transport in transports:
+            original = transport._send_rtp
+
+            async def send(data: bytes, original=original) -> None:
+                if self.queued + len(data) > self.limit:
+                    self.dropped += 1
+                    return
+                self.queued += len(data)
+                self._queue.put_nowait((original, data))
+
+            transport._send_rtp = send
+        self.task = asyncio.ensure_future(self._drain())
+
+    async def _drain(self) -> None:
+        loop = asyncio.get_running_loop()
+        next_at = loop.time()
+        while True:
+            original, data = await self._queue.get()
+            self.queued -= len(data)
+            next_at = max(next_at, loop.time()) + 8 * (len(data) + 28) / self.rate  # + IP/UDP headers
+            try:
+                await original(data)
+            except ConnectionError:
+                return
+            self.sent += 1
+            delay = next_at - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+
+    def close(self) -> None:
+        self.task.cancel()

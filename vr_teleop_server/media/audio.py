@@ -1,0 +1,320 @@
+"""Audio both ways over WebRTC: the robot's audio out as an Opus track, the operator's voice in.
+
+Out: `AudioMixer` (one per server) makes 20 ms frames of 48 kHz mono in real time while some peer listens, and
+hands each to every `RobotAudioTrack` (aiortc's sender encodes it as Opus). What it mixes:
+- the robot's speech: the PCM chunks on /vr_teleop/audio/robot (the same audio the JSON path carries), which
+  the speaker sends 300 ms ahead of real time; they wait in a FIFO and play at real time;
+- the classroom microphone (the stand-in's only): what the robot hears besides itself. On the stand-in that is
+  its bystanders: a line every `bystander_interval` seconds, synthesised once with the server's TTS (the function
+  is passed in by the app) and mixed at BYSTANDER_GAIN, as voices a few metres away. The robot's own speech
+  reaches its microphone too; on the stand-in it is the same signal at the same time as the speech feed, so it
+  is not added a second time (it would only make the speech louder).
+
+In: `OperatorVoice` reads one peer's incoming Opus track (aiortc decodes it), and for an operator or supervisor
+(a spectator only listens) publishes it on /vr_teleop/audio/operator as that client (so OperatorAudioLog writes
+its WAV exactly as for PCM sent over rosbridge), and plays it on the robot (`Robot.play_voice`): the stand-in
+moves its mouth with the voice's level and reports the level (`Robot.voice_level`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import fractions
+import logging
+import math
+from collections import deque
+from collections.abc import Awaitable, Callable, Sequence
+
+import av
+import numpy as np
+from aiortc import MediaStreamTrack
+from aiortc.mediastreams import MediaStreamError
+
+from client_protocol import names
+
+from ..core.bus import Bus, BusError, Published
+from ..robot.interface import Robot
+
+log = logging.getLogger(__name__)
+
+RATE = 48000
+FRAME_S = 0.02
+FRAME_SAMPLES = int(RATE * FRAME_S)
+TIME_BASE = fractions.Fraction(1, RATE)
+TRACK_QUEUE = 10  # 200 ms of frames waiting for one sender at most; older ones are dropped
+BYSTANDER_GAIN = 0.35
+BYSTANDER_LINES = (
+    "Can I ask the robot a question?",
+    "Look, it is waving at us.",
+    "What is your name, robot?",
+    "I think it can see us.",
+)
+OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
+
+# (pcm s16 bytes, sample rate, channels) of a rendered line
+Rendered = tuple[bytes, int, int]
+
+
+def to_mono48k(pcm: bytes, rate: int, channels: int) -> np.ndarray:
+    """S16 PCM at any rate and channel count as float32 mono at 48 kHz (linear interpolation: speech only)."""
+    samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % (2 * channels)], "<i2").astype(np.float32)
+    if channels > 1:
+        samples = samples.reshape(-1, channels).mean(axis=1)
+    if rate != RATE and samples.size:
+        n = int(round(samples.size * RATE / rate))
+        samples = np.interp(np.arange(n) * (rate / RATE), np.arange(samples.size), samples).astype(np.float32)
+    return samples
+
+
+class _Fifo:
+    """Float samples waiting to be played."""
+
+    def __init__(self) -> None:
+        self._chunks: deque[np.ndarray] = deque()
+        self.size = 0
+
+    def push(self, samples: np.ndarray) -> None:
+        if samples.size:
+            self._chunks.append(samples)
+            self.size += samples.size
+
+    def pull(self, n: int) -> np.ndarray:
+        out = np.zeros(n, np.float32)
+        filled = 0
+        while filled < n and self._chunks:
+            chunk = self._chunks[0]
+            take = min(n - filled, chunk.size)
+            out[filled:filled + take] = chunk[:take]
+            filled += take
+            if take == chunk.size:
+                self._chunks.popleft()
+            else:
+                self._chunks[0] = chunk[take:]
+        self.size -= filled
+        return out
+
+    def clear(self) -> None:
+        self._chunks.clear()
+        self.size = 0
+
+
+class AudioMixer:
+    """The robot's audio for every peer: speech plus the classroom microphone, in real time, 20 ms frames."""
+
+    def __init__(self, bus: Bus, *, render_line: Callable[[str], Awaitable[Rendered]] | None = None,
+                 bystander_interval: float = 0.0, lines: Sequence[str] = BYSTANDER_LINES) -> None:
+        self.bus = bus
+        self.render_line = render_line
+        self.bystander_interval = bystander_interval
+        self.lines = tuple(lines)
+        self._tracks: set[RobotAudioTrack] = set()
+        self._speech = _Fifo()
+        self._mic = _Fifo()
+        self._speech_format = (22050, 1)
+        self._task: asyncio.Task[None] | None = None
+        self._rendered: list[np.ndarray] = []
+        self._render_task: asyncio.Task[None] | None = None
+        self._tokens: list[tuple[str, int]] = []
+        self.frames = 0
+
+    def start(self) -> None:
+        self.bus.declare_topic(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
+        self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True, persistent=True)
+        self._tokens = [
+            (names.ROBOT_AUDIO_INFO_TOPIC, self.bus.subscribe("/vr_teleop_server/media", names.ROBOT_AUDIO_INFO_TOPIC, None,
+                                                        self._on_info)),
+            (names.ROBOT_AUDIO_TOPIC, self.bus.subscribe("/vr_teleop_server/media", names.ROBOT_AUDIO_TOPIC, None,
+                                                   self._on_speech)),
+        ]
+
+    def _on_info(self, published: Published) -> None:
+        info = published.value
+        if info.sample_rate > 0 and info.channels in (1, 2):
+            self._speech_format = (int(info.sample_rate), int(info.channels))
+
+    def _on_speech(self, published: Published) -> None:
+        if not self._tracks:
+            return  # nobody listens: nothing accumulates
+        rate, channels = self._speech_format
+        self._speech.push(to_mono48k(bytes(published.value.data), rate, channels))
+
+    def attach(self, track: RobotAudioTrack) -> None:
+        self._tracks.add(track)
+        if self._task is None or self._task.done():
+            self._task = asyncio.ensure_future(self._run())
+        if self.render_line is not None and self.bystander_interval > 0 and self._render_task is None:
+            self._render_task = asyncio.ensure_future(self._render_lines())
+
+    def detach(self, track: RobotAudioTrack) -> None:
+        self._tracks.discard(track)
+        if not self._tracks and self._task is not None:
+            self._task.cancel()
+            self._task = None
+            self._speech.clear()
+            self._mic.clear()
+
+    async def _render_lines(self) -> None:
+        """The bystanders' lines, synthesised once."""
+        for line in self.lines:
+            try:
+                pcm, rate, channels = await self.render_line(line)
+            except Exception:
+                log.exception("a bystander line could not be synthesised; the classroom stays quieter")
+                continue
+            self._rendered.append(to_mono48k(pcm, rate, channels) * BYSTANDER_GAIN)
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        start = next_at = loop.time()
+        pts = 0
+        next_line = start + self.bystander_interval
+        line_index = 0
+        try:
+            while True:
+                now = loop.time()
+                if now - next_at > 0.2:  # the loop stalled: real time goes on, no burst of frames
+                    next_at = now
+                if self.bystander_interval > 0 and now >= next_line:
+                    next_line = now + self.bystander_interval
+                    if self._rendered:
+                        self._mic.push(self._rendered[line_index % len(self._rendered)])
+                        line_index += 1
+                mixed = self._speech.pull(FRAME_SAMPLES) + self._mic.pull(FRAME_SAMPLES)
+                pcm = np.clip(mixed, -32768, 32767).astype(np.int16)
+                frame = av.AudioFrame.from_ndarray(pcm.reshape(1, -1), format="s16", layout="mono")
+                frame.sample_rate = RATE
+                frame.pts = pts
+                frame.time_base = TIME_BASE
+                pts += FRAME_SAMPLES
+                self.frames += 1
+                for track in list(self._tracks):
+                    track.offer(frame)
+                next_at += FRAME_S
+                await asyncio.sleep(max(0.0, next_at - loop.time()))
+        except asyncio.CancelledError:
+            raise
+        except Exception:
+            log.exception("the robot audio mixer failed; peers get no more robot audio")
+
+    async def close(self) -> None:
+        for track in list(self._tracks):
+            track.stop()
+        for task in (self._task, self._render_task):
+            if task is not None:
+                task.cancel()
+        self._task = self._render_task = None
+        for topic, token in self._tokens:
+            self.bus.unsubscribe(topic, token)
+        self._tokens = []
+
+
+class RobotAudioTrack(MediaStreamTrack):
+    """One peer's copy of the robot's audio (its sender encodes Opus)."""
+
+    kind = "audio"
+
+    def __init__(self, mixer: AudioMixer) -> None:
+        super().__init__()
+        self.mixer = mixer
+        self._queue: deque[av.AudioFrame] = deque(maxlen=TRACK_QUEUE)
+        self._ready = asyncio.Event()
+        self.frames_sent = 0
+        mixer.attach(self)
+
+    def offer(self, frame: av.AudioFrame) -> None:
+        self._queue.append(frame)
+        self._ready.set()
+
+    async def recv(self) -> av.AudioFrame:
+        while not self._queue:
+            if self.readyState != "live":
+                raise MediaStreamError
+            self._ready.clear()
+            await self._ready.wait()
+        if self.readyState != "live":
+            raise MediaStreamError
+        self.frames_sent += 1
+        return self._queue.popleft()
+
+    def stop(self) -> None:
+        super().stop()
+        self.mixer.detach(self)
+        self._ready.set()
+
+
+def voice_level(samples: np.ndarray) -> float:
+    """0..1 from RMS: -50 dBFS and below is 0, -10 dBFS and above is 1."""
+    if not samples.size:
+        return 0.0
+    rms = float(np.sqrt(np.mean(np.square(samples.astype(np.float32) / 32768.0))))
+    db = 20 * math.log10(max(rms, 1e-9))
+    return min(1.0, max(0.0, (db + 50.0) / 40.0))
+
+
+class OperatorVoice:
+    """One peer's incoming microphone track: logged as the client's operator audio and played on the robot."""
+
+    def __init__(self, bus: Bus, robot: Robot | None, owner: str, track: MediaStreamTrack, may_speak: bool) -> None:
+        self.bus = bus
+        self.robot = robot
+        self.owner = owner
+        self.track = track
+        self.may_speak = may_speak
+        self.level = 0.0
+        self.frames = 0
+        self._resampler = av.AudioResampler(format="s16", layout="mono", rate=RATE)
+        self._pending: list[bytes] = []
+        self._pending_samples = 0
+        self._announced = False
+        self.task = asyncio.ensure_future(self._run())
+
+    async def _run(self) -> None:
+        try:
+            while True:
+                frame = await self.track.recv()
+                for out in self._resampler.resample(frame):
+                    self._take(out.to_ndarray().reshape(-1).astype(np.int16))
+        except (MediaStreamError, asyncio.CancelledError):
+            pass
+        except Exception:
+            log.exception("%s: the operator's voice track failed", self.owner)
+        finally:
+            self.level = 0.0
+
+    def _take(self, samples: np.ndarray) -> None:
+        self.frames += 1
+        self.level = voice_level(samples)
+        if not self.may_speak:
+            return  # a spectator's microphone is neither played nor logged
+        pcm = samples.tobytes()
+        if self.robot is not None:
+            try:
+                self.robot.play_voice(pcm, RATE, 1)
+            except Exception:
+                log.exception("the robot could not play the operator's voice")
+        self._pending.append(pcm)
+        self._pending_samples += samples.size
+        if self._pending_samples >= OPERATOR_CHUNK_S * RATE:
+            self._publish()
+
+    def _publish(self) -> None:
+        data = b"".join(self._pending)
+        self._pending, self._pending_samples = [], 0
+        try:
+            if not self._announced:
+                self.bus.declare_topic(names.OPERATOR_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", persistent=True)
+                self.bus.declare_topic(names.OPERATOR_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
+                self.bus.publish(names.OPERATOR_AUDIO_INFO_TOPIC, {
+                    "channels": 1, "sample_rate": RATE, "sample_format": "S16LE", "bitrate": RATE * 16,
+                    "coding_format": "pcm"}, sender=self.owner)
+                self._announced = True
+            self.bus.publish(names.OPERATOR_AUDIO_TOPIC, {"data": data}, sender=self.owner)
+        except BusError:
+            log.exception("the operator's voice could not be published")
+
+    async def close(self) -> None:
+        self.task.cancel()
+        try:
+            await self.task
+        except asyncio.CancelledError:
+            pass

@@ -1,0 +1,442 @@
+"""WebRTC beside the rosbridge stream: the offer service, one peer connection per client, the clock service and
+the link telemetry.
+
+Signalling rides the rosbridge connection the client already has: it calls /vr_teleop/media/offer with its
+offer and gets the server's answer (aiortc gathers its candidates before answering: no trickle). The peer
+connection belongs to the calling session and is closed when that WebSocket closes (the bus's owner_dropped), or
+when ICE or DTLS fail (a peer that vanished: aioice's consent checks notice within about 30 s). Every refusal is
+answered inside the response (success false, message naming the problem and the fix).
+
+Access is the camera topic's: a client that may not subscribe to the head camera gets no media. An operator's or
+supervisor's microphone is played on the robot and logged; a spectator's is ignored.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from aiortc import RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
+from aiortc import sdp as aiortc_sdp
+from aiortc.exceptions import InvalidStateError, OperationError
+
+from client_protocol import names
+
+from ..core.access import AccessDenied, AccessPolicy, Role
+from ..core.bus import SERVER_NODE, Bus, Published
+from ..robot.interface import Robot
+from .audio import RATE as AUDIO_RATE
+from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
+from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, VideoHub
+
+log = logging.getLogger(__name__)
+
+TELEMETRY_PERIOD_S = 0.5
+MAX_FRAME_TIMES = 64  # render times per client per report (30 fps x 0.5 s is 15; a late report catches up)
+MEDIA_OWNER = "/vr_teleop_server/media"
+
+
+@dataclass
+class Peer:
+    owner: str
+    pc: RTCPeerConnection
+    created: float = field(default_factory=time.monotonic)
+    video: CameraTrack | None = None
+    audio: RobotAudioTrack | None = None
+    voice: OperatorVoice | None = None
+    closing: bool = False
+    # from the newest stats
+    bytes_sent: int = 0
+    stats_at: float = 0.0
+    bitrate: float = -1.0
+    rtt: float = -1.0
+    jitter: float = -1.0
+    packets_lost: int = 0
+    fraction_lost: float = 0.0
+
+
+@dataclass
+class ClientLink:
+    """What telemetry keeps of one client between reports."""
+
+    ws_rtt: float = -1.0
+    ping: asyncio.Task[None] | None = None
+    poses: deque[float] = field(default_factory=lambda: deque(maxlen=256))
+    camera_base: int | None = None  # camera messages published before this client subscribed
+    json_age_sum: float = 0.0
+    json_age_n: int = 0
+    webrtc_sent_reported: int = 0
+    frames_reported: int = 0  # video frames whose render times went out already
+    webrtc_age_reported: float = 0.0
+
+
+class SessionView:
+    """What the media service reads of a session (duck-typed: name, role, subscriptions, ping)."""
+
+    name: str
+    role: Role | None
+    subscriptions: Mapping[str, Any]
+    ping: Callable[[], Awaitable[float]] | None
+
+
+class MediaService:
+    """Provides /vr_teleop/media/offer and /vr_teleop/clock, publishes /vr_teleop/telemetry."""
+
+    def __init__(self, bus: Bus, robot: Robot | None, access: AccessPolicy,
+                 sessions: Callable[[], Mapping[str, SessionView]], *, camera_fps: float = 30.0,
+                 render_line: Callable[[str], Awaitable[Rendered]] | None = None, bystander_interval: float = 0.0,
+                 ice_servers: list[str] | None = None) -> None:
+        self.bus = bus
+        self.robot = robot
+        self.access = access
+        self.sessions = sessions
+        self.ice_servers = list(ice_servers or [])
+        self.video = VideoHub(robot, camera_fps) if robot is not None else None
+        self.audio = AudioMixer(bus, render_line=render_line, bystander_interval=bystander_interval)
+        self.peers: dict[str, Peer] = {}
+        self.links: dict[str, ClientLink] = {}
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._telemetry: asyncio.Task[None] | None = None
+        self._camera_published = 0
+        self._pose_token = 0
+        self.peers_created = 0
+        self.peers_closed = 0
+
+    # ---- lifecycle ----------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self.bus.provide(names.MEDIA_OFFER_SERVICE, "vr_teleop_msgs/MediaOffer", self._offer)
+        self.bus.provide(names.CLOCK_SERVICE, "vr_teleop_msgs/Clock", self._clock)
+        self.bus.declare_topic(names.TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", persistent=True)
+        self._pose_token = self.bus.subscribe(MEDIA_OWNER, names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped",
+                                              self._on_pose)
+        self.bus.taps.append(self._tap)
+        self.bus.owner_dropped.append(self._owner_dropped)
+        self.audio.start()
+        self._telemetry = asyncio.ensure_future(self._report_loop())
+
+    async def stop(self) -> None:
+        if self._telemetry is not None:
+            self._telemetry.cancel()
+            self._telemetry = None
+        # Closes under way finish (cancelling one would cancel aiortc's shared close future), then the rest.
+        if self._tasks:
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+        for owner in list(self.peers):
+            await self._close_peer(owner)
+        for link in self.links.values():
+            if link.ping is not None:
+                link.ping.cancel()
+        self.links.clear()
+        if self._tap in self.bus.taps:
+            self.bus.taps.remove(self._tap)
+        if self._owner_dropped in self.bus.owner_dropped:
+            self.bus.owner_dropped.remove(self._owner_dropped)
+        self.bus.unsubscribe(names.HEAD_POSE_TOPIC, self._pose_token)
+        for name in (names.MEDIA_OFFER_SERVICE, names.CLOCK_SERVICE):
+            if name in self.bus.services:
+                self.bus.unadvertise_service(SERVER_NODE, name)
+        await self.audio.close()
+        if self.video is not None:
+            await self.video.close()
+
+    def _spawn(self, coro: Awaitable[Any]) -> asyncio.Task[Any]:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    # ---- signalling ---------------------------------------------------------------------------------------------
+    @staticmethod
+    def _refuse(message: str) -> dict[str, Any]:
+        return {"success": False, "message": message, "sdp": "", "type": ""}
+
+    async def _offer(self, request: Any) -> dict[str, Any]:
+        caller = Bus.caller()
+        session = self.sessions().get(caller)
+        if session is None:
+            return self._refuse(f"{names.MEDIA_OFFER_SERVICE} must be called by a client over its rosbridge connection: the "
+                                "peer connection lives as long as that connection")
+        try:
+            self.access.check(session.role, "subscribe", names.CAMERA_TOPIC)
+        except AccessDenied as exc:
+            return self._refuse(f"no media without camera access: {exc}")
+        if caller in self.peers:
+            return self._refuse("this connection already has a peer connection (one per connection; renegotiation "
+                                "is not supported): keep using it, or open a new rosbridge connection for another")
+        if request.type != "offer":
+            return self._refuse(f"type must be 'offer' (the client offers, the server answers), got {request.type!r}")
+        if "m=" not in request.sdp:
+            return self._refuse("malformed SDP: no media section (m=...); send the offer your WebRTC stack made "
+                                "(RTCPeerConnection.createOffer) with a video and/or audio transceiver")
+        try:
+            offer = aiortc_sdp.SessionDescription.parse(request.sdp)
+        except Exception as exc:
+            return self._refuse(f"malformed SDP: {type(exc).__name__}: {exc}")
+        kinds = [m.kind for m in offer.media if m.kind in ("audio", "video")]
+        if not kinds:
+            return self._refuse("the offer has no audio or video section; add a transceiver (video recvonly for the "
+                                "camera, audio sendrecv for the voice) before createOffer")
+        config = RTCConfiguration(iceServers=[RTCIceServer(url) for url in self.ice_servers])
+        pc = RTCPeerConnection(config)
+        peer = self.peers[caller] = Peer(caller, pc)  # reserved before any await: a concurrent offer is refused
+        self.peers_created += 1
+        try:
+            answer = await self._negotiate(peer, session, request.sdp, offer)
+        except _Refusal as exc:
+            await self._close_peer(caller)
+            return self._refuse(str(exc))
+        except Exception as exc:
+            log.exception("%s: WebRTC negotiation failed", caller)
+            await self._close_peer(caller)
+            return self._refuse(f"negotiation failed: {type(exc).__name__}: {exc}")
+        if caller not in self.peers or peer.closing:  # the client left while we negotiated
+            return self._refuse("the connection closed during negotiation")
+        log.info("%s: peer connection negotiated (video %s)", caller, peer.video.codec if peer.video else "none")
+        return {"success": True, "message": "", "sdp": answer.sdp, "type": answer.type}
+
+    async def _negotiate(self, peer: Peer, session: SessionView, sdp: str,
+                         offer: aiortc_sdp.SessionDescription) -> RTCSessionDescription:
+        pc = peer.pc
+        may_speak = self._may_speak(session.role)
+
+        @pc.on("track")
+        def on_track(track: Any) -> None:
+            if track.kind == "audio" and peer.voice is None:
+                peer.voice = OperatorVoice(self.bus, self.robot, peer.owner, track, may_speak)
+
+        @pc.on("connectionstatechange")
+        async def on_state() -> None:
+            if pc.connectionState in ("failed", "closed") and not peer.closing:
+                log.info("%s: peer connection %s", peer.owner, pc.connectionState)
+                self._spawn(self._close_peer(peer.owner, peer))
+
+        try:
+            await pc.setRemoteDescription(RTCSessionDescription(sdp, "offer"))
+        except OperationError:
+            raise _Refusal(_no_common_codec(offer)) from None
+        except (ValueError, KeyError, IndexError, TypeError) as exc:
+            raise _Refusal(f"malformed SDP: {exc}") from None
+        directions = {m.rtp.muxId: m.direction for m in offer.media}
+        for transceiver in pc.getTransceivers():
+            if directions.get(transceiver.mid) not in ("sendrecv", "recvonly"):  # the client does not receive
+                continue
+            if transceiver.kind == "video" and self.video is not None and peer.video is None:
+                peer.video = CameraTrack(self.video)
+                pc.addTrack(peer.video)
+            elif transceiver.kind == "audio" and peer.audio is None:
+                peer.audio = RobotAudioTrack(self.audio)
+                pc.addTrack(peer.audio)
+        await pc.setLocalDescription(await pc.createAnswer())
+        if peer.video is not None:
+            codec, sender = self._video_codec(pc)
+            if codec not in CODECS:
+                raise _Refusal(f"no common video codec: the answer would send {codec or 'nothing'}; this server "
+                               f"sends {' or '.join(CODECS)}")
+            peer.video.bind(codec, sender)
+        return pc.localDescription
+
+    @staticmethod
+    def _video_codec(pc: RTCPeerConnection) -> tuple[str, Any]:
+        """The codec the video sender will use: the first of the answer's video section (aiortc's rule)."""
+        answer = aiortc_sdp.SessionDescription.parse(pc.localDescription.sdp)
+        for transceiver in pc.getTransceivers():
+            if transceiver.kind != "video" or transceiver.sender.track is None:
+                continue
+            for media in answer.media:
+                if media.kind == "video" and media.rtp.muxId == transceiver.mid and media.rtp.codecs:
+                    return media.rtp.codecs[0].name.upper(), transceiver.sender
+        return "", None
+
+    def _may_speak(self, role: Role | None) -> bool:
+        try:
+            self.access.check(role, "publish", names.OPERATOR_AUDIO_TOPIC)
+        except AccessDenied:
+            return False
+        return True
+
+    def _owner_dropped(self, owner: str) -> None:
+        self.links.pop(owner, None)
+        if owner in self.peers:
+            self._spawn(self._close_peer(owner))
+
+    async def _close_peer(self, owner: str, only: Peer | None = None) -> None:
+        peer = self.peers.get(owner)
+        if peer is None or (only is not None and peer is not only):
+            return
+        if peer.closing:
+            return
+        peer.closing = True
+        try:
+            if peer.voice is not None:
+                await peer.voice.close()
+            for track in (peer.video, peer.audio):
+                if track is not None:
+                    track.stop()
+            try:  # not under wait_for: cancelling aiortc's close leaves its shared future cancelled
+                await peer.pc.close()
+            except InvalidStateError:
+                log.warning("%s: the peer connection did not close cleanly", owner)
+        finally:
+            if self.peers.get(owner) is peer:
+                del self.peers[owner]
+            self.peers_closed += 1
+            log.info("%s: peer connection closed", owner)
+
+    # ---- clock --------------------------------------------------------------------------------------------------
+    async def _clock(self, request: Any) -> dict[str, Any]:
+        received = time.time()
+        return {"success": True, "message": "", "client_send": request.client_send, "server_receive": received,
+                "server_send": time.time()}
+
+    # ---- telemetry ----------------------------------------------------------------------------------------------
+    def _on_pose(self, published: Published) -> None:
+        link = self.links.get(published.sender)
+        if link is None and published.sender in self.sessions():
+            link = self.links[published.sender] = ClientLink()
+        if link is not None:
+            link.poses.append(time.monotonic())
+
+    def _tap(self, published: Published) -> None:
+        if published.topic != names.CAMERA_TOPIC:
+            return
+        self._camera_published += 1
+        stamp = (published.plain or {}).get("header", {}).get("stamp") if published.plain is not None else None
+        if stamp is None:
+            return
+        render = (stamp.get("secs", stamp.get("sec", 0)) or 0) + (stamp.get("nsecs", stamp.get("nanosec", 0)) or 0) / 1e9
+        age = max(0.0, time.time() - render)
+        for name, session in self.sessions().items():
+            if names.CAMERA_TOPIC in session.subscriptions:
+                link = self.links.setdefault(name, ClientLink())
+                link.json_age_sum += age
+                link.json_age_n += 1
+
+    async def _report_loop(self) -> None:
+        while True:
+            try:
+                await self._report()
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("telemetry failed")
+            await asyncio.sleep(TELEMETRY_PERIOD_S)
+
+    def _ping(self, name: str, session: SessionView, link: ClientLink) -> None:
+        if session.ping is None or (link.ping is not None and not link.ping.done()):
+            return
+
+        async def ping() -> None:
+            try:
+                link.ws_rtt = await asyncio.wait_for(session.ping(), 5.0)
+            except Exception:  # closed, or no pong in time: keep the last figure
+                pass
+
+        link.ping = asyncio.ensure_future(ping())
+
+    async def _report(self) -> None:
+        sessions = self.sessions()
+        now = time.monotonic()
+        clients = []
+        for name, session in list(sessions.items()):
+            link = self.links.setdefault(name, ClientLink())
+            self._ping(name, session, link)
+            peer = self.peers.get(name)
+            if peer is not None and not peer.closing:
+                await self._peer_stats(peer)
+            clients.append(self._client_entry(name, session, link, peer, now))
+        self.bus.publish(names.TELEMETRY_TOPIC, {"header": {"stamp": _stamp(time.time())}, "clients": clients})
+
+    async def _peer_stats(self, peer: Peer) -> None:
+        # The video sender's figures; without video (audio only), the audio sender's.
+        senders = [x for x in peer.pc.getSenders() if x.track is not None]
+        sender = next((x for x in senders if x.kind == "video"), None) or next(iter(senders), None)
+        if sender is None:
+            return
+        clock_rate = VIDEO_CLOCK_RATE if sender.kind == "video" else AUDIO_RATE
+        try:
+            report = await sender.getStats()
+        except Exception:
+            return
+        now = time.monotonic()
+        for stats in report.values():
+            if stats.type == "outbound-rtp":
+                if peer.stats_at:
+                    peer.bitrate = 8 * (stats.bytesSent - peer.bytes_sent) / max(1e-3, now - peer.stats_at)
+                peer.bytes_sent, peer.stats_at = stats.bytesSent, now
+            elif stats.type == "remote-inbound-rtp":
+                peer.rtt = stats.roundTripTime if stats.roundTripTime is not None else -1.0
+                peer.jitter = (stats.jitter or 0) / clock_rate
+                peer.packets_lost = max(0, stats.packetsLost or 0)
+                peer.fraction_lost = (stats.fractionLost or 0) / 256.0
+
+    def _client_entry(self, name: str, session: SessionView, link: ClientLink, peer: Peer | None,
+                      now: float) -> dict[str, Any]:
+        recent = [t for t in link.poses if now - t <= 1.0]
+        sub = session.subscriptions.get(names.CAMERA_TOPIC)
+        sent = dropped = 0
+        age_sum, age_n = link.json_age_sum, link.json_age_n
+        link.json_age_sum, link.json_age_n = 0.0, 0
+        if sub is not None:
+            if link.camera_base is None:
+                link.camera_base = self._camera_published - len(sub.queue) - sub.dropped
+            dropped = sub.dropped
+            sent = max(0, self._camera_published - link.camera_base - dropped - len(sub.queue))
+        else:
+            link.camera_base = None
+        entry: dict[str, Any] = {
+            "client": name, "role": session.role or ("supervisor" if self.access.open else ""),
+            "ws_rtt": link.ws_rtt, "pose_rate": float(len(recent)),
+            "pose_age": now - link.poses[-1] if link.poses else -1.0,
+            "webrtc": peer is not None, "video_codec": "", "rtc_state": "", "rtc_rtt": -1.0, "rtc_jitter": -1.0,
+            "rtc_packets_lost": 0, "rtc_fraction_lost": 0.0, "rtc_bitrate": -1.0, "rtc_target_bitrate": -1.0,
+            "rtc_frames_sent": 0, "rtp_timestamp": 0, "rtp_render_time": 0.0, "rtp_clock_rate": 0,
+            "frame_rtp_timestamps": [], "frame_render_times": [], "operator_voice_level": 0.0}
+        if peer is not None:
+            entry.update(rtc_state=peer.pc.connectionState, rtc_rtt=peer.rtt, rtc_jitter=peer.jitter,
+                         rtc_packets_lost=peer.packets_lost, rtc_fraction_lost=peer.fraction_lost,
+                         rtc_bitrate=peer.bitrate)
+            video = peer.video
+            if video is not None:
+                sent += video.frames_sent
+                dropped += video.frames_dropped
+                age_sum += video.age_sum - link.webrtc_age_reported
+                age_n += video.frames_sent - link.webrtc_sent_reported
+                link.webrtc_age_reported, link.webrtc_sent_reported = video.age_sum, video.frames_sent
+                entry.update(video_codec=video.codec, rtc_frames_sent=video.frames_sent,
+                             rtc_target_bitrate=float(self.video.bitrate(video.codec)) if video.codec else -1.0)
+                recent = video.recent(min(MAX_FRAME_TIMES, video.frames_sent - link.frames_reported))
+                link.frames_reported = video.frames_sent
+                newest = video.recent(1)
+                if newest:
+                    entry.update(rtp_timestamp=newest[0][0], rtp_render_time=newest[0][1],
+                                 rtp_clock_rate=VIDEO_CLOCK_RATE, frame_rtp_timestamps=[r for r, _ in recent],
+                                 frame_render_times=[t for _, t in recent])
+            if peer.voice is not None and peer.voice.task is not None and not peer.voice.task.done():
+                entry["operator_voice_level"] = (self.robot.voice_level if peer.voice.may_speak
+                                                 and self.robot is not None else peer.voice.level)
+        entry.update(camera_frames_sent=sent % 2**32, camera_frames_dropped=dropped % 2**32,
+                     camera_frame_age=age_sum / age_n if age_n else -1.0)
+        return entry
+
+
+class _Refusal(Exception):
+    """A negotiation refused for a reason the client can fix; the text goes into the response."""
+
+
+def _no_common_codec(offer: aiortc_sdp.SessionDescription) -> str:
+    parts = []
+    for media in offer.media:
+        names = sorted({c.name for c in media.rtp.codecs if c.name.lower() not in ("rtx", "red", "ulpfec")})
+        parts.append(f"{media.kind}: {', '.join(names) or 'none'}")
+    return (f"no common codec: the offer has {'; '.join(parts)}; this server sends video as VP8 or H264 and audio "
+            "as Opus (or PCMU/PCMA), and takes Opus from the client")
+
+
+def _stamp(t: float) -> dict[str, int]:
+    secs = int(t)
+    return {"secs": secs, "nsecs": int((t - secs) * 1e9)}

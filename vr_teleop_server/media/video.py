@@ -1,0 +1,346 @@
+"""The head camera as WebRTC video, encoded once per frame for every peer that negotiated the same codec.
+
+aiortc encodes per sender: five viewers would cost five encoders. Here one `VideoHub` per server runs one encoder
+per codec (VP8, H.264) in its own thread; each peer's `CameraTrack` hands the sender already-encoded packets,
+which aiortc only packetizes (`Encoder.pack`), so the per-peer cost is the RTP packetization alone.
+
+Frames come from `Robot.live_frames()` only while some track is attached, newest first: while one frame is being
+encoded, the camera's mailbox keeps only the newest one, so the encoder never works through a backlog. An
+encoded frame waits for its sender in a queue of at most QUEUE_BOUND; a sender that falls further behind loses
+its queue and waits for a keyframe (asked of the shared encoder), never delaying the other peers.
+
+The shared encoder's bitrate is the lowest of its peers' bandwidth estimates (REMB, read from each sender's
+RTCP), clamped to [MIN_BITRATE, MAX_BITRATE]: a congested peer lowers the quality for the peers that share its
+codec rather than building a backlog (simulcast would separate them; not done).
+
+RTP timestamps are send times: the wall clock when the frame goes to its sender, in 90 kHz ticks (plus aiortc's
+random origin per sender, which a track learns from its sender after the first frame: `RTCRtpSender`'s private
+last RTP timestamp, so aiortc's version is bounded in pyproject). Stamping the render time instead made Chromium's
+jitter buffer absorb the server's variable render-to-send delay (173 ms a frame against 45 on a loaded machine,
+measured with getStats' jitterBufferDelay). Each frame's render time goes out with the telemetry, keyed by its
+RTP timestamp.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fractions
+import logging
+import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import av
+import cv2
+import numpy as np
+from aiortc import MediaStreamTrack, RTCRtpSender
+from aiortc.mediastreams import MediaStreamError
+from aiortc.rtp import RTCP_PSFB_APP, RTCP_PSFB_FIR, RTCP_PSFB_PLI, RtcpPsfbPacket, unpack_remb_fci
+
+from robot_models.types import CameraFrame
+
+from ..robot.interface import Robot
+
+log = logging.getLogger(__name__)
+
+VIDEO_CLOCK_RATE = 90000
+VIDEO_TIME_BASE = fractions.Fraction(1, VIDEO_CLOCK_RATE)
+CODECS = ("VP8", "H264")
+MIN_BITRATE = 150_000
+MAX_BITRATE = 4_000_000
+START_BITRATE = 800_000  # before the first estimate: what a 1 Mbit/s link carries
+REOPEN_RATIO = 0.15  # the encoder is rebuilt (a keyframe) only when the target moves more than this
+REOPEN_INTERVAL_S = 1.0  # and at most this often
+QUEUE_BOUND = 3  # encoded frames waiting for one sender (100 ms at 30 fps)
+KEYFRAME_INTERVAL_S = 0.5  # keyframes asked for (PLI, joins) are granted at most this often: a PLI storm on a
+# congested link would otherwise make every frame a large keyframe and keep the link congested
+
+
+@dataclass(frozen=True)
+class EncodedFrame:
+    data: bytes
+    pts: int  # render time in 90 kHz ticks since the hub's epoch (the encoder's clock)
+    keyframe: bool
+    render_wall: float  # the camera frame's wall-clock stamp (its render time)
+    seq: int
+    encode_s: float  # decode (JPEG) plus encode, seconds
+    bitrate: int  # the encoder's target when it encoded this frame
+
+
+class _Encoder:
+    """One codec's encoder; used only in the hub's encoding thread."""
+
+    def __init__(self, codec: str, fps: float) -> None:
+        self.codec = codec
+        self.fps = fps
+        self.context: Any = None
+        self.bitrate = START_BITRATE
+        self.opened_at = -1e9
+
+    def encode(self, image: av.VideoFrame, keyframe: bool, bitrate: int) -> tuple[bytes, bool]:
+        now = time.monotonic()
+        if self.context is not None and (image.width != self.context.width or image.height != self.context.height
+                                         or (abs(bitrate - self.bitrate) > REOPEN_RATIO * self.bitrate
+                                             and now - self.opened_at >= REOPEN_INTERVAL_S)):
+            self.context = None
+        if self.context is None:
+            self.bitrate = bitrate
+            self.opened_at = now
+            self.context = self._open(image.width, image.height, bitrate)
+            keyframe = True
+        image.pict_type = av.video.frame.PictureType.I if keyframe else av.video.frame.PictureType.NONE
+        data = b"".join(bytes(p) for p in self.context.encode(image))
+        return data, keyframe
+
+    def _open(self, width: int, height: int, bitrate: int) -> Any:
+        rate = max(1, round(self.fps))
+        if self.codec == "VP8":
+            ctx = av.CodecContext.create("libvpx", "w")
+            ctx.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
+                           "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
+                           "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
+                           "noise-sensitivity": "0", "error-resilient": "1"}
+            ctx.qmin, ctx.qmax = 4, 56
+        else:
+            ctx = av.CodecContext.create("libx264", "w")
+            ctx.options = {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
+                           "maxrate": str(bitrate), "bufsize": str(bitrate)}
+            ctx.profile = "Baseline"
+        ctx.width, ctx.height = width, height
+        ctx.pix_fmt = "yuv420p"
+        ctx.bit_rate = bitrate
+        ctx.framerate = fractions.Fraction(rate, 1)
+        ctx.time_base = fractions.Fraction(1, rate)
+        ctx.gop_size = 10 * rate  # a keyframe every 10 s at least; PLI and joining peers ask for more
+        # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
+        # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
+        ctx.thread_count = 1
+        return ctx
+
+
+class VideoHub:
+    """One per server: the camera pump and one shared encoder per codec, for every attached CameraTrack."""
+
+    def __init__(self, robot: Robot, fps: float = 30.0) -> None:
+        self.robot = robot
+        self.fps = fps
+        self._tracks: dict[str, set[CameraTrack]] = {codec: set() for codec in CODECS}
+        self._keyframe: set[str] = set()
+        self._keyframe_at: dict[str, float] = {}
+        self._encoders = {codec: _Encoder(codec, fps) for codec in CODECS}
+        self._executor: ThreadPoolExecutor | None = None
+        self._task: asyncio.Task[None] | None = None
+        self.epoch = time.time()
+        self.frames_encoded = 0
+        self.encoded = {codec: 0 for codec in CODECS}  # frames each codec's encoder produced
+        self.encode_seconds = 0.0  # thread time spent decoding and encoding, for the bench's CPU per frame
+
+    @property
+    def watching(self) -> int:
+        return sum(len(tracks) for tracks in self._tracks.values())
+
+    def attach(self, track: CameraTrack, codec: str) -> None:
+        if codec not in self._tracks:
+            raise ValueError(f"no encoder for {codec}; this server encodes {', '.join(CODECS)}")
+        self._tracks[codec].add(track)
+        self._keyframe.add(codec)
+        if self._task is None or self._task.done():
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="media-video")
+            self._task = asyncio.ensure_future(self._pump())
+
+    def detach(self, track: CameraTrack) -> None:
+        for tracks in self._tracks.values():
+            tracks.discard(track)
+        if self.watching == 0 and self._task is not None:
+            self._task.cancel()  # its live_frames() gives the camera back
+            self._task = None
+
+    def request_keyframe(self, codec: str) -> None:
+        self._keyframe.add(codec)
+
+    def _take_keyframe(self, codec: str) -> bool:
+        if codec not in self._keyframe:
+            return False
+        now = time.monotonic()
+        if now - self._keyframe_at.get(codec, -1e9) < KEYFRAME_INTERVAL_S:
+            return False  # kept asked: granted when the interval has passed
+        self._keyframe.discard(codec)
+        self._keyframe_at[codec] = now
+        return True
+
+    def bitrate(self, codec: str) -> int:
+        """The shared encoder's target: the lowest estimate of the peers that share it."""
+        estimates = [t.estimate for t in self._tracks[codec] if t.estimate]
+        target = min(estimates) if estimates else START_BITRATE
+        return int(min(MAX_BITRATE, max(MIN_BITRATE, target)))
+
+    async def _pump(self) -> None:
+        loop = asyncio.get_running_loop()
+        try:
+            async with contextlib.aclosing(self.robot.live_frames()) as frames:
+                async for frame in frames:
+                    jobs = {}
+                    for codec, tracks in self._tracks.items():
+                        if tracks:
+                            jobs[codec] = (self._take_keyframe(codec), self.bitrate(codec))
+                    if not jobs:
+                        return
+                    encoded = await loop.run_in_executor(self._executor, self._encode, frame, jobs)
+                    for codec, item in encoded.items():
+                        for track in list(self._tracks[codec]):
+                            track.offer(item)
+                            # One sender's burst of packets per turn of the loop, with the sockets polled between:
+                            # a pose arriving waits for one peer's frame at most, not for every peer's.
+                            await asyncio.sleep(0)
+        except asyncio.CancelledError:
+            raise
+        except Exception:
+            log.exception("the WebRTC camera pump failed; peers get no more video")
+
+    def _encode(self, frame: CameraFrame, jobs: dict[str, tuple[bool, int]]) -> dict[str, EncodedFrame]:
+        """Encoding thread: JPEG to I420 once, then each codec's encoder once."""
+        c0 = time.thread_time()
+        bgr = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
+        h, w = bgr.shape[:2]
+        w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
+        yuv = cv2.cvtColor(np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
+        pts = round((frame.stamp_wall - self.epoch) * VIDEO_CLOCK_RATE)
+        out = {}
+        decode_s = time.thread_time() - c0
+        for codec, (keyframe, bitrate) in jobs.items():
+            e0 = time.thread_time()
+            image = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+            image.pts, image.time_base = pts, VIDEO_TIME_BASE
+            try:
+                data, key = self._encoders[codec].encode(image, keyframe, bitrate)
+            except Exception:
+                log.exception("%s encoding failed; the encoder is rebuilt", codec)
+                self._encoders[codec].context = None
+                continue
+            if data:
+                self.encoded[codec] += 1
+                out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq,
+                                          decode_s + time.thread_time() - e0, self._encoders[codec].bitrate)
+        self.frames_encoded += 1
+        self.encode_seconds += time.thread_time() - c0
+        return out
+
+    async def close(self) -> None:
+        for tracks in self._tracks.values():
+            for track in list(tracks):
+                track.stop()
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        if self._executor is not None:
+            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._executor = None
+
+
+class CameraTrack(MediaStreamTrack):
+    """One peer's video track: hands its sender the hub's encoded frames (aiortc packs av.Packet without
+    encoding). Counts what it sent and dropped, and knows its RTP to render-time mapping."""
+
+    kind = "video"
+
+    def __init__(self, hub: VideoHub) -> None:
+        super().__init__()
+        self.hub = hub
+        self.codec = ""
+        self.sender: RTCRtpSender | None = None
+        self.estimate: int | None = None  # the peer's REMB, bits per second
+        self._queue: deque[EncodedFrame] = deque()
+        self._ready = asyncio.Event()
+        self._need_keyframe = True
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self.age_sum = 0.0  # render to send, over frames_sent
+        self.rtp_origin: int | None = None
+        self.last_pts = -1  # send time of the newest frame, 90 kHz ticks since the hub's epoch
+        self.sent: deque[tuple[int, float]] = deque(maxlen=64)  # (pts, render time) of the newest frames sent
+
+    def bind(self, codec: str, sender: RTCRtpSender) -> None:
+        """Start receiving the hub's frames for `codec`, and listen to the sender's RTCP (PLI, FIR, REMB)."""
+        self.codec = codec
+        self.sender = sender
+        original = sender._handle_rtcp_packet
+
+        async def handle_rtcp(packet: Any) -> None:
+            if isinstance(packet, RtcpPsfbPacket):
+                if packet.fmt in (RTCP_PSFB_PLI, RTCP_PSFB_FIR):  # deltas go on meanwhile: the peer decides
+                    self.hub.request_keyframe(self.codec)
+                elif packet.fmt == RTCP_PSFB_APP:
+                    try:
+                        bitrate, ssrcs = unpack_remb_fci(packet.fci)
+                    except ValueError:
+                        pass
+                    else:
+                        if sender._ssrc in ssrcs:
+                            self.estimate = bitrate
+            await original(packet)
+
+        sender._handle_rtcp_packet = handle_rtcp
+        self.hub.attach(self, codec)
+
+    def offer(self, item: EncodedFrame) -> None:
+        """From the hub, on the loop: queue a frame, or drop this peer's queue when it has fallen behind."""
+        if len(self._queue) >= QUEUE_BOUND:
+            self.frames_dropped += len(self._queue)
+            self._queue.clear()
+            self._need_keyframe = True
+            self.hub.request_keyframe(self.codec)
+        if self._need_keyframe and not item.keyframe:
+            self.frames_dropped += 1
+            return
+        self._need_keyframe = False
+        self._queue.append(item)
+        self._ready.set()
+
+    async def recv(self) -> av.Packet:
+        self._learn_rtp_origin()
+        while not self._queue:
+            if self.readyState != "live":
+                raise MediaStreamError
+            self._ready.clear()
+            await self._ready.wait()
+        if self.readyState != "live":
+            raise MediaStreamError
+        item = self._queue.popleft()
+        packet = av.Packet(item.data)
+        self.last_pts = max(self.last_pts + 1, round((time.time() - self.hub.epoch) * VIDEO_CLOCK_RATE))
+        packet.pts = self.last_pts
+        packet.time_base = VIDEO_TIME_BASE
+        self.sent.append((self.last_pts, item.render_wall))
+        self.frames_sent += 1
+        self.age_sum += max(0.0, time.time() - item.render_wall)
+        return packet
+
+    def _learn_rtp_origin(self) -> None:
+        """The sender has sent every packet of the previous frame by now: its last RTP timestamp minus that frame's
+        pts is the random origin aiortc gave this sender."""
+        if self.rtp_origin is not None or self.last_pts < 0 or self.sender is None:
+            return
+        stamp = getattr(self.sender, "_RTCRtpSender__rtp_timestamp", None)
+        if isinstance(stamp, int) and stamp:
+            self.rtp_origin = (stamp - self.last_pts) & 0xFFFFFFFF
+
+    def rtp_timestamp(self, pts: int) -> int | None:
+        return None if self.rtp_origin is None else (self.rtp_origin + pts) & 0xFFFFFFFF
+
+    def recent(self, count: int) -> list[tuple[int, float]]:
+        """(RTP timestamp, render time) of the newest `count` frames sent (as many as are kept), once known."""
+        if self.rtp_origin is None or count <= 0:
+            return []
+        frames = list(self.sent)[-count:]
+        return [((self.rtp_origin + pts) & 0xFFFFFFFF, render) for pts, render in frames]
+
+    def stop(self) -> None:
+        super().stop()
+        self.hub.detach(self)
+        self._ready.set()
