@@ -308,3 +308,132 @@ def test_leftovers_of_a_killed_run_are_cleaned_up() -> None:
 def test_a_seed_makes_a_run_repeatable() -> None:
     a, b = Direction(DirectionParams(loss=0.3), seed=5), Direction(DirectionParams(loss=0.3), seed=5)
     assert [a.admit(10, 0) for _ in range(50)] == [b.admit(10, 0) for _ in range(50)]
+
+
+# ---- explicit control across the emulated WAN ----------------------------------------------------------------------
+HEAD_CAP = 90.0  # deg/s, HeadYaw and HeadPitch in robot_models/data/qtrobot.yaml
+
+
+def _head_session(tmp_path, seconds: float = 30.0):
+    """`look-around`, then nods and more looking around, then 2 s at rest: a synthesised head-motion session of
+    at least `seconds`."""
+    from vr_teleop_server import synth
+    from vr_teleop_server.replay import load_steps
+
+    rng = np.random.default_rng(21)
+    session = synth.build("look-around", 21)
+    while session.duration < seconds - 2.0:
+        synth.nod(session, rng)
+        synth.look_around(session, rng)
+    session.head.hold(2.0)  # ends at rest, so the robot must have caught up
+    path = tmp_path / "head.mcap"
+    synth.write(session, path, seed=21)
+    steps, _client = load_steps(path)
+    return steps
+
+
+def _check_no_jump(seen, settings) -> list[float]:
+    """Every head command moves each joint at most cap x max_step_dt from the one before (the mapper never lets a
+    step use more time than that), and each resume after a hold at most the ramp's start fraction of that: the
+    robot eases back. A hold shows as a silence of the head commands around the stalled/active events (the
+    server publishes nothing while it holds; a topic's frames keep their order, frames of two topics may not, so
+    the resume is found as the end of the longest silence near the active event). Returns the resume steps."""
+    largest = HEAD_CAP * settings.max_step_dt_s
+    resume_bound = largest * settings.ramp_start_fraction
+    times = np.array([t for t, _c in seen.head])
+    commands = np.array([c for _t, c in seen.head])
+    steps = np.abs(np.diff(commands, axis=0)).max(axis=1)
+    gaps = np.diff(times)
+    assert steps.max() <= largest + 1e-6, f"a jump of {steps.max():.2f} deg (bound {largest:.2f})"
+    resume_steps = []
+    stalled_at = None
+    for t, e in seen.events:
+        if e["kind"] == "watchdog_stalled":
+            stalled_at = t
+        elif e["kind"] == "watchdog_active" and stalled_at is not None:
+            near = np.flatnonzero((times[1:] >= t - 0.2) & (times[1:] <= t + 0.2))
+            assert near.size, f"no head command around the resume at {t}"
+            k = near[np.argmax(gaps[near])]
+            assert gaps[k] >= 0.5 * (t - stalled_at), "the head was commanded while the robot held"
+            assert steps[k] <= resume_bound + 1e-6, f"resumed with a step of {steps[k]:.2f} deg " \
+                                                    f"(bound {resume_bound:.2f}: the ramp)"
+            resume_steps.append(float(steps[k]))
+            stalled_at = None
+    return resume_steps
+
+
+@needs_netns
+def test_on_continent_the_websocket_path_may_hold_but_resumes_by_itself_without_a_jump(tmp_path) -> None:
+    from vr_teleop_server.teleop import TeleopSettings
+    from wan_support import Observer, intent_errors, replay_in, serve
+
+    steps = _head_session(tmp_path, 30.0)
+    with Emulator("continent") as net:
+        url = serve(net, "--camera-fps", "5")
+        observer = Observer(net, url)
+        got, elapsed = replay_in(net, steps, url)
+        seen = observer.stop()
+    assert _leftovers(net) == []
+    kinds = seen.kinds()
+    assert "engage" in kinds and len(seen.head) > 1000, kinds
+    last_sent = got.sent_head[-1][0]  # after it the session is over: the stream stops, the robot holds
+    during = [e["kind"] for t, e in seen.events if t <= last_sent]
+    for n, kind in enumerate(during):  # every hold while the operator moved resumed by itself
+        if kind == "watchdog_stalled":
+            assert "watchdog_active" in kinds[n + 1:], kinds
+    for _t, e in seen.events:
+        if e["kind"] in ("watchdog_stalled", "watchdog_active"):
+            assert 0.2 <= e["detail"]["threshold_s"] <= 0.5, e
+    resumes = _check_no_jump(seen, TeleopSettings())
+    errors = intent_errors(steps, got, seen)
+    assert errors.size > 1000
+    # it followed: the head within a few degrees of the operator's intent most of the time (the intent moves up
+    # to ~60 deg/s and the commands are a one-way delay, 75 ms, behind it), and at rest at the end
+    p50, p95 = np.percentile(errors, [50, 95])
+    print(f"continent, WebSocket: {during.count('watchdog_stalled')} holds in {steps[-1].t:.0f} s (resume steps "
+          f"{[round(r, 3) for r in resumes]} deg); head error against intent p50 {p50:.2f} p95 {p95:.2f} deg")
+    assert p50 < 5.0, (p50, p95)
+    assert errors[-1] < 1.0, errors[-20:]
+
+
+@needs_netns
+def test_a_link_down_for_2_s_holds_within_the_ceiling_and_resumes_only_on_fresh_poses(tmp_path) -> None:
+    from vr_teleop_server.teleop import TeleopSettings
+    from wan_support import Observer, replay_in, serve
+
+    steps = _head_session(tmp_path, 16.0)
+    with Emulator("city") as net:
+        url = serve(net, "--camera-fps", "5", "--watchdog-ceiling", "0.5")
+        observer = Observer(net, url)
+        cut: dict[str, float] = {}
+
+        def outage() -> None:
+            time.sleep(7.0)
+            net.set(down=True)
+            cut["down"] = time.monotonic()
+            time.sleep(2.0)
+            net.set(down=False)
+            cut["up"] = time.monotonic()
+
+        link = threading.Thread(target=outage, daemon=True)
+        link.start()
+        replay_in(net, steps, url)
+        link.join()
+        seen = observer.stop()
+    assert _leftovers(net) == []
+    stalls = [(t, e) for t, e in seen.events if e["kind"] == "watchdog_stalled" and t > cut["down"]]
+    assert stalls, seen.kinds()
+    held_at, hold = stalls[0]
+    assert hold["detail"]["threshold_s"] <= 0.5  # the ceiling
+    assert held_at < cut["up"]  # held during the outage, not after it
+    resumes = [(t, e) for t, e in seen.events if e["kind"] == "watchdog_active" and t > held_at]
+    assert resumes, seen.kinds()
+    resumed_at, resume = resumes[0]
+    assert resumed_at > cut["up"]  # not before the link was back
+    # on a pose made within the threshold: not one of the backlog TCP delivered when the link came back
+    assert resume["detail"]["pose_made_age_s"] <= resume["detail"]["threshold_s"], resume
+    last_before = max(t for t, _c in seen.head if t < held_at)
+    _check_no_jump(seen, TeleopSettings())
+    print(f"link down at +0, held {held_at - cut['down']:.3f} s later ({held_at - last_before:.3f} s after the last "
+          f"head command; threshold {hold['detail']['threshold_s']} s), link up at +{cut['up'] - cut['down']:.2f} s, "
+          f"resumed at +{resumed_at - cut['down']:.2f} s on a pose {resume['detail']['pose_made_age_s']} s old")

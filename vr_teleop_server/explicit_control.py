@@ -164,10 +164,11 @@ class ExplicitControl:
             self.bus.publish(COMMAND_TOPICS[part], {"data": list(values)})
         if out.state is not before:
             level = "info" if out.state is WatchdogState.ACTIVE else "warning"
-            age = self.mapper.head_pose_age(now)
+            age, made = self.mapper.head_pose_age(now), self.mapper.head_pose_made_age(now)
             self._event(f"watchdog_{out.state.value}", level, {
                 "holder": self.holder, "threshold_s": round(out.watchdog_timeout_s, 4),
-                "pose_age_s": None if age is None else round(age, 4)})
+                "pose_age_s": None if age is None else round(age, 4),
+                "pose_made_age_s": None if made is None else round(made, 4)})
         self._publish_state_if_changed()
 
     async def _tick(self) -> None:

@@ -5,9 +5,11 @@ Two facts come with every head pose: when it arrived (the server's monotonic clo
 `arrival - stamp` seen lately is that offset plus the path's least delay, so for each pose
     late = (arrival - stamp) - min over the last `offset_window_s` of (arrival - stamp)
 is how much later than the best case it came: a pose held up behind a TCP retransmission, or sent into a link
-that was down, is late by that long. The watchdog ages a pose from when it would have arrived on time
-(`effective time = arrival - late`), so a backlog that arrives in a burst after an outage is already old and does
-not resume control: only poses made recently do.
+that was down, is late by that long. A silence holds the robot (the watchdog times arrivals); to resume, the
+watchdog ages the newest pose from when it would have arrived on time (`effective time = arrival - late`), so a
+backlog that arrives in a burst after an outage is already old and does not resume control: only poses made
+recently do. (Holding on arrivals, not on stamps, keeps the server's own event-loop hiccups from holding the
+robot: a pose the server was slow to read is late by its stamp, but nothing was silent.)
 
 Stale poses: a pose whose stamp is older than the newest one taken is dropped (never replayed: unordered
 transports can deliver it late). A stamp more than `clock_reset_s` behind the newest is the headset's clock

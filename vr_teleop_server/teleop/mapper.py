@@ -13,9 +13,9 @@ Rules:
   robot's current joints (pass them; otherwise the last command, home at first), restarts the velocity ramp, and leaves both arms not following until
   their grip is pressed anew.
 - Head poses silent for the watchdog threshold: everything holds (state "stalled"). The threshold adapts to the
-  measured pose jitter between watchdog_timeout_s and watchdog_ceiling_s, and head poses are aged from their
-  header stamps (teleop/link.py): a pose older than the newest is dropped, a backlog is not fresh. Fresh head
-  poses resume by themselves with the ramp restarted. An arm whose controller is silent for controller_timeout_s holds alone.
+  measured pose jitter between watchdog_timeout_s and watchdog_ceiling_s (teleop/link.py). Fresh head poses
+  resume by themselves with the ramp restarted; fresh by their header stamps, so the backlog a link delivers
+  after an outage does not resume (and a pose older than the newest is dropped). An arm whose controller is silent for controller_timeout_s holds alone.
 - disconnect() and the e-stop hold until a new engage(). release() stops teleop (the robot keeps its pose).
 - Parts that hold get no command at all; the robot keeps its last target.
 """
@@ -94,7 +94,8 @@ class TeleopOutput:
 @dataclass
 class _Stamped:
     pose: Pose
-    time: float
+    time: float  # arrival
+    made: float | None = None  # when it would have arrived without network lateness (head poses: teleop/link.py)
 
 
 @dataclass
@@ -161,7 +162,7 @@ class TeleopMapper:
         arrival = self._link.arrive(None if isinstance(pose, Pose) else stamp_seconds(pose), now)
         if not arrival.accepted:
             return False
-        self._head_pose = _Stamped(parsed, arrival.effective_time)
+        self._head_pose = _Stamped(parsed, now, arrival.effective_time)
         return True
 
     @property
@@ -222,6 +223,11 @@ class TeleopMapper:
 
     def head_pose_age(self, now: float) -> float | None:
         return self.pose_age("head", now)
+
+    def head_pose_made_age(self, now: float) -> float | None:
+        """Age of the newest head pose counted from when it would have arrived without network lateness."""
+        h = self._head_pose
+        return None if h is None else now - (h.made if h.made is not None else h.time)
 
     @property
     def last_command(self) -> dict[str, float]:
@@ -344,7 +350,8 @@ class TeleopMapper:
     def step(self, now: float) -> TeleopOutput:
         """Advance to `now` (monotonic seconds) and return the targets of the parts that move."""
         self._watchdog.timeout_s = self._link.threshold_s
-        state, resumed = self._watchdog.check(self._head_pose and self._head_pose.time, now)
+        state, resumed = self._watchdog.check(self._head_pose and self._head_pose.time, now,
+                                              self._head_pose and self._head_pose.made)
         if not self._watchdog.engaged:
             self._moving = {part: False for part in self.parts}
             return self._output(now, 0.0)

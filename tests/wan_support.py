@@ -1,0 +1,140 @@
+"""Explicit control across the emulated WAN (netem/): the server in the server namespace, the operator replayed from
+the client namespace, an observer beside the server. Shared by tests/test_netem.py and bench/wan.py.
+
+- `serve(net)`: `python -m vr_teleop_server.cli serve --backend sim --insecure` bound to the server namespace's
+  address (open access: the replay client has no token support; --insecure lets an open server bind a
+  non-loopback address, and nothing but our own client namespace can reach it).
+- `Observer`: a rosbridge client inside the server namespace (no impairment between it and the server), recording
+  every head command and teleop event with its receive time: the server's own view of what the robot was told.
+- `replay_in(net, steps, url)`: `vr-teleop replay`'s client, run inside the client namespace.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from netem import Emulator
+from vr_teleop_server.replay import Collected, Step, expected_commands, run_replay
+
+PORT = 9090  # the namespace is ours alone: a fixed port is free
+HEAD_COMMAND = "/qt_robot/head_position/command"
+EVENTS = "/vr_teleop/events"
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def serve(net: Emulator, *extra: str, start_timeout: float = 120.0) -> str:
+    """Starts the server in the server namespace and returns its URL once it listens (the emulator stops it)."""
+    log = tempfile.NamedTemporaryFile("w+", prefix="wan-serve-", suffix=".log", delete=False)
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host", net.server_ip,
+                                "--port", str(PORT), "--insecure", "--backend", "sim", "--log-level", "warning",
+                                *extra], stdout=subprocess.PIPE, stderr=log, text=True, env=env, cwd=ROOT)
+    result: dict[str, str] = {}
+
+    def wait_line() -> None:
+        for line in proc.stdout:
+            if "listening on" in line:
+                result["url"] = line.split("listening on", 1)[1].strip()
+                return
+
+    reader = threading.Thread(target=wait_line, daemon=True)
+    reader.start()
+    reader.join(start_timeout)
+    if "url" not in result:
+        log.seek(0)
+        raise RuntimeError(f"the server did not start in the server namespace: {log.read()[-2000:]}")
+    return result["url"]
+
+
+@dataclass
+class Observed:
+    head: list[tuple[float, list[float]]] = field(default_factory=list)  # receive time (monotonic), [yaw, pitch]
+    events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)  # receive time, event (detail parsed)
+    order: list[tuple[str, int]] = field(default_factory=list)  # ("head"|"event", index), in arrival order
+
+    def kinds(self) -> list[str]:
+        return [e["kind"] for _t, e in self.events]
+
+
+class Observer:
+    """Watches head commands and events from inside the server namespace until stop()."""
+
+    def __init__(self, net: Emulator, url: str) -> None:
+        self.got = Observed()
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._thread = net.start_in("server", lambda: asyncio.run(self._run(url)))
+        if not self._ready.wait(30):
+            raise RuntimeError("the observer could not subscribe")
+
+    async def _run(self, url: str) -> None:
+        from websockets.asyncio.client import connect
+
+        async with connect(url, max_size=None, compression=None) as ws:
+            await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
+            await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
+            await asyncio.sleep(0.2)
+            self._ready.set()
+            while not self._stop.is_set():
+                try:
+                    frame = await asyncio.wait_for(ws.recv(), 0.2)
+                except asyncio.TimeoutError:
+                    continue
+                now = time.monotonic()
+                msg = json.loads(frame)
+                if msg.get("op") != "publish":
+                    continue
+                if msg["topic"] == HEAD_COMMAND:
+                    self.got.order.append(("head", len(self.got.head)))
+                    self.got.head.append((now, list(msg["msg"]["data"])))
+                elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
+                    event = dict(msg["msg"])
+                    try:
+                        event["detail"] = json.loads(event.get("detail") or "{}")
+                    except ValueError:
+                        pass
+                    self.got.order.append(("event", len(self.got.events)))
+                    self.got.events.append((now, event))
+
+    def stop(self) -> Observed:
+        time.sleep(0.5)  # the last frames
+        self._stop.set()
+        self._thread.join(10)
+        return self.got
+
+
+def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0) -> tuple[Collected, float]:
+    """The replay client inside the client namespace: every pose and call goes through the impaired link."""
+    return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False)))
+
+
+def intent_errors(steps: list[Step], got: Collected, seen: Observed) -> np.ndarray:
+    """Per head command the server sent (as the observer saw it, at that moment): how far it is, in degrees (the
+    larger of yaw and pitch), from the operator's intent then: what the same mapping computes offline from the
+    poses at the moments the operator sent them (so filter and velocity caps are in the intent; the network's
+    delay, holds and bursts are what the error shows)."""
+    expected = expected_commands(steps, got)
+    sent = sorted((t, i) for t, i in got.sent_head if "head" in expected.get(i, {}))
+    if not sent or not seen.head:
+        return np.zeros(0)
+    sent_t = np.array([t for t, _i in sent])
+    intent = np.array([expected[i]["head"] for _t, i in sent])
+    out = []
+    for t, command in seen.head:
+        k = int(np.searchsorted(sent_t, t, side="right")) - 1
+        if k >= 0:
+            out.append(float(np.abs(np.array(command) - intent[k]).max()))
+    return np.array(out)
