@@ -30,6 +30,7 @@ from vr_teleop_server.replay import Collected, Step, expected_commands, run_repl
 
 PORT = 9090  # the namespace is ours alone: a fixed port is free
 HEAD_COMMAND = "/qt_robot/head_position/command"
+HEAD_POSE = "/vr/head/pose"
 EVENTS = "/vr_teleop/events"
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,7 +64,7 @@ def serve(net: Emulator, *extra: str, start_timeout: float = 120.0) -> str:
 class Observed:
     head: list[tuple[float, list[float]]] = field(default_factory=list)  # receive time (monotonic), [yaw, pitch]
     events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)  # receive time, event (detail parsed)
-    order: list[tuple[str, int]] = field(default_factory=list)  # ("head"|"event", index), in arrival order
+    poses: list[tuple[float, float]] = field(default_factory=list)  # receive time, header stamp (s) of head poses
 
     def kinds(self) -> list[str]:
         return [e["kind"] for _t, e in self.events]
@@ -72,8 +73,10 @@ class Observed:
 class Observer:
     """Watches head commands and events from inside the server namespace until stop()."""
 
-    def __init__(self, net: Emulator, url: str) -> None:
+    def __init__(self, net: Emulator, url: str, poses: bool = False) -> None:
+        """poses: also watch the head poses as the bus gets them (their arrival at the server)."""
         self.got = Observed()
+        self._poses = poses
         self._stop = threading.Event()
         self._ready = threading.Event()
         self._thread = net.start_in("server", lambda: asyncio.run(self._run(url)))
@@ -86,6 +89,8 @@ class Observer:
         async with connect(url, max_size=None, compression=None) as ws:
             await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
             await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
+            if self._poses:
+                await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
             await asyncio.sleep(0.2)
             self._ready.set()
             while not self._stop.is_set():
@@ -98,15 +103,17 @@ class Observer:
                 if msg.get("op") != "publish":
                     continue
                 if msg["topic"] == HEAD_COMMAND:
-                    self.got.order.append(("head", len(self.got.head)))
                     self.got.head.append((now, list(msg["msg"]["data"])))
+                elif msg["topic"] == HEAD_POSE:
+                    stamp = msg["msg"]["header"]["stamp"]
+                    self.got.poses.append((now, stamp.get("secs", stamp.get("sec", 0))
+                                           + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9))
                 elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
                     event = dict(msg["msg"])
                     try:
                         event["detail"] = json.loads(event.get("detail") or "{}")
                     except ValueError:
                         pass
-                    self.got.order.append(("event", len(self.got.events)))
                     self.got.events.append((now, event))
 
     def stop(self) -> Observed:
@@ -138,3 +145,13 @@ def intent_errors(steps: list[Step], got: Collected, seen: Observed) -> np.ndarr
         if k >= 0:
             out.append(float(np.abs(np.array(command) - intent[k]).max()))
     return np.array(out)
+
+
+def pose_latencies(steps: list[Step], got: Collected, seen: Observed) -> np.ndarray:
+    """Pose-to-command latency (s) per head pose that reached the server: from the operator sending it to the bus
+    getting it, which is when the server steps on it and publishes its command (in the same callback)."""
+    sent_at = {}
+    for t, i in got.sent_head:
+        stamp = steps[i].payload["header"]["stamp"]
+        sent_at[round(stamp.get("secs", 0) + stamp.get("nsecs", 0) / 1e9, 6)] = t
+    return np.array([t - sent_at[key] for t, stamp in seen.poses if (key := round(stamp, 6)) in sent_at])
