@@ -128,23 +128,24 @@ def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0) ->
     return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False)))
 
 
-def intent_errors(steps: list[Step], got: Collected, seen: Observed) -> np.ndarray:
-    """Per head command the server sent (as the observer saw it, at that moment): how far it is, in degrees (the
-    larger of yaw and pitch), from the operator's intent then: what the same mapping computes offline from the
-    poses at the moments the operator sent them (so filter and velocity caps are in the intent; the network's
-    delay, holds and bursts are what the error shows)."""
+def intent_errors(steps: list[Step], got: Collected, seen: Observed, rate_hz: float = 30.0) -> np.ndarray:
+    """How far the robot's head was told to be from where the operator meant it, sampled `rate_hz` times a second
+    from the first head command to the last head pose sent: degrees, the larger of yaw and pitch. The command at a
+    moment is the newest the server had sent (while it holds, the one it holds at); the intent is what the same
+    mapping computes offline from the poses at the moments the operator sent them (so filter and velocity caps are
+    in the intent, and the network's delay, holds and bursts are what the error shows)."""
     expected = expected_commands(steps, got)
     sent = sorted((t, i) for t, i in got.sent_head if "head" in expected.get(i, {}))
     if not sent or not seen.head:
         return np.zeros(0)
     sent_t = np.array([t for t, _i in sent])
     intent = np.array([expected[i]["head"] for _t, i in sent])
-    out = []
-    for t, command in seen.head:
-        k = int(np.searchsorted(sent_t, t, side="right")) - 1
-        if k >= 0:
-            out.append(float(np.abs(np.array(command) - intent[k]).max()))
-    return np.array(out)
+    command_t = np.array([t for t, _c in seen.head])
+    commands = np.array([c for _t, c in seen.head])
+    grid = np.arange(command_t[0], sent_t[-1], 1.0 / rate_hz)
+    k_intent = np.searchsorted(sent_t, grid, side="right") - 1
+    k_command = np.searchsorted(command_t, grid, side="right") - 1
+    return np.abs(commands[k_command] - intent[k_intent]).max(axis=1)
 
 
 def pose_latencies(steps: list[Step], got: Collected, seen: Observed) -> np.ndarray:
