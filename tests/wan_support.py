@@ -71,56 +71,85 @@ class Observed:
 
 
 class Observer:
-    """Watches head commands and events from inside the server namespace until stop()."""
+    """Watches head commands, events (and with `poses`, head poses) from inside the server namespace until stop().
+
+    It is a process of its own (this file run as a script), so the replay client's work in this process does not
+    delay its receive times; CLOCK_MONOTONIC is the machine's, so its times compare with the replay's."""
 
     def __init__(self, net: Emulator, url: str, poses: bool = False) -> None:
-        """poses: also watch the head poses as the bus gets them (their arrival at the server)."""
         self.got = Observed()
-        self._poses = poses
-        self._stop = threading.Event()
-        self._ready = threading.Event()
-        self._thread = net.start_in("server", lambda: asyncio.run(self._run(url)))
-        if not self._ready.wait(30):
-            raise RuntimeError("the observer could not subscribe")
-
-    async def _run(self, url: str) -> None:
-        from websockets.asyncio.client import connect
-
-        async with connect(url, max_size=None, compression=None) as ws:
-            await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
-            await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
-            if self._poses:
-                await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
-            await asyncio.sleep(0.2)
-            self._ready.set()
-            while not self._stop.is_set():
-                try:
-                    frame = await asyncio.wait_for(ws.recv(), 0.2)
-                except asyncio.TimeoutError:
-                    continue
-                now = time.monotonic()
-                msg = json.loads(frame)
-                if msg.get("op") != "publish":
-                    continue
-                if msg["topic"] == HEAD_COMMAND:
-                    self.got.head.append((now, list(msg["msg"]["data"])))
-                elif msg["topic"] == HEAD_POSE:
-                    stamp = msg["msg"]["header"]["stamp"]
-                    self.got.poses.append((now, stamp.get("secs", stamp.get("sec", 0))
-                                           + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9))
-                elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
-                    event = dict(msg["msg"])
-                    try:
-                        event["detail"] = json.loads(event.get("detail") or "{}")
-                    except ValueError:
-                        pass
-                    self.got.events.append((now, event))
+        self._out = tempfile.NamedTemporaryFile("w+", prefix="wan-observer-", suffix=".jsonl", delete=False)
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
+                               stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            self._out.seek(0)
+            if self._out.readline().strip() == '"ready"':
+                return
+            if self._proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise RuntimeError("the observer could not subscribe")
 
     def stop(self) -> Observed:
         time.sleep(0.5)  # the last frames
-        self._stop.set()
-        self._thread.join(10)
+        self._proc.stdin.close()  # it stops when its stdin closes
+        self._proc.wait(10)
+        self._out.seek(0)
+        for line in self._out.read().splitlines()[1:]:
+            kind, t, value = json.loads(line)
+            if kind == "head":
+                self.got.head.append((t, value))
+            elif kind == "pose":
+                self.got.poses.append((t, value))
+            else:
+                self.got.events.append((t, value))
+        self._out.close()
+        os.unlink(self._out.name)
         return self.got
+
+
+async def _observe(url: str, poses: bool) -> None:
+    """Prints "ready", then one JSON line per head command, event or head pose: [kind, receive time, value]."""
+    from websockets.asyncio.client import connect
+
+    loop = asyncio.get_running_loop()
+    stdin_closed = loop.run_in_executor(None, sys.stdin.read)
+    out = sys.stdout
+    async with connect(url, max_size=None, compression=None) as ws:
+        await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
+        await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
+        if poses:
+            await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
+        await asyncio.sleep(0.2)
+        print(json.dumps("ready"), file=out, flush=True)
+        while not stdin_closed.done():
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.2)
+            except asyncio.TimeoutError:
+                continue
+            now = time.monotonic()
+            msg = json.loads(frame)
+            if msg.get("op") != "publish":
+                continue
+            if msg["topic"] == HEAD_COMMAND:
+                line = ["head", now, list(msg["msg"]["data"])]
+            elif msg["topic"] == HEAD_POSE:
+                stamp = msg["msg"]["header"]["stamp"]
+                line = ["pose", now, stamp.get("secs", stamp.get("sec", 0))
+                        + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9]
+            elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
+                event = dict(msg["msg"])
+                try:
+                    event["detail"] = json.loads(event.get("detail") or "{}")
+                except ValueError:
+                    pass
+                line = ["event", now, event]
+            else:
+                continue
+            print(json.dumps(line), file=out)
+        out.flush()
 
 
 def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0) -> tuple[Collected, float]:
@@ -156,3 +185,7 @@ def pose_latencies(steps: list[Step], got: Collected, seen: Observed) -> np.ndar
         stamp = steps[i].payload["header"]["stamp"]
         sent_at[round(stamp.get("secs", 0) + stamp.get("nsecs", 0) / 1e9, 6)] = t
     return np.array([t - sent_at[key] for t, stamp in seen.poses if (key := round(stamp, 6)) in sent_at])
+
+
+if __name__ == "__main__":
+    asyncio.run(_observe(sys.argv[1], sys.argv[2] == "1"))
