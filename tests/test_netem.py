@@ -4,7 +4,7 @@ The emulator is measured with real UDP and TCP stacks in its two namespaces: RTT
 the profile, the bandwidth cap with a TCP transfer, and nothing left behind (namespaces, TUN devices,
 processes), also when the body of the `with` raises. Then the server runs in the server namespace
 (`python -m vr_teleop_server.cli serve --insecure`: the replayed client has no token support, so the namespace
-address is served open, which is why --insecure is given) and a 30 s synthesised head-motion session is replayed
+address is served open, which is why --insecure is given) and a 35 s synthesised head-motion session is replayed
 from the client namespace over the WebSocket path.
 
 The emulator tests need root and /dev/net/tun; without them they are skipped saying so.
