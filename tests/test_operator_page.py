@@ -264,7 +264,7 @@ def test_the_emotion_menu_shows_happy_on_the_robots_face(browser, iwer, sim_serv
     provider = service.provider
 
     async def spy(request, timeout):
-        from vr_teleop_server.bus import Bus
+        from vr_teleop_server.core.bus import Bus
 
         calls.append((request.name, Bus.caller()))
         return await provider(request, timeout)

@@ -73,7 +73,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--teleop-config", type=Path, default=None, metavar="FILE",
                    help="explicit-control parameters (YAML or JSON; keys as in vr_teleop_server/teleop/settings.py)")
     p.add_argument("--watchdog-timeout", type=float, default=None, metavar="S",
-                   help="hold the robot when head poses stop for this long (default 0.2)")
+                   help="hold the robot when head poses stop for this long (default 0.2); the floor of the "
+                        "threshold, which adapts to the measured pose jitter")
+    p.add_argument("--watchdog-ceiling", type=float, default=None, metavar="S",
+                   help="the adaptive watchdog threshold never goes above this (default 0.5)")
     p.add_argument("--deadman-mode", choices=["hold", "toggle"], default=None,
                    help="arms follow while the grip is held (hold), or each grip press toggles following")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
@@ -125,6 +128,8 @@ def _teleop_settings(args: argparse.Namespace) -> TeleopSettings:
         values.update(loaded)
     if args.watchdog_timeout is not None:
         values["watchdog_timeout_s"] = args.watchdog_timeout
+    if args.watchdog_ceiling is not None:
+        values["watchdog_ceiling_s"] = args.watchdog_ceiling
     if args.deadman_mode is not None:
         values["deadman_mode"] = args.deadman_mode
     try:

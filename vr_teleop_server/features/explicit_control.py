@@ -103,7 +103,8 @@ class ExplicitControl:
             return
         now = self.clock()
         try:
-            self.mapper.on_head_pose(published.value, now)
+            if not self.mapper.on_head_pose(published.value, now):
+                return  # stamped before the newest pose taken: never replayed
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
             return
@@ -141,7 +142,11 @@ class ExplicitControl:
             self.bus.publish(names.PART_COMMAND_TOPICS[part], {"data": list(values)})
         if out.state is not before:
             level = "info" if out.state is WatchdogState.ACTIVE else "warning"
-            self._event(f"watchdog_{out.state.value}", level, {"holder": self.holder})
+            age, made = self.mapper.head_pose_age(now), self.mapper.head_pose_made_age(now)
+            self._event(f"watchdog_{out.state.value}", level, {
+                "holder": self.holder, "threshold_s": round(out.watchdog_timeout_s, 4),
+                "pose_age_s": None if age is None else round(age, 4),
+                "pose_made_age_s": None if made is None else round(made, 4)})
         self._publish_state_if_changed()
 
     async def _tick(self) -> None:
@@ -153,7 +158,7 @@ class ExplicitControl:
                 now = self.clock()
                 age = self.mapper.head_pose_age(now)
                 if self.mapper.state is WatchdogState.ACTIVE and (
-                        age is None or age > self.mapper.settings.watchdog_timeout_s):
+                        age is None or age > self.mapper.watchdog_timeout_s):
                     self._step(now)  # between head poses only the watchdog acts: a silent stream becomes a hold
                 self._publish_state()
             except Exception:  # the tick must survive anything one step does

@@ -12,8 +12,10 @@ Rules:
 - engage(now) needs a fresh head pose; it captures the head zero and the torso heading, starts from the
   robot's current joints (pass them; otherwise the last command, home at first), restarts the velocity ramp, and leaves both arms not following until
   their grip is pressed anew.
-- Head poses silent for watchdog_timeout_s: everything holds (state "stalled"). Fresh head poses resume by
-  themselves with the ramp restarted. An arm whose controller is silent for controller_timeout_s holds alone.
+- Head poses silent for the watchdog threshold: everything holds (state "stalled"). The threshold adapts to the
+  measured pose jitter between watchdog_timeout_s and watchdog_ceiling_s (teleop/link.py). Fresh head poses
+  resume by themselves with the ramp restarted; fresh by their header stamps, so the backlog a link delivers
+  after an outage does not resume (and a pose older than the newest is dropped). An arm whose controller is silent for controller_timeout_s holds alone.
 - disconnect() and the e-stop hold until a new engage(). release() stops teleop (the robot keeps its pose).
 - Parts that hold get no command at all; the robot keeps its last target.
 """
@@ -32,6 +34,7 @@ from robot_models import RobotModel, arm_ik, load_qtrobot
 from .body import SIDES, BodyModel, calibrate_forward, calibrate_t_pose, hand_target, robot_arms, shoulder_positions
 from .frames import Pose, check_vector, heading, pose_from_message
 from .head import HeadTracker
+from .link import PoseLink, stamp_seconds
 from .one_euro import OneEuroFilter
 from .safety import (
     DeadMan, VelocityRamp, Watchdog, WatchdogState, cap_step, clamp_joints, is_fresh,
@@ -70,6 +73,7 @@ class TeleopOutput:
     pose_age_s: dict[str, float | None]  # "head", "left", "right": time since the newest valid pose
     ramp: dict[str, float]  # part -> fraction of its velocity caps in force
     ik: dict[str, ArmIK] = field(default_factory=dict)
+    watchdog_timeout_s: float = 0.0  # the adaptive threshold in force at this step
 
     @property
     def holding(self) -> bool:
@@ -90,7 +94,8 @@ class TeleopOutput:
 @dataclass
 class _Stamped:
     pose: Pose
-    time: float
+    time: float  # arrival
+    made: float | None = None  # when it would have arrived without network lateness (head poses: teleop/link.py)
 
 
 @dataclass
@@ -122,6 +127,8 @@ class TeleopMapper:
         self._body: BodyModel = s.body.body_model()
         self._head = HeadTracker(s.head_yaw_scale, s.head_pitch_scale, s.yaw_wrap_hysteresis_deg, s.gimbal_margin_deg)
         self._watchdog = Watchdog(s.watchdog_timeout_s)
+        self._link = PoseLink(s.watchdog_timeout_s, s.watchdog_ceiling_s, margin=s.watchdog_margin,
+                              quantile=s.watchdog_quantile)
         self._deadman = {side: DeadMan(s.deadman_mode, s.grip_press_threshold, s.grip_release_threshold)
                          for side in SIDES}
         self._ramps = {part: VelocityRamp(s.ramp_duration_s, s.ramp_start_fraction) for part in self.parts}
@@ -148,9 +155,24 @@ class TeleopMapper:
             return msg
         return pose_from_message(msg, quaternion_tolerance=self.settings.quaternion_norm_tolerance)
 
-    def on_head_pose(self, pose: Mapping[str, Any] | Pose, now: float) -> None:
-        """A headset pose (PoseStamped dict or Pose). Invalid poses raise ValueError and are not used."""
-        self._head_pose = _Stamped(self.parse_pose(pose), now)
+    def on_head_pose(self, pose: Mapping[str, Any] | Pose, now: float) -> bool:
+        """A headset pose (PoseStamped dict or Pose). Invalid poses raise ValueError and are not used; a pose
+        stamped before the newest one taken is dropped (returns False)."""
+        parsed = self.parse_pose(pose)
+        arrival = self._link.arrive(None if isinstance(pose, Pose) else stamp_seconds(pose), now)
+        if not arrival.accepted:
+            return False
+        self._head_pose = _Stamped(parsed, now, arrival.effective_time)
+        return True
+
+    @property
+    def watchdog_timeout_s(self) -> float:
+        """The head-pose silence after which the robot holds now (adaptive, see teleop/link.py)."""
+        return self._link.threshold_s
+
+    @property
+    def stale_poses_dropped(self) -> int:
+        return self._link.stale_dropped
 
     def on_controller_pose(self, side: str, pose: Mapping[str, Any] | Pose, now: float) -> None:
         self._controllers[_check_side(side)] = _Stamped(self.parse_pose(pose), now)
@@ -202,6 +224,11 @@ class TeleopMapper:
     def head_pose_age(self, now: float) -> float | None:
         return self.pose_age("head", now)
 
+    def head_pose_made_age(self, now: float) -> float | None:
+        """Age of the newest head pose counted from when it would have arrived without network lateness."""
+        h = self._head_pose
+        return None if h is None else now - (h.made if h.made is not None else h.time)
+
     @property
     def last_command(self) -> dict[str, float]:
         return dict(self._command)
@@ -229,6 +256,7 @@ class TeleopMapper:
         self._ik_cache.clear()
         self._moving = {part: False for part in self.parts}
         self._watchdog.engage()
+        self._link.reset()
         self._last_step = now
 
     def release(self) -> None:
@@ -242,6 +270,7 @@ class TeleopMapper:
     def disconnect(self) -> None:
         """The operator's client went away: hold, and forget its streams; a new engage is needed."""
         self._stop(WatchdogState.DISCONNECTED)
+        self._link.reset()
         self._head_pose = None
         self._controllers = {side: None for side in SIDES}
         self._joy = {side: None for side in SIDES}
@@ -315,12 +344,14 @@ class TeleopMapper:
             pose_age_s={"head": self._age(self._head_pose, now),
                         **{side: self._age(self._controllers[side], now) for side in SIDES}},
             ramp={part: r.factor(now) for part, r in self._ramps.items()},
-            ik=ik or {},
+            ik=ik or {}, watchdog_timeout_s=self._watchdog.timeout_s,
         )
 
     def step(self, now: float) -> TeleopOutput:
         """Advance to `now` (monotonic seconds) and return the targets of the parts that move."""
-        state, resumed = self._watchdog.check(self._head_pose and self._head_pose.time, now)
+        self._watchdog.timeout_s = self._link.threshold_s
+        state, resumed = self._watchdog.check(self._head_pose and self._head_pose.time, now,
+                                              self._head_pose and self._head_pose.made)
         if not self._watchdog.engaged:
             self._moving = {part: False for part in self.parts}
             return self._output(now, 0.0)

@@ -149,14 +149,20 @@ class Watchdog:
     def engaged(self) -> bool:
         return self.state in (WatchdogState.ACTIVE, WatchdogState.STALLED)
 
-    def check(self, last_pose_time: float | None, now: float) -> tuple[WatchdogState, bool]:
-        """Update from the age of the newest head pose; returns (state, resumed_just_now)."""
+    def check(self, last_pose_time: float | None, now: float,
+              last_made_time: float | None = None) -> tuple[WatchdogState, bool]:
+        """Update from the age of the newest head pose; returns (state, resumed_just_now).
+
+        A silence (no pose arrived for timeout_s) holds. Resuming also needs the newest pose to be recent by
+        `last_made_time` (when it would have arrived without network lateness, teleop/link.py): a backlog
+        delivered in a burst after an outage does not resume, the poses made after it do."""
         if not self.engaged:
             return self.state, False
         fresh = last_pose_time is not None and now - last_pose_time <= self.timeout_s
         if self.state is WatchdogState.ACTIVE and not fresh:
             self.state = WatchdogState.STALLED
-        elif self.state is WatchdogState.STALLED and fresh:
+        elif self.state is WatchdogState.STALLED and fresh and (
+                last_made_time is None or now - last_made_time <= self.timeout_s):
             self.state = WatchdogState.ACTIVE
             return self.state, True
         return self.state, False

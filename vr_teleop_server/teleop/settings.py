@@ -40,7 +40,13 @@ class BodySettings(_Strict):
 class TeleopSettings(_Strict):
     """Explicit-control parameters. Times in seconds (monotonic), angles in degrees."""
 
-    watchdog_timeout_s: float = Field(0.2, gt=0, description="head pose silence after which the robot holds")
+    watchdog_timeout_s: float = Field(0.2, gt=0, description="head pose silence after which the robot holds; the "
+                                      "floor of the adaptive threshold (teleop/link.py)")
+    watchdog_ceiling_s: float = Field(0.5, gt=0, description="the adaptive threshold never exceeds this (a "
+                                      "watchdog_timeout_s above it wins)")
+    watchdog_margin: float = Field(1.5, ge=1, le=4, description="threshold = margin x the quantile of recent "
+                                   "head-pose silences")
+    watchdog_quantile: float = Field(0.99, ge=0.5, lt=1)
     controller_timeout_s: float = Field(0.2, gt=0, description="controller pose silence after which that arm holds")
     joy_timeout_s: float | None = Field(
         None, gt=0, description="Joy silence after which the grip counts as released (None: clients that send Joy "

@@ -1,0 +1,167 @@
+"""The emulator's forwarder process: two TUN devices, one moved into each namespace, and every IPv4 packet read from
+one written to the other when its direction's impairment (model.py) says so.
+
+Run by netem.emulator as `python -m netem.forwarder SPEC_JSON`. It prints one JSON line when both devices exist
+(`{"ready": true}`), then answers JSON commands read from stdin, one a line:
+    {"cmd": "set", "direction": "up" | "down" | "both", "params": {...}}   replace the impairment (all keys)
+    {"cmd": "stats"}                                                         counters per direction
+It exits when stdin closes (so it dies with whoever started it; its TUN devices vanish with it: they are not
+persistent) or on SIGTERM.
+
+Timing: the link's delays are timers on this process's event loop, so how late a busy host wakes it is added to
+every packet's delay. It asks for real-time scheduling (SCHED_FIFO, low priority: it sleeps except to move
+packets, and the kernel keeps 5% of each second for everyone else), else nice -10, and reports its own lateness
+(`late_ms` in stats) so a measurement can tell the link from the host.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import fcntl
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+from typing import Any
+
+from .model import DIRECTIONS, Direction, DirectionParams
+
+TUNSETIFF = 0x400454CA
+IFF_TUN = 0x0001
+IFF_NO_PI = 0x1000
+MAX_PACKET = 65536
+READ_BATCH = 64  # packets read per wake-up before letting the timers run
+RT_PRIORITY = 10  # see the module docstring
+NICE = -10
+
+
+def open_tun(name: str) -> int:
+    """A non-persistent TUN device (no packet-info header) in this process's namespace; returns its fd."""
+    fd = os.open("/dev/net/tun", os.O_RDWR | os.O_NONBLOCK)
+    try:
+        fcntl.ioctl(fd, TUNSETIFF, struct.pack("16sH", name.encode(), IFF_TUN | IFF_NO_PI))
+    except OSError:
+        os.close(fd)
+        raise
+    return fd
+
+
+class Forwarder:
+    def __init__(self, fds: dict[str, tuple[int, int]], params: dict[str, DirectionParams], seed: int | None) -> None:
+        """fds: direction -> (read from, write to)."""
+        self.fds = fds
+        self.dirs = {d: Direction(params[d], None if seed is None else seed + i) for i, d in enumerate(DIRECTIONS)}
+        self.write_errors = 0
+        self.not_ipv4 = 0
+        self._late: list[float] = []  # how late each timed write ran (s), since the last stats
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        for d, (src, _dst) in self.fds.items():
+            loop.add_reader(src, self._readable, loop, d)
+
+    def _readable(self, loop: asyncio.AbstractEventLoop, d: str) -> None:
+        src, dst = self.fds[d]
+        model = self.dirs[d]
+        for _ in range(READ_BATCH):
+            try:
+                packet = os.read(src, MAX_PACKET)
+            except BlockingIOError:
+                return
+            if not packet or packet[0] >> 4 != 4:
+                self.not_ipv4 += 1  # IPv6 router solicitations and the like: the link is IPv4 only
+                continue
+            now = loop.time()
+            when = model.admit(len(packet), now)
+            if when is None:
+                continue
+            if when <= now:
+                self._write(dst, packet)
+            else:
+                loop.call_at(when, self._timed_write, dst, packet, when)
+
+    def _timed_write(self, fd: int, packet: bytes, when: float) -> None:
+        if len(self._late) < 1_000_000:
+            self._late.append(self._loop.time() - when)
+        self._write(fd, packet)
+
+    def _write(self, fd: int, packet: bytes) -> None:
+        try:
+            os.write(fd, packet)
+        except OSError:
+            self.write_errors += 1
+
+    def command(self, msg: dict[str, Any]) -> dict[str, Any]:
+        cmd = msg.get("cmd")
+        if cmd == "set":
+            which = msg.get("direction", "both")
+            targets = DIRECTIONS if which == "both" else (which,)
+            if any(t not in DIRECTIONS for t in targets):
+                return {"ok": False, "error": f"direction must be up, down or both, not {which!r}"}
+            try:
+                params = DirectionParams.from_dict(msg.get("params") or {}, f"set {which}")
+            except ValueError as exc:
+                return {"ok": False, "error": str(exc)}
+            for t in targets:
+                self.dirs[t].set(params)
+            return {"ok": True}
+        if cmd == "stats":
+            late = sorted(self._late)
+            self._late = []
+
+            def pct(q: float) -> float | None:
+                return round(late[min(len(late) - 1, int(q * len(late)))] * 1e3, 3) if late else None
+
+            return {"ok": True, "stats": {d: m.counters.to_dict() for d, m in self.dirs.items()},
+                    "write_errors": self.write_errors, "not_ipv4": self.not_ipv4,
+                    "late_ms": {"n": len(late), "p50": pct(0.5), "p99": pct(0.99)}}
+        return {"ok": False, "error": f"unknown command {cmd!r}; use set or stats"}
+
+
+async def _serve(spec: dict[str, Any]) -> None:
+    loop = asyncio.get_running_loop()
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+    except OSError:
+        try:
+            os.nice(NICE)
+        except OSError:  # not allowed: timing is then only as good as the host's load lets it be
+            pass
+    tuns = {side: open_tun(spec["tun"][side]) for side in ("client", "server")}
+    for side in ("client", "server"):
+        subprocess.run(["ip", "link", "set", "dev", spec["tun"][side], "netns", spec["netns"][side]], check=True)
+    params = {d: DirectionParams.from_dict(spec["params"][d], d) for d in DIRECTIONS}
+    fwd = Forwarder({"up": (tuns["client"], tuns["server"]), "down": (tuns["server"], tuns["client"])},
+                    params, spec.get("seed"))
+    fwd.start(loop)
+    stop = asyncio.Event()
+    loop.add_signal_handler(signal.SIGTERM, stop.set)
+    reader = asyncio.StreamReader()
+    await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    print(json.dumps({"ready": True, "pid": os.getpid()}), flush=True)
+
+    async def commands() -> None:
+        while line := await reader.readline():
+            try:
+                reply = fwd.command(json.loads(line))
+            except (ValueError, AttributeError) as exc:
+                reply = {"ok": False, "error": f"bad command: {exc}"}
+            print(json.dumps(reply), flush=True)
+        stop.set()  # stdin closed: whoever started us is gone
+
+    task = asyncio.ensure_future(commands())
+    await stop.wait()
+    task.cancel()
+    for fd in tuns.values():
+        os.close(fd)
+
+
+def main() -> None:
+    asyncio.run(_serve(json.loads(sys.argv[1])))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,191 @@
+"""Explicit control across the emulated WAN (netem/): the server in the server namespace, the operator replayed from
+the client namespace, an observer beside the server. Shared by tests/test_netem.py and bench/wan.py.
+
+- `serve(net)`: `python -m vr_teleop_server.cli serve --backend sim --insecure` bound to the server namespace's
+  address (open access: the replay client has no token support; --insecure lets an open server bind a
+  non-loopback address, and nothing but our own client namespace can reach it).
+- `Observer`: a rosbridge client inside the server namespace (no impairment between it and the server), recording
+  every head command and teleop event with its receive time: the server's own view of what the robot was told.
+- `replay_in(net, steps, url)`: `vr-teleop replay`'s client, run inside the client namespace.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from netem import Emulator
+from vr_teleop_server.tools.replay import Collected, Step, expected_commands, run_replay
+
+PORT = 9090  # the namespace is ours alone: a fixed port is free
+HEAD_COMMAND = "/qt_robot/head_position/command"
+HEAD_POSE = "/vr/head/pose"
+EVENTS = "/vr_teleop/events"
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def serve(net: Emulator, *extra: str, start_timeout: float = 120.0) -> str:
+    """Starts the server in the server namespace and returns its URL once it listens (the emulator stops it)."""
+    log = tempfile.NamedTemporaryFile("w+", prefix="wan-serve-", suffix=".log", delete=False)
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host", net.server_ip,
+                                "--port", str(PORT), "--insecure", "--backend", "sim", "--log-level", "warning",
+                                *extra], stdout=subprocess.PIPE, stderr=log, text=True, env=env, cwd=ROOT)
+    result: dict[str, str] = {}
+
+    def wait_line() -> None:
+        for line in proc.stdout:
+            if "listening on" in line:
+                result["url"] = line.split("listening on", 1)[1].strip()
+                return
+
+    reader = threading.Thread(target=wait_line, daemon=True)
+    reader.start()
+    reader.join(start_timeout)
+    if "url" not in result:
+        log.seek(0)
+        raise RuntimeError(f"the server did not start in the server namespace: {log.read()[-2000:]}")
+    return result["url"]
+
+
+@dataclass
+class Observed:
+    head: list[tuple[float, list[float]]] = field(default_factory=list)  # receive time (monotonic), [yaw, pitch]
+    events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)  # receive time, event (detail parsed)
+    poses: list[tuple[float, float]] = field(default_factory=list)  # receive time, header stamp (s) of head poses
+
+    def kinds(self) -> list[str]:
+        return [e["kind"] for _t, e in self.events]
+
+
+class Observer:
+    """Watches head commands, events (and with `poses`, head poses) from inside the server namespace until stop().
+
+    It is a process of its own (this file run as a script), so the replay client's work in this process does not
+    delay its receive times; CLOCK_MONOTONIC is the machine's, so its times compare with the replay's."""
+
+    def __init__(self, net: Emulator, url: str, poses: bool = False) -> None:
+        self.got = Observed()
+        self._out = tempfile.NamedTemporaryFile("w+", prefix="wan-observer-", suffix=".jsonl", delete=False)
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
+                               stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            self._out.seek(0)
+            if self._out.readline().strip() == '"ready"':
+                return
+            if self._proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        raise RuntimeError("the observer could not subscribe")
+
+    def stop(self) -> Observed:
+        time.sleep(0.5)  # the last frames
+        self._proc.stdin.close()  # it stops when its stdin closes
+        self._proc.wait(10)
+        self._out.seek(0)
+        for line in self._out.read().splitlines()[1:]:
+            kind, t, value = json.loads(line)
+            if kind == "head":
+                self.got.head.append((t, value))
+            elif kind == "pose":
+                self.got.poses.append((t, value))
+            else:
+                self.got.events.append((t, value))
+        self._out.close()
+        os.unlink(self._out.name)
+        return self.got
+
+
+async def _observe(url: str, poses: bool) -> None:
+    """Prints "ready", then one JSON line per head command, event or head pose: [kind, receive time, value]."""
+    from websockets.asyncio.client import connect
+
+    loop = asyncio.get_running_loop()
+    stdin_closed = loop.run_in_executor(None, sys.stdin.read)
+    out = sys.stdout
+    async with connect(url, max_size=None, compression=None) as ws:
+        await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
+        await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
+        if poses:
+            await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
+        await asyncio.sleep(0.2)
+        print(json.dumps("ready"), file=out, flush=True)
+        while not stdin_closed.done():
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.2)
+            except asyncio.TimeoutError:
+                continue
+            now = time.monotonic()
+            msg = json.loads(frame)
+            if msg.get("op") != "publish":
+                continue
+            if msg["topic"] == HEAD_COMMAND:
+                line = ["head", now, list(msg["msg"]["data"])]
+            elif msg["topic"] == HEAD_POSE:
+                stamp = msg["msg"]["header"]["stamp"]
+                line = ["pose", now, stamp.get("secs", stamp.get("sec", 0))
+                        + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9]
+            elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
+                event = dict(msg["msg"])
+                try:
+                    event["detail"] = json.loads(event.get("detail") or "{}")
+                except ValueError:
+                    pass
+                line = ["event", now, event]
+            else:
+                continue
+            print(json.dumps(line), file=out)
+        out.flush()
+
+
+def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0) -> tuple[Collected, float]:
+    """The replay client inside the client namespace: every pose and call goes through the impaired link."""
+    return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False)))
+
+
+def intent_errors(steps: list[Step], got: Collected, seen: Observed, rate_hz: float = 30.0) -> np.ndarray:
+    """How far the robot's head was told to be from where the operator meant it, sampled `rate_hz` times a second
+    from the first head command to the last head pose sent: degrees, the larger of yaw and pitch. The command at a
+    moment is the newest the server had sent (while it holds, the one it holds at); the intent is what the same
+    mapping computes offline from the poses at the moments the operator sent them (so filter and velocity caps are
+    in the intent, and the network's delay, holds and bursts are what the error shows)."""
+    expected = expected_commands(steps, got)
+    sent = sorted((t, i) for t, i in got.sent_head if "head" in expected.get(i, {}))
+    if not sent or not seen.head:
+        return np.zeros(0)
+    sent_t = np.array([t for t, _i in sent])
+    intent = np.array([expected[i]["head"] for _t, i in sent])
+    command_t = np.array([t for t, _c in seen.head])
+    commands = np.array([c for _t, c in seen.head])
+    grid = np.arange(command_t[0], sent_t[-1], 1.0 / rate_hz)
+    k_intent = np.searchsorted(sent_t, grid, side="right") - 1
+    k_command = np.searchsorted(command_t, grid, side="right") - 1
+    return np.abs(commands[k_command] - intent[k_intent]).max(axis=1)
+
+
+def pose_latencies(steps: list[Step], got: Collected, seen: Observed) -> np.ndarray:
+    """Pose-to-command latency (s) per head pose that reached the server: from the operator sending it to the bus
+    getting it, which is when the server steps on it and publishes its command (in the same callback)."""
+    sent_at = {}
+    for t, i in got.sent_head:
+        stamp = steps[i].payload["header"]["stamp"]
+        sent_at[round(stamp.get("secs", 0) + stamp.get("nsecs", 0) / 1e9, 6)] = t
+    return np.array([t - sent_at[key] for t, stamp in seen.poses if (key := round(stamp, 6)) in sent_at])
+
+
+if __name__ == "__main__":
+    asyncio.run(_observe(sys.argv[1], sys.argv[2] == "1"))
