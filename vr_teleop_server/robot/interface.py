@@ -150,12 +150,9 @@ class FrameMailbox:
         with self._lock:
             if self._newest is not None and self._newest.seq > after_seq:
                 return self._newest
-            closed = self.closed
-            if not closed:
-                self._waiters.append(entry)
-        if closed:  # no frame will come: wait as a waiter would, so that a caller polling in a loop cannot spin
-            await asyncio.sleep(timeout or 0)  # the event loop (it used to starve it, hanging the server's stop)
-            return None
+            if self.closed:
+                return None
+            self._waiters.append(entry)
         try:
             return await asyncio.wait_for(fut, timeout)
         except asyncio.TimeoutError:
@@ -304,9 +301,13 @@ class Robot(abc.ABC):
     def latest_frame(self) -> CameraFrame | None:
         """The newest frame, or None if none was produced yet (check its stamps for age)."""
 
+    def camera_closed(self) -> bool:
+        """Whether the camera has closed for good (the backend closed): no frame will come any more."""
+        return False
+
     @abc.abstractmethod
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
-        """Wait (without blocking the loop) for a frame newer than after_seq; None on timeout."""
+        """Wait (without blocking the loop) for a frame newer than after_seq; None on timeout or once closed."""
 
     async def live_frames(self) -> AsyncIterator[CameraFrame]:
         """Each new frame, watching the camera for as long as the iteration lasts.
@@ -323,6 +324,8 @@ class Robot(abc.ABC):
                 if frame is not None:
                     seq = frame.seq
                     yield frame
+                elif self.camera_closed():  # no frame will ever come: end, rather than poll a closed camera
+                    return
         finally:
             self.remove_camera_subscriber()
 

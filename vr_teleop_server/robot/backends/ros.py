@@ -319,6 +319,9 @@ class RosRobot(Robot):
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
         return await self._frames.next(after_seq, timeout)
 
+    def camera_closed(self) -> bool:
+        return self._frames.closed
+
     def _stop_reconnecting(self) -> None:
         from twisted.internet import reactor
 

@@ -216,6 +216,9 @@ class SimRobot(Robot):
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
         return await self._frames.next(after_seq, timeout)
 
+    def camera_closed(self) -> bool:
+        return self._frames.closed
+
     def _on_frame(self, frame: CameraFrame) -> None:
         """Render thread: hand the frame to the asyncio waiters."""
         self._frames.put(frame)
