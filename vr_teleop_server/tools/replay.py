@@ -120,7 +120,9 @@ async def _receive(ws: Any, got: Collected) -> None:
                 secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
                 got.camera.append((time.time(), secs))
         elif op == "service_response":
-            got.responses[str(msg.get("id"))] = (bool(msg.get("result")), msg.get("values"), now)
+            values = msg.get("values")
+            refused = isinstance(values, dict) and (values.get("success") is False or values.get("status") is False)
+            got.responses[str(msg.get("id"))] = (bool(msg.get("result")) and not refused, values, now)
         elif op == "status" and msg.get("level") == "error":
             got.errors.append(msg.get("msg", ""))
 
