@@ -84,6 +84,9 @@ class RunningServer:
         return asyncio.run_coroutine_threadsafe(wrapper(), self.loop).result(10)
 
     def stop(self) -> None:
+        """Stops the server (once: a test may stop it to read its recording before the fixture does)."""
+        if not self.thread.is_alive():
+            return
         if self.server is not None:
             asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(30)  # a loaded 2-core machine
         self.loop.call_soon_threadsafe(self.loop.stop)
