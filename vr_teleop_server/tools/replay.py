@@ -313,6 +313,11 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
     return min(range(ENGAGE_LAGS), key=miss)
 
 
+def _reason(values: Any) -> Any:
+    """A failed call's reason: the refusal's message inside the response, or the values of a call that failed."""
+    return values.get("message", values) if isinstance(values, dict) else values
+
+
 def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
     duration = steps[-1].t if steps else 0.0
     lag = _engage_lag(steps, got)
@@ -326,7 +331,8 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> d
     cam_age = np.array([(rx - stamp) * 1e3 for rx, stamp in got.camera])
     menu_ids = [cid for cid, (service, _t, _a) in got.calls.items()
                 if service == names.MENU_SELECT_SERVICE]
-    failed_calls = {cid: got.responses[cid][1] for cid in got.calls if cid in got.responses and not got.responses[cid][0]}
+    failed_calls = {cid: _reason(got.responses[cid][1]) for cid in got.calls
+                    if cid in got.responses and not got.responses[cid][0]}
 
     def pct(a: np.ndarray, q: float) -> float | None:
         return round(float(np.percentile(a, q)), 3) if a.size else None
