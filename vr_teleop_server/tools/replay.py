@@ -76,11 +76,22 @@ def load_steps(path: Path, client: str | None = None) -> tuple[list[Step], str]:
             continue
         t = (m.time_ns - start) / 1e9
         if m.topic.startswith(REPLAYED_TOPIC_PREFIXES) and m.metadata.get("direction") is None:
-            steps.append(Step(t, "publish", m.topic, m.data))
+            steps.append(Step(t, "publish", m.topic, _current_frame_id(m.data)))
         elif m.topic == names.RECORDING_IN_CHANNEL and m.data.get("op") == "call_service":
             steps.append(Step(t, "call", m.data.get("service", ""), m.data))
     steps.sort(key=lambda s: s.t)
     return steps, client
+
+
+def _current_frame_id(msg: Any) -> Any:
+    """Recordings made before issue 18 (`vr-teleop synth`, clients following the old README) labelled raw Unity
+    axes "unity"; the server now reads every frame id but "unity_left_handed" as ROS axes, so such poses are
+    replayed under the new name and keep their meaning. Exactly "unity": ROS#'s "Unity" is ROS axes already."""
+    header = msg.get("header") if isinstance(msg, dict) else None
+    if isinstance(header, dict) and isinstance(header.get("frame_id"), str) \
+            and header["frame_id"] == "unity" and "pose" in msg:
+        return {**msg, "header": {**header, "frame_id": "unity_left_handed"}}
+    return msg
 
 
 @dataclass
