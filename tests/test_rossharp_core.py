@@ -218,3 +218,19 @@ def test_ascii_json_escapes_every_non_ascii_character_as_json_reads_it():
     escaped = ascii_json(text)
     assert escaped.isascii() and json.loads(escaped) == json.loads(text)
     assert ascii_json('{"data":"plain"}') == '{"data":"plain"}'
+
+
+def test_a_file_server_path_outside_the_package_is_refused_readably(sim_server):
+    client = RawClient(sim_server.url)
+    try:
+        client.send({"op": "set_level", "level": "warning"})
+        client.send({"op": "call_service", "id": "f", "service": "/file_server/get_file",
+                     "args": {"name": "package://qtrobot_description/../../etc/passwd"}})
+        frames = [client.recv(5), client.recv(5)]
+        response = next(f for f in frames if f["op"] == "service_response")
+        warning = next(f for f in frames if f["op"] == "status")
+        assert response["result"] is True and response["values"] == {"value": ""}
+        assert warning["level"] == "warning" and "'..'" in warning["msg"], warning
+        client.alive()
+    finally:
+        client.close()
