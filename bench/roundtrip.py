@@ -35,7 +35,7 @@ def free_port() -> int:
 
 def pose(seq: int) -> str:
     return json.dumps({"op": "publish", "topic": TOPIC, "msg": {
-        "header": {"seq": seq, "stamp": {"secs": 0, "nsecs": 0}, "frame_id": "unity"},
+        "header": {"seq": seq, "stamp": {"secs": 0, "nsecs": 0}, "frame_id": "unity_left_handed"},
         "pose": {"position": {"x": 0.12, "y": 1.61, "z": 0.05},
                  "orientation": {"x": 0.01, "y": 0.2, "z": 0.0, "w": 0.98}}}})
 

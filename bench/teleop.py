@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def pose_msg(pos, quat) -> dict:
-    return {"header": {"frame_id": "unity", "stamp": {"sec": 0, "nanosec": 0}},
+    return {"header": {"frame_id": "unity_left_handed", "stamp": {"sec": 0, "nanosec": 0}},
             "pose": {"position": {"x": pos[0], "y": pos[1], "z": pos[2]},
                      "orientation": {"x": quat[0], "y": quat[1], "z": quat[2], "w": quat[3]}}}
 

@@ -14,14 +14,14 @@ from typing import Any, Literal
 from . import names
 
 UNITY_HEAD_POSE = {
-    "header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity"},
+    "header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity_left_handed"},
     "pose": {"position": {"x": 0.0, "y": 1.62, "z": 0.0},
              "orientation": {"x": 0.0, "y": -0.2588, "z": 0.0, "w": 0.9659}},  # looking 30 degrees left
 }
 
 
 def _hand(x: float) -> dict[str, Any]:
-    return {"header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity"},
+    return {"header": {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": "unity_left_handed"},
             "pose": {"position": {"x": x, "y": 1.35, "z": 0.45},
                      "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
 
@@ -30,7 +30,7 @@ JOY_DOC = ("Oculus Touch, fixed layout. axes: [thumbstick x (-1 left..1 right), 
            "trigger (0..1), grip (0..1)]; buttons: [A or X, B or Y, thumbstick click, menu] as 0/1. The grip is the "
            "arm's dead-man: pressed above 0.6, released below 0.4. Both thumbsticks clicked together is a soft "
            "e-stop. Send at least on every change; 30 Hz or more is usual.")
-POSE_DOC = ("geometry_msgs/PoseStamped at the headset's rate (about 90 Hz). header.frame_id 'unity' means Unity's "
+POSE_DOC = ("geometry_msgs/PoseStamped at the headset's rate (about 90 Hz). header.frame_id 'unity_left_handed' means Unity's "
             "axes (left-handed: x right, y up, z forward, metres); any other frame id means a right-handed ROS "
             "frame (x forward, y left, z up). NaN, infinity and non-unit quaternions are refused with a status "
             "error. While another client holds control, poses are refused with a status error.")
@@ -172,6 +172,19 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "Set a variable (clamped to its min..max).", example={"name": "pain", "value": 2.0}),
     Endpoint(names.MOTIVATION_RESET_SERVICE, "vr_teleop_msgs/MotivationChange", "call",
              "Back to the initial value; an empty name resets every variable.", example={"name": "", "value": 0.0}),
+    # ---- who am I; the robot avatar (Unity/ROS#) ----
+    Endpoint(names.WHOAMI_SERVICE, "vr_teleop_msgs/WhoAmI", "call",
+             "Who the server takes this connection to be: its name, role, operator key (shared by every connection "
+             "of one operator; compare it with teleop_state's holder) and whether that operator holds control. "
+             "Before any token (when the server has tokens): success false, message saying to log in.", "", {}),
+    Endpoint(names.URDF_JOINT_STATES_TOPIC, "sensor_msgs/JointState", "subscribe",
+             "Joint positions in radians under the URDF's joint names (robot_description), for ROS#'s "
+             "JointStatePatcher; LuxAI's degrees stay on " + names.JOINT_STATE_TOPIC + ".", "30 Hz",
+             {"header": _stamp(), "name": ["HeadYaw"], "position": [0.0], "velocity": [0.0], "effort": [0.0]}),
+    Endpoint(names.FILE_SERVER_SERVICE, "file_server/GetBinaryFile", "call",
+             "A package:// resource the robot_description parameter (rosapi get_param) names, as base64 bytes. A "
+             "name outside the shipped packages gets an empty value (and a status warning).", "",
+             {"name": "package://qtrobot_description/meshes/head.stl"}),
     # ---- the dashboard's own needs ----
     Endpoint(names.DESCRIPTION_TOPIC, "std_msgs/String", "subscribe",
              "The robot's joints as JSON: {robot, joints: [{name, part, lower, upper, home, max_velocity}]}, "

@@ -64,6 +64,12 @@ ROBOT_AUDIO_INFO_TOPIC = "/vr_teleop/audio/robot/info"
 OPERATOR_AUDIO_TOPIC = "/vr_teleop/audio/operator"
 OPERATOR_AUDIO_INFO_TOPIC = "/vr_teleop/audio/operator/info"
 FACES_TOPIC = "/perception/faces"
+WHOAMI_SERVICE = "/vr_teleop/whoami"
+
+# ---- the robot avatar (ROS#'s URDF importer and JointStatePatcher) ------------------------------------------------
+URDF_JOINT_STATES_TOPIC = "/joint_states"  # sensor_msgs/JointState, radians, URDF joint names
+ROBOT_DESCRIPTION_PARAM = "robot_description"  # a rosapi parameter (the URDF), not a topic
+FILE_SERVER_SERVICE = "/file_server/get_file"
 
 # ---- the study framework ------------------------------------------------------------------------------------------
 STUDY_LABELS_TOPIC = "/study/labels"

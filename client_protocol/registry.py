@@ -155,6 +155,9 @@ ByteArray = Annotated[
 _MODEL_CONFIG = ConfigDict(strict=True, extra="forbid", populate_by_name=True)
 
 
+_TIME_KEYS = frozenset(("secs", "nsecs", "sec", "nanosec"))
+
+
 def _make_time_model(kind: str, style: TimeStyle) -> type[BaseModel]:
     """ROS time: `{secs, nsecs}` (ROS 1) or `{sec, nanosec}` (ROS 2) on input; the registry's style on output."""
     lower = 0 if kind == "time" else -(2**31)
@@ -168,6 +171,9 @@ def _make_time_model(kind: str, style: TimeStyle) -> type[BaseModel]:
         @model_validator(mode="before")
         @classmethod
         def _accept_both_styles(cls, data: Any) -> Any:
+            if isinstance(data, dict) and data and not _TIME_KEYS.intersection(data):
+                raise ValueError(f"a time is {{secs, nsecs}} (ROS 1) or {{sec, nanosec}} (ROS 2), not "
+                                 f"{{{', '.join(sorted(map(str, data))[:4])}}}")
             if isinstance(data, dict) and ("sec" in data or "nanosec" in data):
                 data = dict(data)
                 if "sec" in data:

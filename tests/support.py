@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import threading
+import re
 import time
 from collections.abc import Callable
 from typing import Any
@@ -83,6 +84,9 @@ class RunningServer:
         return asyncio.run_coroutine_threadsafe(wrapper(), self.loop).result(10)
 
     def stop(self) -> None:
+        """Stops the server (once: a test may stop it to read its recording before the fixture does)."""
+        if not self.thread.is_alive():
+            return
         if self.server is not None:
             asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(30)  # a loaded 2-core machine
         self.loop.call_soon_threadsafe(self.loop.stop)
@@ -160,7 +164,7 @@ def unity_yaw_pitch(yaw_left_deg: float, pitch_up_deg: float = 0.0) -> dict[str,
 
 def pose_msg(position: tuple[float, float, float], orientation: dict[str, float]) -> dict[str, Any]:
     x, y, z = position
-    return {"header": {"frame_id": "unity"},
+    return {"header": {"frame_id": "unity_left_handed"},
             "pose": {"position": {"x": x, "y": y, "z": z}, "orientation": orientation}}
 
 
@@ -242,17 +246,29 @@ def call(ros: roslibpy.Ros, name: str, type_name: str, args: dict[str, Any] | No
     return roslibpy.Service(ros, name, type_name).call(roslibpy.ServiceRequest(args or {}), timeout=10)
 
 
+def refused(reply: dict[str, Any], reason: str = "") -> dict[str, Any]:
+    """A refusal as the server answers one: a successful call whose response says so (success or status false,
+    the reason in message where the type has one)."""
+    assert reply.get("success", reply.get("status")) is False, reply
+    if "message" in reply or "success" in reply:
+        assert re.search(reason, reply["message"]), (reason, reply)
+    return reply
+
+
 def engage(ros: roslibpy.Ros) -> None:
     deadline = time.monotonic() + 5
     while True:  # the first head pose may still be on its way
         try:
             reply = call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
-            assert reply["success"], reply
-            return
         except roslibpy.core.ServiceException:
             if time.monotonic() > deadline:
                 raise
             time.sleep(0.1)
+            continue
+        if reply["success"]:
+            return
+        assert time.monotonic() < deadline, reply  # a refusal comes inside the response (success false)
+        time.sleep(0.1)
 
 
 def wait_subscribed(server: RunningServer, topic: str, clients: int = 1, timeout: float = 5.0) -> bool:

@@ -154,9 +154,13 @@ def test_roles_over_the_protocol(dashboard_server):
         assert spectator.expect("service_response", id="t")["result"] is True  # reading is allowed
         spectator.send({"op": "call_service", "id": "e", "service": "/vr_teleop/control/estop"})
         assert "spectator" in spectator.expect("status", level="error")["msg"]
+        assert spectator.expect("service_response", id="e")["values"]["success"] is False
         operator.send({"op": "auth", "mac": TOKENS["operator"]})
         operator.send({"op": "call_service", "id": "m", "service": "/vr_teleop/motivation/reset", "args": {}})
         assert "only a supervisor" in operator.expect("status", level="error")["msg"]
+        refused = operator.expect("service_response", id="m")  # answered inside the response too (ROS#)
+        assert refused["result"] is True and refused["values"]["success"] is False
+        assert "only a supervisor" in refused["values"]["message"]
         operator.send({"op": "call_service", "id": "t", "service": "/rosapi/get_time"})
         assert operator.expect("service_response", id="t")["result"] is True
     finally:

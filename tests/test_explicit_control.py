@@ -67,14 +67,14 @@ def expected_arm(hand_unity: tuple[float, float, float]) -> dict[str, float]:
     from vr_teleop_server.teleop.frames import unity_to_ros_position  # noqa: F401  (documents the frame)
 
     mapper = TeleopMapper(MODEL)
-    head = make_pose((0.0, EYE_HEIGHT, 0.0), [0, 0, 0, 1], "unity")
+    head = make_pose((0.0, EYE_HEIGHT, 0.0), [0, 0, 0, 1], "unity_left_handed")
     t = 0.0
     mapper.on_head_pose(head, t)
     mapper.engage(t)
     for _ in range(2000):
         t += 1 / 90
         mapper.on_head_pose(head, t)
-        mapper.on_controller_pose("right", make_pose(hand_unity, [0, 0, 0, 1], "unity"), t)
+        mapper.on_controller_pose("right", make_pose(hand_unity, [0, 0, 0, 1], "unity_left_handed"), t)
         mapper.on_joy("right", [0, 0, 0, 1.0], [0, 0, 0, 0], t)
         mapper.step(t)
     return {n: mapper.last_command[n] for n in MODEL.part_joints("right_arm")}
@@ -148,9 +148,9 @@ def test_second_client_cannot_steal_control(sim_server, ros, headset, state):
         assert "/vr/head/pose" in status["msg"] and "held by another client" in status["msg"]
         intruder.send({"op": "call_service", "id": "steal", "service": "/vr_teleop/control/engage",
                        "args": {"data": True}})
-        replies = [intruder.recv(), intruder.recv()]
-        response = next(r for r in replies if r["op"] == "service_response")
-        assert response["result"] is False and "held by another client" in response["values"]
+        response = intruder.expect("service_response")  # a refusal: inside the response, as ROS's convention
+        assert response["result"] is True and response["values"]["success"] is False
+        assert "held by another client" in response["values"]["message"]
         assert state.latest["holder"] != "" and state.latest["pose_age"] >= 0  # still held, poses still counted
         # Once the holder releases, the other client may take control.
         call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
@@ -184,7 +184,7 @@ def test_bad_poses_get_a_status_error_and_never_reach_the_robot(sim_server, orie
     try:
         client.send({"op": "subscribe", "topic": "/qt_robot/head_position/command",
                      "type": "std_msgs/Float64MultiArray"})
-        frame = ('{"op": "publish", "topic": "/vr/head/pose", "msg": {"header": {"frame_id": "unity"}, "pose": '
+        frame = ('{"op": "publish", "topic": "/vr/head/pose", "msg": {"header": {"frame_id": "unity_left_handed"}, "pose": '
                  '{"position": {"x": 0, "y": 1.6, "z": 0}, "orientation": {"x": %s, "y": 0, "z": 0, "w": %s}}}}'
                  % (("NaN" if math.isnan(orientation["x"]) else orientation["x"]), orientation["w"]))
         client.send_raw(frame)

@@ -227,7 +227,7 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
         yaw = 30 * np.sin(2 * np.pi * 0.5 * seq / 90)  # a sweep of +-30 degrees at 0.5 Hz
         q = Rotation.from_euler("Y", -yaw, degrees=True).as_quat()
         return json.dumps({"op": "publish", "topic": "/vr/head/pose", "msg": {
-            "header": {"frame_id": "unity"}, "pose": {"position": {"x": 0, "y": 1.6, "z": 0},
+            "header": {"frame_id": "unity_left_handed"}, "pose": {"position": {"x": 0, "y": 1.6, "z": 0},
                                                       "orientation": dict(zip("xyzw", map(float, q)))}}})
 
     async def operate() -> float:

@@ -228,7 +228,7 @@ async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer
         async def head() -> None:
             while True:
                 await ros.publish("/vr/head/pose", "geometry_msgs/PoseStamped", {
-                    "header": {"frame_id": "unity"}, "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.0},
+                    "header": {"frame_id": "unity_left_handed"}, "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.0},
                                                               "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}})
                 await asyncio.sleep(0.02)
 

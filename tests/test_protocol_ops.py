@@ -13,7 +13,7 @@ import pytest
 
 from vr_teleop_server.core.wire import png_unpack
 
-POSE = {"header": {"seq": 3, "stamp": {"secs": 10, "nsecs": 20}, "frame_id": "unity"},
+POSE = {"header": {"seq": 3, "stamp": {"secs": 10, "nsecs": 20}, "frame_id": "unity_left_handed"},
         "pose": {"position": {"x": 0.1, "y": 1.6, "z": 0.3}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
 
 

@@ -39,7 +39,7 @@ def serve(*args: str) -> tuple[subprocess.Popen, str]:
 
 def head_pose(seq: int) -> dict:
     return {"op": "publish", "topic": "/vr/head/pose", "msg": {
-        "header": {"seq": seq, "frame_id": "unity"},
+        "header": {"seq": seq, "frame_id": "unity_left_handed"},
         "pose": {"position": {"x": 0, "y": 1.6, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}}
 
 

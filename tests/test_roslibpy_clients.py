@@ -33,7 +33,7 @@ def test_topic_publish_subscribe_between_two_clients(ros_factory):
     listener = roslibpy.Topic(b, "/vr/head/pose", "geometry_msgs/PoseStamped")
     listener.subscribe(received.append)
     talker = roslibpy.Topic(a, "/vr/head/pose", "geometry_msgs/PoseStamped")
-    pose = {"header": {"seq": 1, "stamp": {"secs": 1, "nsecs": 2}, "frame_id": "unity"},
+    pose = {"header": {"seq": 1, "stamp": {"secs": 1, "nsecs": 2}, "frame_id": "unity_left_handed"},
             "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.2}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0,
                                                                                    "w": 1.0}}}
     assert wait_for(lambda: b.get_topic_type("/vr/head/pose") == "geometry_msgs/PoseStamped")

@@ -43,10 +43,7 @@ EXPECTED: dict[str, str | None] = {  # test id -> None, or why it fails today (x
     "test_rosapi.py::test_rosapi_topics_blocking": None,
     "test_rosapi.py::test_connection_fails_when_missing_port": None,
     "test_rosapi.py::test_connection_fails_when_schema_not_ws": None,
-    "test_service.py::test_add_two_ints_service": (
-        ISSUE18_CORE + "the test's service handler returns False, so roslibpy answers result false; rosbridge "
-        "passes the values on (filled with defaults) whatever result says, this server answers the caller "
-        "result false ('service /test_sum_service reported failure: {sum: 42}')"),
+    "test_service.py::test_add_two_ints_service": None,
     "test_service.py::test_empty_service": None,
     "test_topic.py::test_topic_pubsub": None,
     "test_topic.py::test_topic_with_header": None,

@@ -112,8 +112,6 @@ def test_poses_in_ros_axes_turn_the_head_when_the_frame_id_is_not_unity(sim_serv
 
 # ---- what issue 18's core work fixes ------------------------------------------------------------------------------
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "the server reads frame id 'Unity' as Unity axes and converts "
-                   "ROS#'s already-converted pose again, so a head turned left does not turn the robot's head left")
 def test_ros_sharp_default_frame_id_unity_is_already_in_ros_axes(sim_server, rig):
     head = PoseStampedPublisher(sim_server.url, HEAD_TOPIC)  # frame_id "Unity", 50 Hz, ROS axes
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
@@ -128,8 +126,6 @@ def test_ros_sharp_default_frame_id_unity_is_already_in_ros_axes(sim_server, rig
         _engage(head.connection, False)
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "a refusal (engage before any head pose) is answered result false "
-                   "with a string as values, which ROS# cannot read: the connection stops receiving")
 def test_a_refusal_is_a_response_ros_sharp_can_read(sim_server, rig):
     connection = RosSharpConnection(sim_server.url)
     rig.append(connection)
@@ -142,8 +138,6 @@ def test_a_refusal_is_a_response_ros_sharp_can_read(sim_server, rig):
     assert "/rosout" in connection.call_service("/rosapi/topics", srv_type("rosapi/Topics"))["topics"]
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "the server writes raw UTF-8, which ROS#'s ASCII decoding turns "
-                   "into '?'; text must travel as JSON \\u escapes")
 def test_text_reaches_an_ascii_decoding_client_intact(sim_server, rig):
     listener = Subscriber(sim_server.url, "/rossharp_test/text", msg_type("std_msgs/String"))
     talker = RosSharpConnection(sim_server.url)
@@ -154,8 +148,6 @@ def test_text_reaches_an_ascii_decoding_client_intact(sim_server, rig):
     assert listener.latest["data"] == "Très bien, ça marche"
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "the server sends {secs, nsecs} (its --time-style) whatever the "
-                   "connection uses; ROS#'s ROS 2 classes read that as a zero stamp")
 def test_the_time_style_is_learned_from_the_first_stamp_a_connection_sends(sim_server, rig):
     head = PoseStampedPublisher(sim_server.url, "/rossharp_test/pose", frame_id="operator")  # ROS 2 stamps
     rig.append(head)
@@ -166,7 +158,6 @@ def test_the_time_style_is_learned_from_the_first_stamp_a_connection_sends(sim_s
     assert read_ros2_time(seen[-1]["header"]["stamp"])[0] > 0, seen[-1]["header"]
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "`?time=ros2` in the URL is not read; stamps come as {secs, nsecs}")
 def test_the_time_style_can_be_set_in_the_url(sim_server, rig):
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"), time="ros2")
     rig.append(joints)
@@ -174,7 +165,6 @@ def test_the_time_style_can_be_set_in_the_url(sim_server, rig):
     assert read_ros2_time(joints.latest["header"]["stamp"])[0] > 0, joints.latest["header"]
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "no robot_description parameter and no /file_server/get_file yet")
 def test_the_robot_avatar_imports_from_robot_description_and_file_server(sim_server, rig):
     connection = RosSharpConnection(sim_server.url)
     rig.append(connection)
@@ -193,8 +183,6 @@ def test_the_robot_avatar_imports_from_robot_description_and_file_server(sim_ser
     assert connection.call_service("/rosapi/topics", srv_type("rosapi/Topics"))["topics"]
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "no /joint_states (radians, URDF joint names) beside LuxAI's "
-                   "degrees topic yet")
 def test_joint_states_in_radians_for_the_joint_state_patcher(sim_server, rig):
     radians = Subscriber(sim_server.url, "/joint_states", msg_type("sensor_msgs/JointState"))
     degrees = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
@@ -213,8 +201,6 @@ def token_server(server_factory):
     return server_factory(operator_token=TOKEN)
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "a token in the URL's query is not read; ROS# has no auth op, so "
-                   "every call is refused")
 def test_a_token_in_the_url_logs_in(token_server):
     connection = RosSharpConnection(token_server.url, token=TOKEN)
     try:
@@ -223,7 +209,6 @@ def test_a_token_in_the_url_logs_in(token_server):
         connection.close()
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "a wrong token in the URL does not refuse the handshake with 401")
 def test_a_wrong_token_in_the_url_is_refused_at_the_handshake(token_server):
     with pytest.raises(InvalidStatus) as refused:
         RosSharpConnection(token_server.url, token="not-the-token").close()
@@ -236,9 +221,6 @@ def token_sim_server(server_factory, tmp_path):
                           audio_dir=tmp_path / "audio")
 
 
-@pytest.mark.xfail(strict=True, reason=ISSUE18 + "the URL's token is not read (every op is refused "
-                   "'authenticate first'), and control is held per connection: engage from a connection that sent "
-                   "no head pose is refused, though the same operator's head publisher streams poses")
 def test_one_operator_on_several_connections_engages_from_any(token_sim_server):
     url = token_sim_server.url
     components: list = []

@@ -39,7 +39,7 @@ def planar_expectation(d, l1, l2):
 
 
 def unity_pose(pos, quat=(0, 0, 0, 1)):
-    return make_pose(pos, quat, "unity")
+    return make_pose(pos, quat, "unity_left_handed")
 
 
 def engaged_mapper(head_quat=(0, 0, 0, 1), **settings):

@@ -79,7 +79,7 @@ def test_quaternion_conversion_is_the_change_of_basis(q, v):
 
 def test_message_in_unity_frame_is_converted_and_ros_frame_passes_through():
     q = unity_quat(UP, -40)
-    p = pose_from_message(stamped("unity", [0.1, 1.5, 0.3], q))
+    p = pose_from_message(stamped("unity_left_handed", [0.1, 1.5, 0.3], q))
     np.testing.assert_allclose(p.position, [0.3, -0.1, 1.5])
     assert math.degrees(heading(p.rotation)) == pytest.approx(40.0)  # Unity left turn = ROS +yaw
     p2 = pose_from_message(stamped("odom", [0.1, 1.5, 0.3], q))
@@ -87,7 +87,9 @@ def test_message_in_unity_frame_is_converted_and_ros_frame_passes_through():
     np.testing.assert_allclose(p2.rotation.as_quat(), q / np.linalg.norm(q))
     bare = pose_from_message({"position": {"x": 1, "y": 2, "z": 3}, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}})
     np.testing.assert_allclose(bare.position, [1, 2, 3])
-    assert pose_from_message(stamped(" Unity ", [0, 0, 1], [0, 0, 0, 1])).position.tolist() == [1, 0, 0]
+    assert pose_from_message(stamped(" Unity_Left_Handed ", [0, 0, 1], [0, 0, 0, 1])).position.tolist() == [1, 0, 0]
+    # ROS#'s PoseStampedPublisher labels poses it already converted "Unity": those are ROS axes, as any frame id
+    assert pose_from_message(stamped("Unity", [0, 0, 1], [0, 0, 0, 1])).position.tolist() == [0, 0, 1]
 
 
 @pytest.mark.parametrize(("quat", "field", "words"), [
@@ -101,21 +103,21 @@ def test_message_in_unity_frame_is_converted_and_ros_frame_passes_through():
 @pytest.mark.filterwarnings("error")
 def test_bad_quaternions_are_rejected_naming_the_field(quat, field, words):
     with pytest.raises(ValueError) as exc:
-        pose_from_message(stamped("unity", [0, 0, 0], quat))
+        pose_from_message(stamped("unity_left_handed", [0, 0, 0], quat))
     assert field in str(exc.value) and words in str(exc.value)
 
 
 def test_slightly_unnormalised_quaternion_is_accepted_and_normalised():
     q = np.round(unity_quat(UP, 33), 3)  # a client rounding to 3 decimals
-    p = pose_from_message(stamped("unity", [0, 0, 0], q))
+    p = pose_from_message(stamped("unity_left_handed", [0, 0, 0], q))
     assert np.linalg.norm(p.rotation.as_quat()) == pytest.approx(1.0)
 
 
 def test_bad_positions_and_shapes_are_rejected():
     with pytest.raises(ValueError, match=r"pose\.position.*NaN"):
-        pose_from_message(stamped("unity", [float("nan"), 0, 0], [0, 0, 0, 1]))
+        pose_from_message(stamped("unity_left_handed", [float("nan"), 0, 0], [0, 0, 0, 1]))
     with pytest.raises(ValueError, match=r"pose\.orientation\.w: missing"):
-        pose_from_message({"header": {"frame_id": "unity"},
+        pose_from_message({"header": {"frame_id": "unity_left_handed"},
                            "pose": {"position": {"x": 0, "y": 0, "z": 0}, "orientation": {"x": 0, "y": 0, "z": 0}}})
     with pytest.raises(ValueError, match=r"pose\.position"):
         pose_from_message({"pose": {"position": {"x": "a", "y": 0, "z": 0},
@@ -126,7 +128,7 @@ def test_bad_positions_and_shapes_are_rejected():
 
 def test_make_pose_matches_message_path():
     q = unity_quat([0.3, 0.8, 0.1], 50)
-    a = make_pose([0.2, 1.1, 0.4], q, "unity")
-    b = pose_from_message(stamped("unity", [0.2, 1.1, 0.4], q))
+    a = make_pose([0.2, 1.1, 0.4], q, "unity_left_handed")
+    b = pose_from_message(stamped("unity_left_handed", [0.2, 1.1, 0.4], q))
     np.testing.assert_allclose(a.position, b.position)
     assert a.rotation.approx_equal(b.rotation)

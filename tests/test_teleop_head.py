@@ -96,14 +96,14 @@ def _settle(mapper, quat_unity, seconds=3.0, t0=0.0, rate=90.0):
     out = None
     for i in range(1, int(seconds * rate) + 1):
         t = t0 + i / rate
-        mapper.on_head_pose(make_pose([0, 1.2, 0], quat_unity, "unity"), t)
+        mapper.on_head_pose(make_pose([0, 1.2, 0], quat_unity, "unity_left_handed"), t)
         out = mapper.step(t)
     return out
 
 
 def test_mapper_30_left_and_80_left_clamped_from_unity():
     m = TeleopMapper(MODEL)
-    m.on_head_pose(make_pose([0, 1.2, 0], unity_head(), "unity"), 0.0)
+    m.on_head_pose(make_pose([0, 1.2, 0], unity_head(), "unity_left_handed"), 0.0)
     m.engage(0.0)
     out = _settle(m, unity_head(yaw_right_deg=-30))  # turning LEFT in Unity
     assert out.commands["head"][0] == pytest.approx(30.0, abs=1e-3)

@@ -23,7 +23,7 @@ CLOCK_OFFSET = 1_700_000_000.0  # the headset's wall clock, far from the server'
 
 def head_msg(stamp: float | None, yaw_left_deg: float = 0.0) -> dict:
     q = Rotation.from_rotvec([0, -math.radians(yaw_left_deg), 0]).as_quat()
-    header = {"frame_id": "unity"}
+    header = {"frame_id": "unity_left_handed"}
     if stamp is not None:
         header["stamp"] = {"secs": int(stamp), "nsecs": int(round((stamp % 1) * 1e9)) % 1_000_000_000}
     return {"header": header, "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.0},

@@ -25,12 +25,12 @@ RIGHT_FWD = [0.19, 1.0, 0.46]
 
 def head_msg(yaw_left_deg=0.0, pos=EYES):
     q = Rotation.from_rotvec([0, -math.radians(yaw_left_deg), 0]).as_quat()
-    return {"header": {"frame_id": "unity"}, "pose": {"position": dict(zip("xyz", pos)),
+    return {"header": {"frame_id": "unity_left_handed"}, "pose": {"position": dict(zip("xyz", pos)),
                                                       "orientation": dict(zip("xyzw", q))}}
 
 
 def ctrl(pos):
-    return make_pose(pos, [0, 0, 0, 1], "unity")
+    return make_pose(pos, [0, 0, 0, 1], "unity_left_handed")
 
 
 def joy(m, side, grip, t, click=0):
@@ -235,7 +235,7 @@ gap = st.sampled_from([0.0, 0.001, 0.001, 0.011, 0.011, 0.011, 0.011, 0.05, 0.3,
 KINDS = ["head"] * 6 + ["left"] * 3 + ["right"] * 3 + ["joy_left", "joy_right"] * 2 + ["step"] * 6 + [
     "burst", "engage", "engage", "release", "disconnect"]
 event = st.tuples(gap, st.sampled_from(KINDS), st.lists(offset, min_size=3, max_size=3), quat,
-                  st.sampled_from(["unity", "world"]), st.sampled_from([0.0, 0.5, 1.0, 1.0]))
+                  st.sampled_from(["unity_left_handed", "world"]), st.sampled_from([0.0, 0.5, 1.0, 1.0]))
 
 
 start_pose = st.fixed_dictionaries({  # where the robot is at engage: anywhere, often right at a limit
@@ -268,13 +268,13 @@ def test_any_stream_keeps_commands_in_limits_and_under_the_velocity_cap(events, 
         assert moved <= set(out.targets)  # nothing moves without being commanded
 
     t = 0.0
-    m.on_head_pose(msg(base["head"], [0, 0, 0, 1], "unity"), t)
+    m.on_head_pose(msg(base["head"], [0, 0, 0, 1], "unity_left_handed"), t)
     m.engage(t, current_joints=start)
     for dt, kind, pos, q, frame, grip in events:
         t += dt
         try:
             if kind in ("head", "left", "right"):
-                p = base[kind] + np.asarray(pos) if kind != "head" or frame == "unity" else np.asarray(pos)
+                p = base[kind] + np.asarray(pos) if kind != "head" or frame == "unity_left_handed" else np.asarray(pos)
                 (m.on_head_pose(msg(p, q, frame), t) if kind == "head"
                  else m.on_controller_pose(kind, msg(p, q, frame), t))
             elif kind.startswith("joy_"):
@@ -289,9 +289,9 @@ def test_any_stream_keeps_commands_in_limits_and_under_the_velocity_cap(events, 
                 for i in range(20):
                     t += 0.001
                     m.on_head_pose(msg(base["head"], Rotation.from_euler("y", 9 * i, degrees=True).as_quat(),
-                                       "unity"), t)
-                    m.on_controller_pose("left", msg(base["left"] + [-0.03 * i, 0.02 * i, 0], [0, 0, 0, 1], "unity"), t)
-                    m.on_controller_pose("right", msg(base["right"] + [0, -0.03 * i, 0.02 * i], [0, 0, 0, 1], "unity"), t)
+                                       "unity_left_handed"), t)
+                    m.on_controller_pose("left", msg(base["left"] + [-0.03 * i, 0.02 * i, 0], [0, 0, 0, 1], "unity_left_handed"), t)
+                    m.on_controller_pose("right", msg(base["right"] + [0, -0.03 * i, 0.02 * i], [0, 0, 0, 1], "unity_left_handed"), t)
                     m.on_joy("left", [0.0, 0.0, 0.0, float(i % 7 != 0)], [0, 0, 0, 0], t)
                     m.on_joy("right", [0.0, 0.0, 0.0, float(i % 5 != 0)], [0, 0, 0, 0], t)
                     check_step(t)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+from typing import Any
 
 from client_protocol import names
 from client_protocol.registry import TypeRegistry
@@ -14,6 +15,8 @@ from .core.access import AccessPolicy, Role, is_loopback, tokens_from
 from .core.bus import Bus
 from .core.events import publish_event
 from .core.rosapi import RosApi
+from .features.avatar import Avatar
+from .features.whoami import WhoAmI
 from .core.session import Session
 from .core.transport import Ping, WebSocketTransport
 from .features import Feature
@@ -46,6 +49,7 @@ class TeleopServer:
         self.luxai: LuxaiApi | None = None  # the parts tests and tools reach into
         self.control: ExplicitControl | None = None
         self.recorder: Recorder | None = None
+        self.rosapi: RosApi | None = None
         self.media: MediaService | None = None
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
@@ -58,7 +62,7 @@ class TeleopServer:
         check_commands_implemented()
         self.menus = load_menus(settings.menu_dir)
         self.motivation_config = load_motivation_config(settings.motivation_config)
-        self.transport = WebSocketTransport(settings, self._open_session, self._close_session)
+        self.transport = WebSocketTransport(settings, self._open_session, self._close_session, self.access)
 
     def _open_session(self, name: str, peer: str, ping: Ping) -> Session:
         recorder = self.recorder
@@ -78,6 +82,22 @@ class TeleopServer:
     def _role(self, owner: str) -> Role | None:
         session = self.sessions.get(owner)
         return session.role if session is not None else None
+
+    def _operator(self, owner: str) -> str:
+        session = self.sessions.get(owner)
+        return session.operator if session is not None else owner
+
+    def _identity(self, owner: str) -> dict[str, Any]:
+        session = self.sessions.get(owner)
+        role = (session.role if session is not None else None) or ("supervisor" if self.access.open else "")
+        operator = self._operator(owner) if role in ("operator", "supervisor") else ""
+        holder = self.control.holder if self.control is not None else None
+        return {"connection": owner, "role": role, "operator": operator,
+                "holding": bool(operator) and holder == operator}
+
+    def _operator_online(self, operator: str, gone: str) -> bool:
+        return any(name != gone and not session.closed and session.operator == operator
+                   for name, session in self.sessions.items())
 
     def _publish_description(self) -> None:
         """The robot's joints and limits, latched, so that clients (the dashboard's gauges) hard-code none."""
@@ -125,7 +145,8 @@ class TeleopServer:
         self.luxai = LuxaiApi(self.bus, robot, gestures, speaker)
         self._start(self.luxai)
         self.control = ExplicitControl(
-            self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)))
+            self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
+            operator_of=self._operator, operator_online=self._operator_online)
         self._start(self.control)
         self._start(OperatorAudioLog(self.bus, audio_dir))
         status = StatusPublisher(self.bus, robot)
@@ -146,11 +167,14 @@ class TeleopServer:
                                          bus=self.bus)
                 self._start(self.recorder)
                 log.info("recording to %s", self.settings.record)
-            self._start(RosApi(self.bus))
+            self.rosapi = RosApi(self.bus)
+            self._start(self.rosapi)
+            self._start(WhoAmI(self.bus, self._identity))
             self._publish_description()
             # the experimenter's labels
             self.bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
             self._start_media(await self._start_robot())
+            self._start(Avatar(self.bus, self.rosapi, self.robot))
             await self.transport.start()
         except BaseException:
             await self._stop_parts()

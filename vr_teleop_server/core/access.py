@@ -10,12 +10,14 @@ supervisor, and serve binds to loopback only unless told `--insecure`.
 
 from __future__ import annotations
 
+import hashlib
 import hmac
 import ipaddress
 import os
 import secrets
 from dataclasses import dataclass
 from typing import Literal
+from urllib.parse import parse_qs, urlsplit
 
 from client_protocol import names
 
@@ -25,7 +27,8 @@ ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
 # What a spectator may call: services that only read.
 READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
 # The media offer is a read, as the camera topic is: a spectator's microphone is not played (media/service.py).
-READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, names.CLOCK_SERVICE}
+READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, names.CLOCK_SERVICE,
+                      names.WHOAMI_SERVICE, names.FILE_SERVER_SERVICE}
 # What only a supervisor may do on top of an operator.
 SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE}
 READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}
@@ -33,6 +36,17 @@ READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth
 
 class AccessDenied(Exception):
     pass
+
+
+@dataclass(frozen=True)
+class Login:
+    """What a connection said at its WebSocket handshake (ROS# has no auth op: the URL is all it has)."""
+    role: Role | None = None
+    operator: str = ""  # the operator key ("" : the connection is its own operator)
+    time_style: Literal["ros1", "ros2"] | None = None
+
+
+TIME_STYLES = ("ros1", "ros2")
 
 
 @dataclass(frozen=True)
@@ -48,6 +62,40 @@ class AccessPolicy:
             if hmac.compare_digest(known.encode(), token.encode()):
                 return role
         return None
+
+    @staticmethod
+    def operator_key(token: str) -> str:
+        """A stable name for everyone presenting `token`, which does not reveal it (a hash prefix)."""
+        return "op-" + hashlib.sha256(b"vr-teleop operator\0" + token.encode()).hexdigest()[:12] if token else ""
+
+    def login(self, path: str, authorization: str | None) -> Login:
+        """The role, operator and time style a handshake asks for: `?token=` (or `Authorization: Bearer`),
+        `?operator=KEY` (open access only: one operator's connections without tokens), `?time=ros1|ros2`.
+        Raises AccessDenied with the reason (never the token) for a token not known, ValueError for a query
+        that asks for something impossible."""
+        query = parse_qs(urlsplit(path).query)
+        token = (query.get("token") or [""])[-1]
+        if authorization:
+            scheme, _, value = authorization.strip().partition(" ")
+            if scheme.lower() != "bearer" or not value.strip():
+                raise AccessDenied("the Authorization header must be 'Bearer <token>'")
+            token = token or value.strip()
+        role: Role | None = None
+        operator = ""
+        if token:
+            role = self.role_for(token)
+            if role is None:
+                raise AccessDenied("the token is not known to this server")
+            operator = self.operator_key(token)
+        key = (query.get("operator") or [""])[-1]
+        if key:
+            if not self.open:
+                raise ValueError("?operator= is for open access only; with tokens, the operator is the token")
+            operator = self.operator_key("key:" + key)
+        style = (query.get("time") or [None])[-1]
+        if style is not None and style not in TIME_STYLES:
+            raise ValueError(f"?time= must be ros1 or ros2, not {style[:20]!r}")
+        return Login(role, operator, style)  # type: ignore[arg-type]
 
     def check(self, role: Role | None, op: str, target: str = "") -> None:
         """Raises AccessDenied saying what the role may not do."""

@@ -28,6 +28,12 @@ class BusError(Refusal):
     """A request the bus refuses; the message is shown to the client as it is."""
 
 
+class CallFailed(BusError):
+    """A service call that could not run at all (no such service, arguments that do not fit, timeout, provider
+    gone or answering nonsense): the caller gets `result: false`. Any other Refusal a provider raises is a refusal
+    the service answers inside its response (see Bus.refusal_response)."""
+
+
 class Published:
     """One message as published, with its wire encodings computed once and shared by every subscriber."""
 
@@ -271,13 +277,13 @@ class Bus:
         if isinstance(args, list):
             names = [f.name for f in self.registry.spec(request_type).fields]
             if len(args) > len(names):
-                raise BusError(f"{service.name} takes {len(names)} argument(s) ({', '.join(names) or 'none'}), "
+                raise CallFailed(f"{service.name} takes {len(names)} argument(s) ({', '.join(names) or 'none'}), "
                                f"{len(args)} were given")
             args = dict(zip(names, args))
         try:
             return self.registry.validate(request_type, args)
         except ValidationError as exc:
-            raise BusError(f"arguments do not fit {service.type}: {describe_validation_error(exc, 'args')}") \
+            raise CallFailed(f"arguments do not fit {service.type}: {describe_validation_error(exc, 'args')}") \
                 from None
 
     def validate_response(self, service: Service, values: Any) -> Any:
@@ -287,27 +293,57 @@ class Bus:
         try:
             return self.registry.validate(response_type, values)
         except ValidationError as exc:
-            raise BusError(f"the provider's response does not fit {service.type}: "
+            raise CallFailed(f"the provider's response does not fit {service.type}: "
                            f"{describe_validation_error(exc, 'values')}") from None
 
-    async def call_service(self, name: str, args: Any, timeout: float, *, caller: str = SERVER_NODE) -> Any:
-        """Calls a service; returns its response (a model for known types). Raises BusError with the reason."""
+    def refusal_response(self, name: str, reason: str) -> BaseModel | None:
+        """The response of service `name` that says "refused: reason" (the ROS convention: a successful call whose
+        response says so), or None when its type has no such fields. Fields looked for: `success` (bool) with
+        `message` (string), as std_srvs and the project's own types have, or LuxAI's `status` (bool)."""
+        service = self.services.get(name)
+        if service is None or not service.known:
+            return None
+        _, response_type = self.registry.service_parts(service.type)
+        fields = {f.name: (f.type, f.array_len) for f in self.registry.spec(response_type).fields}
+        values: dict[str, Any] = {}
+        if fields.get("success") == ("bool", None):
+            values["success"] = False
+        elif fields.get("status") == ("bool", None):
+            values["status"] = False
+        else:
+            return None
+        if fields.get("message") == ("string", None):
+            values["message"] = reason
+        return self.registry.validate(response_type, values)
+
+    async def call_service(self, name: str, args: Any, timeout: float, *, caller: str = SERVER_NODE,
+                           refusal_response: bool = True) -> Any:
+        """Calls a service; returns its response (a model for known types). A Refusal from the provider becomes
+        the response's refusal fields where the type has them (reported to the caller as a warning too); raises
+        CallFailed (or BusError, a refusal the type cannot express) when there is no response to give. A feature
+        calling another service in-process may ask for refusals raised (refusal_response=False) to word them."""
         service = self.services.get(name)
         if service is None:
-            raise BusError(f"service {name} does not exist")
+            raise CallFailed(f"service {name} does not exist")
         request = self._service_request(service, args)
         token = _CALLER.set(caller)
         try:
             response = await asyncio.wait_for(service.provider(request, timeout), timeout)
         except asyncio.TimeoutError:
-            raise BusError(f"service {name} did not answer within {timeout:g} s") from None
-        except BusError:
+            raise CallFailed(f"service {name} did not answer within {timeout:g} s") from None
+        except CallFailed:
             raise
-        except Refusal as exc:  # refused below the bus (the robot away): the reason reaches the client as it is
-            raise BusError(str(exc)) from None
+        except Refusal as exc:  # refused by the provider (or below it: the robot away): said inside the response
+            refused = self.refusal_response(name, str(exc)) if refusal_response else None
+            if refused is None:
+                raise BusError(str(exc)) from None
+            log.info("%s refused %s: %s", name, caller, exc)
+            if caller != SERVER_NODE and refusal_response:
+                self.report(caller, "warning", f"{name} refused: {exc}")
+            return refused
         except Exception as exc:
             log.exception("service %s failed", name)
-            raise BusError(f"service {name} failed: {exc}") from None
+            raise CallFailed(f"service {name} failed: {exc}") from None
         finally:
             _CALLER.reset(token)
         return response if isinstance(response, BaseModel) else self.validate_response(service, response)

@@ -10,7 +10,9 @@ import asyncio
 import itertools
 import logging
 import mimetypes
+import re
 import ssl
+import weakref
 from collections.abc import Awaitable, Callable
 from http import HTTPStatus
 from pathlib import Path
@@ -20,6 +22,7 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
+from .access import AccessDenied, AccessPolicy, Login
 from .session import Session
 from .settings import CoreSettings
 
@@ -31,8 +34,10 @@ PAGES = {"": "index.html", "/operator": "operator.html"}  # the dashboard, and t
 
 class WebSocketTransport:
     def __init__(self, settings: CoreSettings, open_session: Callable[[str, str, Ping], Session],
-                 close_session: Callable[[Session], None]) -> None:
+                 close_session: Callable[[Session], None], policy: AccessPolicy | None = None) -> None:
         self.settings = settings
+        self.policy = policy if policy is not None else AccessPolicy({})
+        self._logins: weakref.WeakKeyDictionary[ServerConnection, Login] = weakref.WeakKeyDictionary()  # what each handshake said, until its handler runs
         self._open_session = open_session
         self._close_session = close_session
         self._server: Server | None = None
@@ -51,12 +56,21 @@ class WebSocketTransport:
             compression=None,  # deflate costs CPU on every pose and gains nothing on JPEG frames
             close_timeout=0.5,
             ping_interval=20, ping_timeout=20,
+            logger=_websockets_logger(),
         )
 
-    @staticmethod
-    def _http(_connection: ServerConnection, request: Request) -> Response | None:
-        """Static files for a plain GET; None lets a WebSocket upgrade through."""
+    def _http(self, connection: ServerConnection, request: Request) -> Response | None:
+        """Static files for a plain GET; None lets a WebSocket upgrade through, once its URL's token (or
+        Authorization header) and query are read: a wrong token is refused here with 401."""
         if "websocket" in request.headers.get("Upgrade", "").lower():
+            try:
+                self._logins[connection] = self.policy.login(request.path, request.headers.get("Authorization"))
+            except AccessDenied as exc:
+                log.warning("handshake from %s refused (401): %s", _peer(connection), exc)
+                return _response(HTTPStatus.UNAUTHORIZED, f"{exc}\n".encode(), "text/plain")
+            except ValueError as exc:
+                log.warning("handshake from %s refused (400): %s", _peer(connection), exc)
+                return _response(HTTPStatus.BAD_REQUEST, f"{exc}\n".encode(), "text/plain")
             return None
         path = request.path.split("?", 1)[0].split("#", 1)[0]
         relative = PAGES.get(path.rstrip("/"), path.lstrip("/"))
@@ -84,8 +98,9 @@ class WebSocketTransport:
                 await self._server.wait_closed()
 
     async def _handle(self, ws: ServerConnection) -> None:
-        peer = "%s:%s" % ws.remote_address[:2] if ws.remote_address else "?"
+        peer = _peer(ws)
         session = self._open_session(f"/rosbridge_websocket/client_{next(self._numbers)}", peer, lambda: _ping(ws))
+        session.apply_login(self._logins.pop(ws, Login()))
         log.info("client connected: %s from %s", session.name, peer)
         writer = asyncio.create_task(self._write(ws, session))
         self._open.add(ws)
@@ -132,6 +147,31 @@ async def _send_batch(ws: ServerConnection, session: Session, frames: list[str |
         data = b"".join(ws.protocol.data_to_send())
         if data:
             ws.transport.write(data)
+
+
+def _websockets_logger() -> logging.Logger:
+    """websockets' server logger with the token filter on it (added once: a filter, not module state)."""
+    logger = logging.getLogger("websockets.server")
+    if not any(isinstance(f, RedactSecrets) for f in logger.filters):
+        logger.addFilter(RedactSecrets())
+    return logger
+
+
+def _peer(ws: ServerConnection) -> str:
+    return "%s:%s" % ws.remote_address[:2] if ws.remote_address else "?"
+
+
+class RedactSecrets(logging.Filter):
+    """Keeps tokens out of websockets' own log lines (its debug log shows each request line and header)."""
+
+    _SECRET = re.compile(r"((?:token|mac)=)[^&\s]*|(authorization:\s*\S+\s+)\S+", re.IGNORECASE)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        redacted = self._SECRET.sub(lambda m: (m.group(1) or m.group(2)) + "***", text)
+        if redacted != text:
+            record.msg, record.args = redacted, ()
+        return True
 
 
 async def _ping(ws: ServerConnection) -> float:

@@ -99,7 +99,39 @@ def _check_envelope(value: Any) -> dict[str, Any]:
 
 
 def dumps(value: Any) -> str:
-    return json.dumps(value, separators=(",", ":"))
+    return json.dumps(value, separators=(",", ":"))  # ensure_ascii: \u escapes, as ascii_json below
+
+
+_NON_ASCII = re.compile(r"[^\x00-\x7f]")
+
+
+def _escape(match: re.Match[str]) -> str:
+    code = ord(match.group())
+    if code > 0xFFFF:  # beyond the BMP: a UTF-16 surrogate pair, as JSON spells it
+        code -= 0x10000
+        return "\\u%04x\\u%04x" % (0xD800 + (code >> 10), 0xDC00 + (code & 0x3FF))
+    return "\\u%04x" % code
+
+
+def ascii_json(text: str) -> str:
+    """JSON text with every non-ASCII character as a \\u escape: clients that decode frames as ASCII (ROS#) read
+    "Tr\\u00e8s" intact. Outside strings JSON has no non-ASCII characters, so escaping every one is exact.
+    str.isascii() is a C loop: the common, all-ASCII message costs next to nothing."""
+    return text if text.isascii() else _NON_ASCII.sub(_escape, text)
+
+
+# Time values in the other style, rewritten in JSON text the serializer made ({"secs":S,"nsecs":N}, compact, in
+# that order). Inside a JSON string a quote is always escaped, so `{"` never matches there.
+_TIME_TEXT = {
+    "ros2": (re.compile(r'\{"secs":(-?\d+),"nsecs":(\d+)\}'), r'{"sec":\1,"nanosec":\2}'),
+    "ros1": (re.compile(r'\{"sec":(-?\d+),"nanosec":(\d+)\}'), r'{"secs":\1,"nsecs":\2}'),
+}
+
+
+def restyle_times(text: str, style: str) -> str:
+    """`text` (made in the other style) with its times as `style` spells them."""
+    pattern, replacement = _TIME_TEXT[style]
+    return pattern.sub(replacement, text)
 
 
 def message_json(published: Published) -> str:
@@ -111,6 +143,7 @@ def message_json(published: Published) -> str:
         else:
             value = published.value
             text = value.model_dump_json(by_alias=True) if published.known else dumps(value)
+        text = ascii_json(text)
         published.encoded["msg_json"] = text
     return text
 
@@ -121,6 +154,18 @@ def publish_text(published: Published) -> str:
         # json.dumps of a lone string with default arguments takes its fast path, a fifth of dumps()'s time
         text = f'{{"op":"publish","topic":{json.dumps(published.topic)},"msg":{message_json(published)}}}'
         published.encoded["none"] = text
+    return text
+
+
+def publish_text_in_style(published: Published, style: str) -> str:
+    """publish_text for a client whose time style is not the registry's (cached per style)."""
+    key = f"none:{style}"
+    text = published.encoded.get(key)
+    if text is None:
+        text = publish_text(published)
+        if published.known:
+            text = restyle_times(text, style)
+        published.encoded[key] = text
     return text
 
 

@@ -42,7 +42,9 @@ REFUSAL_INTERVAL_S = 1.0  # a refused client hears about it at most this often, 
 class ExplicitControl:
     def __init__(self, bus: Bus, robot: Robot, settings: TeleopSettings | None = None,
                  clock: Callable[[], float] = time.monotonic,
-                 may_override: Callable[[str], bool] = lambda caller: False) -> None:
+                 may_override: Callable[[str], bool] = lambda caller: False,
+                 operator_of: Callable[[str], str] = lambda owner: owner,
+                 operator_online: Callable[[str, str], bool] = lambda operator, gone: False) -> None:
         self.bus = bus
         self.robot = robot
         self.mapper = TeleopMapper(robot.model, settings)
@@ -56,6 +58,10 @@ class ExplicitControl:
         self._robot_connected = True
         self._tick_task: asyncio.Task[None] | None = None
         self.may_override = may_override  # whether a caller may take control from its holder
+        # Control is held by an operator, which may use several connections (one per ROS# component):
+        # operator_of(owner) names it; operator_online(operator, gone) says whether it keeps another connection.
+        self.operator_of = operator_of
+        self.operator_online = operator_online
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -88,7 +94,7 @@ class ExplicitControl:
     def _admit(self, published: Published) -> bool:
         """Only the holder's streams count while someone holds control; others hear why, now and then."""
         sender = published.sender
-        if self.holder is None or sender == self.holder:
+        if self.holder is None or self.operator_of(sender) == self.holder:
             return True
         now = self.clock()
         if now - self._last_refusal.get(sender, -1e9) >= REFUSAL_INTERVAL_S:
@@ -108,7 +114,7 @@ class ExplicitControl:
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
             return
-        self._head_sender = published.sender
+        self._head_sender = self.operator_of(published.sender)
         if self.holder is not None and self._robot_connected:
             self._step(now)
 
@@ -187,13 +193,15 @@ class ExplicitControl:
         return self.release(caller)
 
     def engage(self, caller: str) -> dict[str, Any]:
+        caller = self.operator_of(caller)
         if self.holder is not None and self.holder != caller:
             raise BusError(f"control is held by another client ({self.holder}); it must release control or "
                            "disconnect first")
         if not self._robot_connected:
             raise BusError("the robot backend is disconnected; engage once it is back")
         if self._head_sender != caller:
-            raise BusError("cannot engage: no head pose from this client yet; stream /vr/head/pose, then engage")
+            raise BusError("cannot engage: no head pose from this operator yet; stream /vr/head/pose (from any "
+                           "connection of this operator), then engage")
         now = self.clock()
         try:
             self.mapper.engage(now, self.robot.joint_state().as_dict())
@@ -210,6 +218,7 @@ class ExplicitControl:
         """Ends control; the robot keeps its pose. Only the holder (or the server itself) may release."""
         if self.holder is None:
             return {"success": True, "message": "nobody held control"}
+        caller = self.operator_of(caller) if caller != SERVER_NODE else caller
         if caller not in (self.holder, SERVER_NODE) and not self.may_override(caller):
             raise BusError(f"control is held by another client ({self.holder}); only it (or a supervisor) can "
                            "release control")
@@ -237,7 +246,7 @@ class ExplicitControl:
 
     async def _calibrate_service(self, _request: Any) -> dict[str, Any]:
         caller = self.bus.caller()
-        if self.holder is not None and caller not in (self.holder, SERVER_NODE):
+        if self.holder is not None and caller != SERVER_NODE and self.operator_of(caller) != self.holder:
             raise BusError(f"control is held by another client ({self.holder}); only it can calibrate")
         try:
             body = self.mapper.calibrate(self.clock())
@@ -259,9 +268,12 @@ class ExplicitControl:
 
     def _on_owner_dropped(self, owner: str) -> None:
         self._last_refusal.pop(owner, None)
-        if self._head_sender == owner:
+        operator = self.operator_of(owner)
+        if self.operator_online(operator, owner):
+            return  # the operator keeps another connection: nothing changes
+        if self._head_sender == operator:
             self._head_sender = None
-        if owner != self.holder:
+        if operator != self.holder:
             return
         self.holder = None
         self.mapper.disconnect()

@@ -150,7 +150,8 @@ class MenuService:
         return BusError(f"menu item {item_id!r}: {reason}")
 
     async def _call(self, service: str, args: dict[str, Any], caller: str) -> Any:
-        return await self.bus.call_service(service, args, CALL_TIMEOUT_S, caller=caller)
+        # refusals raised, not answered: the menu words them in its own response ("menu item X: why")
+        return await self.bus.call_service(service, args, CALL_TIMEOUT_S, caller=caller, refusal_response=False)
 
     async def _luxai(self, service: str, args: dict[str, Any], caller: str, done: str) -> str:
         response = await self._call(service, args, caller)

@@ -22,7 +22,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-UNITY_FRAME_ID = "unity"
+# The one frame id under which poses are in Unity's own left-handed axes (x right, y up, z forward). Every other
+# frame id (ROS#'s "Unity" included: its PoseStampedPublisher converts before sending) means ROS axes (REP 103).
+UNITY_FRAME_ID = "unity_left_handed"
 
 UNITY_TO_ROS = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 UNITY_TO_ROS.setflags(write=False)
@@ -104,7 +106,7 @@ def pose_from_message(
 ) -> Pose:
     """A geometry_msgs/PoseStamped (or bare Pose) as a dict, converted to ROS's frame and validated.
 
-    header.frame_id "unity" (case and surrounding spaces ignored) marks Unity's axes; any other frame id, or a
+    header.frame_id "unity_left_handed" (case and surrounding spaces ignored) marks Unity's axes; any other frame id, or a
     bare Pose, is taken as already right-handed ROS (x forward, y left, z up). Raises ValueError naming the
     offending field, e.g. "pose.orientation: quaternion norm 0.5 is not 1".
     """
@@ -129,7 +131,7 @@ def pose_from_message(
 
 
 def make_pose(position: Any, orientation_xyzw: Any, frame_id: str = "") -> Pose:
-    """A Pose from already-validated numbers, converting from Unity's axes if frame_id says "unity"."""
+    """A Pose from already-validated numbers, converting from Unity's axes if frame_id says "unity_left_handed"."""
     if frame_id.strip().lower() == UNITY_FRAME_ID:
         position = unity_to_ros_position(position)
         orientation_xyzw = unity_to_ros_quaternion(orientation_xyzw)

@@ -76,11 +76,22 @@ def load_steps(path: Path, client: str | None = None) -> tuple[list[Step], str]:
             continue
         t = (m.time_ns - start) / 1e9
         if m.topic.startswith(REPLAYED_TOPIC_PREFIXES) and m.metadata.get("direction") is None:
-            steps.append(Step(t, "publish", m.topic, m.data))
+            steps.append(Step(t, "publish", m.topic, _current_frame_id(m.data)))
         elif m.topic == names.RECORDING_IN_CHANNEL and m.data.get("op") == "call_service":
             steps.append(Step(t, "call", m.data.get("service", ""), m.data))
     steps.sort(key=lambda s: s.t)
     return steps, client
+
+
+def _current_frame_id(msg: Any) -> Any:
+    """Recordings made before issue 18 (`vr-teleop synth`, clients following the old README) labelled raw Unity
+    axes "unity"; the server now reads every frame id but "unity_left_handed" as ROS axes, so such poses are
+    replayed under the new name and keep their meaning. Exactly "unity": ROS#'s "Unity" is ROS axes already."""
+    header = msg.get("header") if isinstance(msg, dict) else None
+    if isinstance(header, dict) and isinstance(header.get("frame_id"), str) \
+            and header["frame_id"] == "unity" and "pose" in msg:
+        return {**msg, "header": {**header, "frame_id": "unity_left_handed"}}
+    return msg
 
 
 @dataclass
@@ -120,7 +131,9 @@ async def _receive(ws: Any, got: Collected) -> None:
                 secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
                 got.camera.append((time.time(), secs))
         elif op == "service_response":
-            got.responses[str(msg.get("id"))] = (bool(msg.get("result")), msg.get("values"), now)
+            values = msg.get("values")
+            refused = isinstance(values, dict) and (values.get("success") is False or values.get("status") is False)
+            got.responses[str(msg.get("id"))] = (bool(msg.get("result")) and not refused, values, now)
         elif op == "status" and msg.get("level") == "error":
             got.errors.append(msg.get("msg", ""))
 
@@ -311,6 +324,11 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
     return min(range(ENGAGE_LAGS), key=miss)
 
 
+def _reason(values: Any) -> Any:
+    """A failed call's reason: the refusal's message inside the response, or the values of a call that failed."""
+    return values.get("message", values) if isinstance(values, dict) else values
+
+
 def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
     duration = steps[-1].t if steps else 0.0
     lag = _engage_lag(steps, got)
@@ -324,7 +342,8 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> d
     cam_age = np.array([(rx - stamp) * 1e3 for rx, stamp in got.camera])
     menu_ids = [cid for cid, (service, _t, _a) in got.calls.items()
                 if service == names.MENU_SELECT_SERVICE]
-    failed_calls = {cid: got.responses[cid][1] for cid in got.calls if cid in got.responses and not got.responses[cid][0]}
+    failed_calls = {cid: _reason(got.responses[cid][1]) for cid in got.calls
+                    if cid in got.responses and not got.responses[cid][0]}
 
     def pct(a: np.ndarray, q: float) -> float | None:
         return round(float(np.percentile(a, q)), 3) if a.size else None

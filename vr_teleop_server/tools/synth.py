@@ -2,7 +2,7 @@
 
 Motion is a chain of minimum-jerk moves (the smooth bell-shaped velocity of human reaching), with tracking noise
 (about 1 mm of position and 0.2 degrees of orientation) and a slight sway at rest. Poses are in Unity's frame
-(frame_id "unity": left-handed, y up, z forward, metres), as a Quest reports them; the operator stands at the
+(frame_id "unity_left_handed": left-handed, y up, z forward, metres), as a Quest reports them; the operator stands at the
 origin facing +z with the eyes at 1.62 m. Every session starts by streaming, then engaging control through
 /vr_teleop/control/engage; arms move only while their grip is held.
 
@@ -256,7 +256,7 @@ def _quat(yaw_left: float, pitch_up: float, jitter: np.ndarray) -> list[float]:
 
 
 def _pose(stamp_ns: int, position: np.ndarray, quat: list[float]) -> dict:
-    return {"header": {"seq": 0, "stamp": {"secs": stamp_ns // 10**9, "nsecs": stamp_ns % 10**9}, "frame_id": "unity"},
+    return {"header": {"seq": 0, "stamp": {"secs": stamp_ns // 10**9, "nsecs": stamp_ns % 10**9}, "frame_id": "unity_left_handed"},
             "pose": {"position": dict(zip("xyz", map(float, position))),
                      "orientation": dict(zip("xyzw", quat))}}
 

@@ -36,7 +36,10 @@ class Rosbridge {
       const waiter = this.pending.get(msg.id);
       if (!waiter) return;
       this.pending.delete(msg.id);
-      msg.result ? waiter.resolve(msg.values) : waiter.reject(new Error(String(msg.values)));
+      // a refusal is a successful call whose response says so (success/status false, message why)
+      const refused = msg.result && msg.values && (msg.values.success === false || msg.values.status === false);
+      msg.result && !refused ? waiter.resolve(msg.values)
+        : waiter.reject(new Error(refused ? String(msg.values.message || "refused") : String(msg.values)));
     } else if (msg.op === "status") this.onstatus(msg);
   }
   subscribe(topic, type, callback, options = {}) {

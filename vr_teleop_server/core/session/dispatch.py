@@ -21,14 +21,14 @@ from pydantic import ValidationError
 from client_protocol import ops
 from client_protocol.registry import describe_validation_error
 
-from ..access import AccessDenied, AccessPolicy, Role
-from ..bus import GOAL_STATUS_ABORTED, Bus, BusError, GoalHandle
+from ..access import AccessDenied, AccessPolicy, Login, Role
+from ..bus import GOAL_STATUS_ABORTED, Bus, BusError, CallFailed, GoalHandle
 from ..settings import CoreSettings
-from ..wire import FrameError, decode_frame, dumps, encode_for_client
+from ..wire import FrameError, decode_frame, dumps, encode_for_client, restyle_times
 from .actions import ActionOps
 from .fragments import Reassembly
 from .outbox import Frame, Outbox
-from .protocol import ProtocolError
+from .protocol import ProtocolError, json_value
 from .services import ServiceOps
 from .topics import TopicOps, TopicSubscription, _well_formed_publish
 
@@ -67,11 +67,46 @@ class Session(TopicOps, ServiceOps, ActionOps):
         # Sees every frame but topic messages, in ("in") and out ("out"): (session name, direction, frame).
         self.tap = tap
         self.policy = policy if policy is not None else AccessPolicy({})  # none given: open
-        self.role: Role | None = None  # set by a successful auth op
+        self.role: Role | None = None  # set by a successful auth op, or by a token at the handshake
+        # The operator this connection belongs to: connections presenting the same operator token (or, with open
+        # access, the same ?operator= key) share it, and control is held by an operator, not a connection.
+        self.operator = name
+        # Time style of what is sent: None is the registry's (--time-style). Learned from the first stamp the
+        # client sends unless the URL set it (?time=ros2).
+        self._style_learned = False
         self.ping = ping  # a WebSocket ping's round trip, from the transport (link telemetry)
         self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
             name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
         }
+
+    def apply_login(self, login: Login) -> None:
+        """What the WebSocket handshake said (URL query, Authorization header): role, operator, time style."""
+        if login.role is not None:
+            self.role = login.role
+        if login.operator:
+            self.operator = login.operator
+        if login.time_style is not None:
+            self.set_time_style(login.time_style)
+            self._style_learned = True
+
+    @property
+    def time_style(self) -> str:
+        return self.outbox.time_style or self.registry.time_style
+
+    def set_time_style(self, style: str) -> None:
+        self.outbox.time_style = None if style == self.registry.time_style else style
+
+    def _learn_time_style(self, msg: Any) -> None:
+        """The first stamp a client sends tells its style ({sec, nanosec}: ROS 2; {secs, nsecs}: ROS 1)."""
+        header = msg.get("header") if isinstance(msg, dict) else None
+        stamp = header.get("stamp") if isinstance(header, dict) else None
+        if isinstance(stamp, dict):
+            if "sec" in stamp or "nanosec" in stamp:
+                self.set_time_style("ros2")
+                self._style_learned = True
+            elif "secs" in stamp or "nsecs" in stamp:
+                self.set_time_style("ros1")
+                self._style_learned = True
 
     # ---- incoming -----------------------------------------------------------------------------------------------
     async def handle_frame(self, frame: Frame, *, reassembled: bool = False) -> None:
@@ -90,7 +125,8 @@ class Session(TopicOps, ServiceOps, ActionOps):
         msg_id = raw_id if isinstance(raw_id, (str, int)) and not isinstance(raw_id, bool) else None
         name = raw["op"]
         if self.tap is not None and name != "publish":  # published messages are recorded from the bus
-            self.tap(self.name, "in", frame)
+            # a token never reaches a recording: the auth op is recorded without it
+            self.tap(self.name, "in", dumps({"op": "auth", "mac": "***"}) if name == "auth" else frame)
         model = ops.CLIENT_OP_MODELS.get(name)
         if model is None:
             self.status("error", f"unknown op '{name[:60]}'; this server understands: "
@@ -112,7 +148,11 @@ class Session(TopicOps, ServiceOps, ActionOps):
                 self.policy.check(self.role, name, fields.get("service") or fields.get("topic") or "")
         except AccessDenied as exc:
             self.status("error", f"{name}: refused: {exc}", msg_id)
+            if name == "call_service":  # answered too, so that a client that ignores status (ROS#) can read it
+                self._answer_refused_call(op, f"refused: {exc}")
             return
+        if not self._style_learned and name == "publish":
+            self._learn_time_style(op.msg)
         try:
             result = self._handlers[name](op)
             if result is not None:
@@ -123,6 +163,13 @@ class Session(TopicOps, ServiceOps, ActionOps):
             log.exception("%s: %s (id %r) failed", self.name, name, msg_id)
             self.status("error", f"{name}: internal error ({type(exc).__name__}: {exc}); the server logged it",
                         msg_id)
+
+    def _answer_refused_call(self, op: ops.CallService, reason: str) -> None:
+        refused = self.bus.refusal_response(op.service, reason)
+        frame = {"op": "service_response", "service": op.service, "values": reason, "result": False} \
+            if refused is None else {"op": "service_response", "service": op.service,
+                                     "values": json_value(refused), "result": True}
+        self._reply(self._with_id(frame, op.id), op.compression, op.fragment_size, op.id)
 
     # ---- fragments, levels, logs --------------------------------------------------------------------------------
     async def _op_fragment(self, op: ops.Fragment) -> None:
@@ -139,6 +186,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
         if role is None:
             raise ProtocolError("this token is not known; ask whoever runs the server for one")
         self.role = role
+        self.operator = self.policy.operator_key(op.mac) or self.operator
         log.info("%s authenticated as %s", self.name, role)
 
     def _op_set_level(self, op: ops.SetLevel) -> None:
@@ -160,11 +208,16 @@ class Session(TopicOps, ServiceOps, ActionOps):
     def _with_id(frame: dict[str, Any], msg_id: Any) -> dict[str, Any]:
         return frame if msg_id is None else {"op": frame["op"], "id": msg_id, **frame}
 
+    def _dumps(self, frame: dict[str, Any]) -> str:
+        text = dumps(frame)
+        style = self.outbox.time_style
+        return text if style is None else restyle_times(text, style)
+
     def _send(self, frame: dict[str, Any]) -> None:
-        self._push(dumps(frame))
+        self._push(self._dumps(frame))
 
     def _reply(self, frame: dict[str, Any], compression: str, fragment_size: int | None, msg_id: Any) -> None:
-        for piece in encode_for_client(dumps(frame), compression, fragment_size,
+        for piece in encode_for_client(self._dumps(frame), compression, fragment_size,
                                        f"{msg_id if msg_id is not None else 'reply'}:{next(self._ids)}"):
             self._push(piece)
 
@@ -207,7 +260,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
             task.cancel()
         for future in self._calls_to_me.values():
             if not future.done():
-                future.set_exception(BusError("the client providing this service disconnected"))
+                future.set_exception(CallFailed("the client providing this service disconnected"))
         for goal in list(self._goals_to_me.values()):
             goal.finish(GOAL_STATUS_ABORTED, "the client serving this goal disconnected", False)
         for goal in list(self._my_goals.values()):

@@ -19,7 +19,7 @@ from typing import Any
 from client_protocol.registry import TypeRegistry
 
 from ..bus import Published
-from ..wire import dumps, png_pack, publish_cbor, publish_text, split_fragments
+from ..wire import dumps, png_pack, publish_cbor, publish_text, publish_text_in_style, split_fragments
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +76,7 @@ class Outbox:
         self.counters = counters if counters is not None else {"dropped": 0}
         self.ids = ids if ids is not None else itertools.count(1)
         self.name = name
+        self.time_style: str | None = None  # the client's, when not the registry's (publish frames rewritten)
 
     def push(self, frame: Frame) -> None:
         """A reply or status frame, sent before any topic message."""
@@ -129,7 +130,8 @@ class Outbox:
     def _encode(self, sub: TopicSubscription, published: Published) -> list[Frame]:
         if sub.compression in ("cbor", "cbor-raw"):
             return [publish_cbor(published, self.registry, raw=sub.compression == "cbor-raw")]
-        text = publish_text(published)
+        style = self.time_style
+        text = publish_text(published) if style is None else publish_text_in_style(published, style)
         if sub.compression == "png":
             packed = published.encoded.get("png")
             if packed is None:

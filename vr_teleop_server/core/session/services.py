@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import logging
 from typing import Any
 
 from client_protocol import ops
 
-from ..bus import Bus, BusError
+from ..bus import Bus, BusError, CallFailed
 from ..settings import CoreSettings
 from .protocol import ProtocolError, json_value
+
+log = logging.getLogger(__name__)
 
 
 class ServiceOps:
@@ -54,7 +57,7 @@ class ServiceOps:
         self.bus.unadvertise_service(self.name, op.service)
         for call_id, future in list(self._calls_to_me.items()):
             if call_id.startswith(f"service_request:{op.service}:") and not future.done():
-                future.set_exception(BusError(f"service {op.service} was withdrawn by its provider"))
+                future.set_exception(CallFailed(f"service {op.service} was withdrawn by its provider"))
 
     async def _serve_call(self, service: str, request: Any) -> Any:
         """Forwards a call to this client, which provides the service, and waits for its service_response."""
@@ -73,8 +76,12 @@ class ServiceOps:
             raise ProtocolError(f"no call with id {op.id!r} is waiting for an answer (it may have timed out)",
                                 "warning")
         if not op.result:
-            future.set_exception(BusError(f"service {op.service} reported failure: {op.values}"))
-            return
+            # rosbridge's rule: the values go to the caller whatever `result` says (filled with defaults below);
+            # only values that cannot be a response at all make the call fail
+            log.warning("%s answered %s with result false: %.200s", self.name, op.service, op.values)
+            if not isinstance(op.values, dict):
+                future.set_exception(CallFailed(f"service {op.service} reported failure: {op.values}"))
+                return
         service = self.bus.services.get(op.service)
         try:
             values = self.bus.validate_response(service, op.values) if service is not None else op.values

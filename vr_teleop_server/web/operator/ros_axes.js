@@ -2,7 +2,7 @@
 // +y left, +z up): x_ros = -z_xr, y_ros = -x_xr, z_ros = y_xr. The change of basis is a proper rotation
 // (determinant +1), so a quaternion's vector part maps like a position and w stays.
 //
-// Poses go out with header.frame_id FRAME_ID ("webxr"): the server reads any frame id other than "unity" as ROS
+// Poses go out with header.frame_id FRAME_ID ("webxr"): the server reads any frame id other than "unity_left_handed" as ROS
 // axes, and a name of our own keeps the page independent of whatever the Unity convention becomes.
 
 import {stampNow} from "./rosbridge.js";

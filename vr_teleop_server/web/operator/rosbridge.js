@@ -101,7 +101,10 @@ export class Rosbridge {
       if (!waiter) return;
       this.pending.delete(msg.id);
       clearTimeout(waiter.timer);
-      if (msg.result) waiter.resolve(msg.values);
+      // a refusal is a successful call whose response says so (success/status false, message why)
+      const refused = msg.result && msg.values && (msg.values.success === false || msg.values.status === false);
+      if (refused) waiter.reject(new Error(String(msg.values.message || "refused")));
+      else if (msg.result) waiter.resolve(msg.values);
       else waiter.reject(new Error(typeof msg.values === "string" ? msg.values : JSON.stringify(msg.values)));
     } else if (msg.op === "status") {
       this.onstatus(msg);
