@@ -168,8 +168,8 @@ function pulse(intensity = 0.7, ms = 80) {
 
 ros.onopen = () => {
   audio.sendInfo();
-  cameraSource.connected();
   say("connected to the server", "ok");
+  cameraSource.connected();  // after: what it says about the camera stays on the HUD
 };
 ros.onclose = (reason) => {
   state.me = null;
