@@ -159,7 +159,7 @@ def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, came
                            " ages: window.operator.camera.ages, stats: window.operator.camera.stats()})")
     counter.close()
     context.close()
-    return {"rate": rate, "camera": path, "wall": wall, "poses": counter.poses, "frames": result["frames"],
+    return {"rate": rate, "path": path, "wall": wall, "poses": counter.poses, "frames": result["frames"],
             "frame_ms": result["frameTimes"], "work_ms": result["workTimes"], "ages": result["ages"],
             "arrival_ages": counter.arrival_ages, "camera": result["stats"]}
 
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:64s} {value:>9.1f}{unit:1s} {baseline:>9.1f}{unit:1s} {ratio:>7.2f}")
 
     for r in results:
-        rate = f"{r['rate']} Hz {r['camera']}"
+        rate = f"{r['rate']} Hz {r['path']}"
         row(f"{rate}: head poses/s arriving at the server", r["poses"] / r["wall"], r["rate"])
         row(f"{rate}: page XR frames/s", r["frames"] / r["wall"], r["rate"])
         row(f"{rate}: head poses per XR frame", r["poses"] / max(1, r["frames"]), 1.0)
@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         cam = r["camera"]
         print(f"{'':4s}camera frames received {cam['received']}, replaced while decoding {cam['replaced']}, "
               f"uploaded {cam['uploaded']} (whole run)")
-    by = {(r["rate"], r["camera"]): r for r in results}
+    by = {(r["rate"], r["path"]): r for r in results}
     for rate in sorted({r["rate"] for r in results}):
         rtc, jpeg = by.get((rate, "WebRTC")), by.get((rate, "JPEG"))
         if rtc and jpeg:
