@@ -174,3 +174,42 @@ def test_the_robots_audio_comes_over_webrtc_and_plays_once(browser, media_server
         assert page.errors == []
     finally:
         close_page(page)
+
+
+def test_rtp_mapping_and_url_modes_under_node(tmp_path):
+    """webrtc.js's pure parts, run by Node: RTP timestamps across the 32-bit wrap, the telemetry entry that is
+    ours (RTP timestamps near the ones we receive), estimates between reports, and #camera=... parsing."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    module = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web" / "webrtc.js"
+    script = tmp_path / "check.mjs"
+    script.write_text(f"""
+import {{rtpDelta, RenderTimes, cameraMode}} from {json.dumps(str(module))};
+let onTelemetry = null;
+const times = new RenderTimes({{subscribe: (topic, type, cb) => {{ onTelemetry = cb; }}}});
+const out = {{}};
+out.wrap = rtpDelta(5, 2 ** 32 - 5);
+out.back = rtpDelta(2 ** 32 - 5, 5);
+const entry = (rtp, t) => ({{rtp_clock_rate: 90000, rtp_timestamp: rtp, rtp_render_time: t,
+                            frame_rtp_timestamps: [rtp - 3000, rtp], frame_render_times: [t - 1 / 30, t]}});
+const known = [];
+times.whenKnown(4294963996, (t) => known.push(t));  // before we saw any frame: waits
+times.saw(4294967000);
+onTelemetry({{clients: [entry(123456789, 50.0), entry(4294967296 - 300, 100.0)]}});  // theirs, ours
+out.known = known;
+out.lookup = times.lookup(4294966996);
+out.theirs = times.lookup(123456789) ?? null;
+out.estimate = times.estimate(2700);  // 3000 ticks after our newest (across the wrap): 1/30 s later
+out.modes = [cameraMode("#token=abc&camera=jpeg"), cameraMode("#camera=webrtc"), cameraMode("")];
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["wrap"] == 10 and out["back"] == -10
+    assert out["known"] == [100.0 - 1 / 30] and out["lookup"] == 100.0
+    assert out["theirs"] is None  # another peer's frames are not ours
+    assert abs(out["estimate"] - (100.0 + 1 / 30)) < 1e-9
+    assert out["modes"] == ["jpeg", "webrtc", "webrtc"]
