@@ -141,6 +141,34 @@ def test_a_peer_connection_that_fails_later_falls_back_to_the_jpeg_topic(browser
         close_page(page)
 
 
+def test_a_reconnected_page_negotiates_webrtc_again(browser, tmp_path):
+    """The server closes a connection's peer connection with it: after a dropped connection the page offers again
+    on the new one, and does not fall back to JPEG for what was only the connection going."""
+    first = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+    port = first.port
+    page = open_page(browser, first, camera="webrtc", ready="window.operator && window.operator.ros.connected")
+    try:
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.uploaded >= 3",
+                               timeout=SLOW)
+        first.stop()
+        page.wait_for_function("document.getElementById('hud-connection').textContent.includes('DISCONNECTED')",
+                               timeout=SLOW)
+        second = RunningServer(ServerSettings(port=port, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+        try:
+            page.wait_for_function("document.getElementById('hud-connection').textContent.startsWith('● connected')",
+                                   timeout=SLOW)
+            assert wait_for(lambda: peers(second) == 1, 30)
+            received = page.evaluate("window.operator.camera.video.received")
+            page.wait_for_function(f"window.operator.camera.video.received >= {received + 5}", timeout=SLOW)
+            assert page.evaluate("window.operator.camera.path") == "WebRTC"
+            assert page.evaluate("window.operator.camera.jpeg") is None
+            assert page.errors == []
+        finally:
+            second.stop()
+    finally:
+        close_page(page)
+
+
 def test_the_robots_audio_comes_over_webrtc_and_plays_once(browser, media_server):
     """Said through the speech menu: the audio track carries energy, and the AudioData topic's copy is not played
     as well."""
