@@ -67,7 +67,8 @@ export class Audio {
   }
 
   play(msg) {
-    if (this.topicMuted || !this.format || !this.context || this.context.state !== "running") return;  // nobody to hear it yet
+    if (this.topicMuted) return;  // heard over WebRTC instead
+    if (!this.format || !this.context || this.context.state !== "running") return;  // nobody to hear it yet
     const bytes = base64ToBytes(msg.data);
     const {channels, sampleRate} = this.format;
     const frames = Math.floor(bytes.byteLength / (2 * channels));
