@@ -6,8 +6,10 @@ Figures, each against the baseline it should meet:
   emulated display rates: ratio to the display rate (1.00 = one pose per frame);
 - the page's frame interval p50/p99 (ratio to the display period) and its work per frame (the animation-loop
   callback: poses, Joy, panels, rendering) p50/p99, while the camera streams at 30 fps;
-- camera frame age at display (header stamp to the texture upload, server and page on one clock) p50/p99, with
-  the age on arrival at a plain Python subscriber in the same run as the baseline.
+- camera frame age at display (render time to the texture upload, on the server's clock via /vr_teleop/clock)
+  p50/p99, with the age on arrival at a plain Python subscriber in the same run as the baseline; each rate is run
+  with the panel on WebRTC video (render time by RTP timestamp from /vr_teleop/telemetry) and on the JPEG topic
+  (#camera=jpeg, render time in the header stamp), and the two paths' ages are compared at the end.
 
 The emulated display clock is an init script (like IWER, test-side only) that paces requestAnimationFrame at the
 chosen rate; IWER runs its XR frames off it. Rendering is SwiftShader (CPU), so on a small machine the page may
@@ -128,17 +130,20 @@ class Counter:
         self.thread.join(2)
 
 
-def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict) -> dict:
+def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, camera: str = "webrtc") -> dict:
     context = browser.new_context(viewport=viewport)
     page = context.new_page()
     page.add_init_script(script=PACED_FRAMES % {"rate": rate})
     page.add_init_script(path=str(IWER))
     page.add_init_script(script=INSTALL_HEADSET)
-    page.goto(f"http://127.0.0.1:{port}/operator")
+    page.goto(f"http://127.0.0.1:{port}/operator#camera={camera}")
     page.wait_for_function("window.operator && window.operator.ros.connected", timeout=60_000)
     page.get_by_role("button", name="Enter VR").click()
     page.wait_for_function("window.operator.state.xr !== null && window.operator.camera.uploaded > 5",
                            timeout=60_000)
+    path = page.evaluate("window.operator.camera.path")
+    if path.lower() != camera:
+        raise RuntimeError(f"the page's camera is on {path}, not {camera}")
     time.sleep(1.0)  # settle
     counter = Counter(port)
     time.sleep(0.5)
@@ -154,7 +159,7 @@ def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict) -> d
                            " ages: window.operator.camera.ages, stats: window.operator.camera.stats()})")
     counter.close()
     context.close()
-    return {"rate": rate, "wall": wall, "poses": counter.poses, "frames": result["frames"],
+    return {"rate": rate, "path": path, "wall": wall, "poses": counter.poses, "frames": result["frames"],
             "frame_ms": result["frameTimes"], "work_ms": result["workTimes"], "ages": result["ages"],
             "arrival_ages": counter.arrival_ages, "camera": result["stats"]}
 
@@ -164,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="4 s per rate instead of 10")
     parser.add_argument("--seconds", type=float, default=None)
     parser.add_argument("--rates", default="72,90")
+    parser.add_argument("--cameras", default="webrtc,jpeg", help="the panel's camera paths to run, each rate")
     parser.add_argument("--viewport", default="960x600", help="the emulated headset's canvas, WxH (SwiftShader "
                         "shades every pixel on the CPU)")
     args = parser.parse_args(argv)
@@ -180,8 +186,8 @@ def main(argv: list[str] | None = None) -> int:
             browser = p.chromium.launch(executable_path=chromium,
                                         args=["--no-sandbox", "--enable-unsafe-swiftshader"])
             width, height = (int(v) for v in args.viewport.split("x"))
-            results = [run_rate(browser, server.port, int(r), seconds, {"width": width, "height": height})
-                       for r in args.rates.split(",")]
+            results = [run_rate(browser, server.port, int(r), seconds, {"width": width, "height": height}, camera)
+                       for r in args.rates.split(",") for camera in args.cameras.split(",")]
             browser.close()
     finally:
         server.stop()
@@ -190,32 +196,39 @@ def main(argv: list[str] | None = None) -> int:
     print(f"operator page, {seconds:g} s per rate, canvas {args.viewport}, camera 640x480 at 30 fps, SwiftShader, "
           f"{os.cpu_count()} cores, "
           f"load average {load}")
-    print(f"{'figure':58s} {'value':>10s} {'baseline':>10s} {'ratio':>7s}")
+    print(f"{'figure':64s} {'value':>10s} {'baseline':>10s} {'ratio':>7s}")
 
     def row(name: str, value: float, baseline: float, unit: str = "") -> None:
         ratio = value / baseline if baseline else float("nan")
-        print(f"{name:58s} {value:>9.1f}{unit:1s} {baseline:>9.1f}{unit:1s} {ratio:>7.2f}")
+        print(f"{name:64s} {value:>9.1f}{unit:1s} {baseline:>9.1f}{unit:1s} {ratio:>7.2f}")
 
     for r in results:
-        rate = r["rate"]
-        row(f"{rate} Hz: head poses/s arriving at the server", r["poses"] / r["wall"], rate)
-        row(f"{rate} Hz: page XR frames/s", r["frames"] / r["wall"], rate)
-        row(f"{rate} Hz: head poses per XR frame", r["poses"] / max(1, r["frames"]), 1.0)
-        period = 1000 / rate
-        row(f"{rate} Hz: frame interval p50 (ms)", percentile(r["frame_ms"], 50), period)
-        row(f"{rate} Hz: frame interval p99 (ms)", percentile(r["frame_ms"], 99), period)
-        row(f"{rate} Hz: work per frame p50 (ms)", percentile(r["work_ms"], 50), period)
-        row(f"{rate} Hz: work per frame p99 (ms)", percentile(r["work_ms"], 99), period)
+        rate = f"{r['rate']} Hz {r['path']}"
+        row(f"{rate}: head poses/s arriving at the server", r["poses"] / r["wall"], r["rate"])
+        row(f"{rate}: page XR frames/s", r["frames"] / r["wall"], r["rate"])
+        row(f"{rate}: head poses per XR frame", r["poses"] / max(1, r["frames"]), 1.0)
+        period = 1000 / r["rate"]
+        row(f"{rate}: frame interval p50 (ms)", percentile(r["frame_ms"], 50), period)
+        row(f"{rate}: frame interval p99 (ms)", percentile(r["frame_ms"], 99), period)
+        row(f"{rate}: work per frame p50 (ms)", percentile(r["work_ms"], 50), period)
+        row(f"{rate}: work per frame p99 (ms)", percentile(r["work_ms"], 99), period)
         arrival50 = 1000 * percentile(r["arrival_ages"], 50)
         arrival99 = 1000 * percentile(r["arrival_ages"], 99)
-        row(f"{rate} Hz: camera age at display p50 (ms) vs at arrival", 1000 * percentile(r["ages"], 50), arrival50)
-        row(f"{rate} Hz: camera age at display p99 (ms) vs at arrival", 1000 * percentile(r["ages"], 99), arrival99)
+        row(f"{rate}: camera age at display p50 (ms) vs at arrival", 1000 * percentile(r["ages"], 50), arrival50)
+        row(f"{rate}: camera age at display p99 (ms) vs at arrival", 1000 * percentile(r["ages"], 99), arrival99)
         shown = len(r["ages"]) / r["wall"]
-        row(f"{rate} Hz: camera frames shown/s (vs arriving at Python)", shown,
+        row(f"{rate}: camera frames shown/s (vs arriving at Python)", shown,
             len(r["arrival_ages"]) / r["wall"])
         cam = r["camera"]
         print(f"{'':4s}camera frames received {cam['received']}, replaced while decoding {cam['replaced']}, "
               f"uploaded {cam['uploaded']} (whole run)")
+    by = {(r["rate"], r["path"]): r for r in results}
+    for rate in sorted({r["rate"] for r in results}):
+        rtc, jpeg = by.get((rate, "WebRTC")), by.get((rate, "JPEG"))
+        if rtc and jpeg:
+            for p in (50, 99):
+                row(f"{rate} Hz: camera age at display p{p} (ms), WebRTC vs JPEG", 1000 * percentile(rtc["ages"], p),
+                    1000 * percentile(jpeg["ages"], p))
     return 0
 
 

@@ -39,8 +39,10 @@ def iwer() -> Path:
 READY = "window.operator && window.operator.ros.connected && window.operator.state.teleop"
 
 
-def open_page(browser, server: RunningServer, *, headset: Path | None = None, viewport=VIEWPORT, ready=READY):
-    """A new page at /operator, its errors collected; with `headset`, IWER is the WebXR device."""
+def open_page(browser, server: RunningServer, *, headset: Path | None = None, viewport=VIEWPORT, ready=READY,
+              camera: str = "jpeg", init_scripts: tuple[str, ...] = ()):
+    """A new page at /operator, its errors collected; with `headset`, IWER is the WebXR device. Its camera on the
+    JPEG topic (and the robot's audio on its topic) unless camera="webrtc" (test_operator_page_media.py)."""
     context = browser.new_context(viewport=viewport)
     page = context.new_page()
     page.errors = []  # type: ignore[attr-defined]
@@ -48,7 +50,9 @@ def open_page(browser, server: RunningServer, *, headset: Path | None = None, vi
     if headset is not None:
         page.add_init_script(path=str(headset))
         page.add_init_script(script=INSTALL_HEADSET)
-    page.goto(f"http://127.0.0.1:{server.port}/operator")
+    for script in init_scripts:
+        page.add_init_script(script=script)
+    page.goto(f"http://127.0.0.1:{server.port}/operator#camera={camera}")
     page.wait_for_function(ready, timeout=SLOW)
     return page
 

@@ -1,6 +1,9 @@
 // The supervisor's dashboard. It speaks rosbridge v2 to the server that serves it, like any other client:
 // subscriptions, service calls and publishes, with no private back door. Token: the page's #token=... fragment.
 
+import {RenderTimes, ServerClock, cameraMode, createPeerConnection, negotiate, onVideoFrames,
+        webRtcMissing} from "./webrtc.js";
+
 class Rosbridge {
   // hello(): the frames that open every connection (auth, set_level), before subscriptions and anything queued.
   constructor(url, hello) {
@@ -96,31 +99,18 @@ ros.onstatus = (msg) => {
 // WebRTC first (video like a call, negotiated through /vr_teleop/media/offer on this connection); the JPEG topic
 // when negotiation fails or the peer connection does not come up. #camera=jpeg in the URL forces the JPEG topic.
 // Frame age: JPEG frames carry their render time in the header stamp; WebRTC frames find theirs by RTP timestamp
-// (requestVideoFrameCallback) in the telemetry's frame_rtp_timestamps/frame_render_times. Server times are put
-// on this clock with /vr_teleop/clock.
-const cameraMode = new URLSearchParams(location.hash.slice(1)).get("camera") || "webrtc";
-const camera = {path: "", pc: null, jpeg: false, offset: 0, ages: []};
+// (requestVideoFrameCallback) in the telemetry's mapping. Signalling, the clock and the mapping: webrtc.js, shared
+// with the operator page.
+const camera = {path: "", pc: null, jpeg: false, ages: [], mode: cameraMode()};
 Object.assign(window.dashboard, {camera, videoFrames: 0});
-const serverNow = () => Date.now() / 1000 + camera.offset;
+const clock = new ServerClock(ros);
+let renderTimes = null;
 function showAge(age) {
   camera.ages.push(age);
   if (camera.ages.length > 600) camera.ages.shift();
   $("camera-age").textContent = `frame age ${Math.max(0, age).toFixed(3)} s (${camera.path})`;
 }
-async function syncClock(rounds = 8) {
-  // NTP's rule: of several exchanges, trust the one with the shortest round trip (the least room for asymmetry).
-  let best = null;
-  for (let i = 0; i < rounds; i++) {
-    const sent = Date.now() / 1000;
-    const r = await ros.call("/vr_teleop/clock", {client_send: sent});
-    const back = Date.now() / 1000;
-    const trip = (back - sent) - (r.server_send - r.server_receive);
-    if (!best || trip < best.trip) best = {trip, offset: ((r.server_receive - sent) + (r.server_send - back)) / 2};
-    await new Promise((resolve) => setTimeout(resolve, 50));
-  }
-  camera.offset = best.offset;
-}
-setInterval(() => syncClock().catch(() => {}), 30000);
+setInterval(() => clock.sync().catch(() => {}), 30000);
 function useJpeg(reason) {
   if (camera.pc) { camera.pc.close(); camera.pc = null; }
   $("camera-video").hidden = true;
@@ -135,72 +125,30 @@ function useJpeg(reason) {
     img.src = `data:image/jpeg;base64,${msg.data}`;
     const s = msg.header.stamp;
     const rendered = (s.secs ?? s.sec) + (s.nsecs ?? s.nanosec) / 1e9;
-    img.decode().then(() => showAge(serverNow() - rendered), () => {});
+    img.decode().then(() => showAge(clock.now() - rendered), () => {});
     window.dashboard.frames += 1;
   }, {throttle_rate: 0, queue_length: 1});
-}
-// Render times by RTP timestamp, from the telemetry; shown frames wait here until theirs arrives (every 0.5 s).
-const renders = new Map();
-const shownFrames = [];
-function resolveShown() {
-  while (shownFrames.length && renders.has(shownFrames[0].rtp)) {
-    const f = shownFrames.shift();
-    showAge(f.shown - renders.get(f.rtp));
-  }
-  while (shownFrames.length > 120) shownFrames.shift();  // never told: not ours, or lost
 }
 function onVideoFrame(now, meta) {
   window.dashboard.videoFrames += 1;
   window.dashboard.frames += 1;
-  if (meta.rtpTimestamp !== undefined) {
-    camera.lastRtp = meta.rtpTimestamp;
-    // presentationTime: the frame handed to the compositor (as the JPEG path's decode, before the next vsync)
-    const shown = (performance.timeOrigin + (meta.presentationTime ?? now)) / 1000 + camera.offset;
-    shownFrames.push({rtp: meta.rtpTimestamp, shown});
-    resolveShown();
-  }
-  $("camera-video").requestVideoFrameCallback(onVideoFrame);
+  if (meta.rtpTimestamp === undefined) return;
+  camera.lastRtp = meta.rtpTimestamp;
+  renderTimes.saw(meta.rtpTimestamp);
+  // presentationTime: the frame handed to the compositor (as the JPEG path's decode, before the next vsync)
+  const shown = (performance.timeOrigin + (meta.presentationTime ?? now)) / 1000 + clock.offset;
+  renderTimes.whenKnown(meta.rtpTimestamp, (rendered) => showAge(shown - rendered));
 }
-ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", (msg) => {
-  // Our entry: the peer whose RTP timestamps are near the ones we receive (each peer's origin is random).
-  const rtp = camera.lastRtp;
-  if (rtp === undefined) return;
-  for (const c of msg.clients) {
-    if (!c.rtp_clock_rate) continue;
-    const delta = ((rtp - c.rtp_timestamp + 2 ** 31) % 2 ** 32 + 2 ** 32) % 2 ** 32 - 2 ** 31;
-    if (Math.abs(delta) > 10 * c.rtp_clock_rate) continue;
-    c.frame_rtp_timestamps.forEach((r, i) => renders.set(r, c.frame_render_times[i]));
-    while (renders.size > 600) renders.delete(renders.keys().next().value);
-  }
-  resolveShown();
-});
 async function useWebRtc() {
-  const pc = camera.pc = new RTCPeerConnection({iceServers: []});
+  const pc = camera.pc = createPeerConnection({video: true, audio: true});  // audio: click the video to hear it
   const stream = new MediaStream();
   const video = $("camera-video");
-  pc.addTransceiver("video", {direction: "recvonly"});
-  pc.addTransceiver("audio", {direction: "recvonly"});  // the robot's audio: click the video to hear it
   pc.ontrack = (event) => { stream.addTrack(event.track); video.srcObject = stream; };
-  await pc.setLocalDescription(await pc.createOffer());
-  await new Promise((resolve) => {
-    if (pc.iceGatheringState === "complete") return resolve();
-    pc.addEventListener("icegatheringstatechange", () => pc.iceGatheringState === "complete" && resolve());
-    setTimeout(resolve, 2000);  // enough candidates by then
-  });
-  const answer = await ros.call("/vr_teleop/media/offer", {sdp: pc.localDescription.sdp, type: "offer"});
-  if (!answer.success) throw new Error(answer.message);
-  await pc.setRemoteDescription({sdp: answer.sdp, type: answer.type});
-  // A live view, not a film: no jitter buffer beyond what decoding needs (Chromium's hints; others ignore them).
-  pc.getReceivers().forEach((r) => { r.playoutDelayHint = 0; r.jitterBufferTarget = 0; });
-  await new Promise((resolve, reject) => {
-    const check = () => {
-      if (pc.connectionState === "connected") resolve();
-      else if (["failed", "closed"].includes(pc.connectionState)) reject(new Error(`peer connection ${pc.connectionState}`));
-    };
-    pc.addEventListener("connectionstatechange", check);
-    setTimeout(() => reject(new Error("the peer connection did not connect within 10 s")), 10000);
-    check();
-  });
+  await negotiate(ros, pc);
+  if (!renderTimes) {
+    renderTimes = new RenderTimes(ros);
+    onVideoFrames(video, onVideoFrame);
+  }
   pc.addEventListener("connectionstatechange", () => {
     if (camera.pc === pc && ["failed", "closed"].includes(pc.connectionState)) useJpeg(`peer connection ${pc.connectionState}`);
   });
@@ -208,12 +156,11 @@ async function useWebRtc() {
   $("camera").hidden = true;
   video.hidden = false;
   video.onclick = () => { video.muted = !video.muted; };
-  video.requestVideoFrameCallback(onVideoFrame);
   video.play().catch(() => {});
 }
 async function startCamera() {
-  syncClock().catch(() => {});
-  if (cameraMode === "jpeg" || !window.RTCPeerConnection) return useJpeg(cameraMode === "jpeg" ? "" : "no WebRTC in this browser");
+  clock.sync().catch(() => {});
+  if (camera.mode === "jpeg" || webRtcMissing()) return useJpeg(camera.mode === "jpeg" ? "" : webRtcMissing());
   if (camera.pc) { camera.pc.close(); camera.pc = null; }
   try { await useWebRtc(); } catch (err) { useJpeg(err.message); }
 }

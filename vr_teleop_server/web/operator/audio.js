@@ -35,6 +35,7 @@ export class Audio {
     this.mic = null;        // {stream, node} once granted
     this.micState = "off";  // off, asking, ready, denied
     this.sentChunks = 0;
+    this.topicMuted = false;  // the robot's audio comes over WebRTC (camera.js): its topic's chunks are not played
     ros.subscribe(`${ROBOT_TOPIC}/info`, "audio_common_msgs/AudioInfo", (info) => this.setFormat(info));
     ros.subscribe(ROBOT_TOPIC, "audio_common_msgs/AudioData", (msg) => this.play(msg));
     ros.advertise(OPERATOR_TOPIC, "audio_common_msgs/AudioData");
@@ -66,6 +67,7 @@ export class Audio {
   }
 
   play(msg) {
+    if (this.topicMuted) return;  // heard over WebRTC instead
     if (!this.format || !this.context || this.context.state !== "running") return;  // nobody to hear it yet
     const bytes = base64ToBytes(msg.data);
     const {channels, sampleRate} = this.format;

@@ -1,10 +1,14 @@
 // The robot's eyes. A camera source hands the panel a THREE.Texture and counts what it shows; the panel does not
-// care where the frames come from. Today the source is JPEG over rosbridge (JpegCameraSource). When WebRTC media
-// exist (issue 20), a VideoCameraSource built on a <video> element and THREE.VideoTexture takes its place with the
-// same shape: {texture, aspect, frameAge(), stats(), dispose()}; main.js picks the source, nothing else changes.
+// care where the frames come from. Two sources of one shape ({texture, aspect, frameAge(), stats(), dispose()}):
+// VideoCameraSource, WebRTC video (issue 20) on a <video> element uploaded as a THREE.VideoTexture, and
+// JpegCameraSource, the JPEG topic over rosbridge. CameraFeed (what main.js holds) negotiates WebRTC on every
+// rosbridge connection and falls back to the JPEG topic when that is refused, impossible or fails later, saying so.
+// Signalling, the clock and the RTP -> render time mapping are ../webrtc.js, shared with the dashboard.
 
 import * as THREE from "three";
 import {stampSeconds} from "./rosbridge.js";
+import {MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, negotiate, onVideoFrames,
+        webRtcMissing} from "../webrtc.js";
 
 export const CAMERA_TOPIC = "/camera/color/image_raw/compressed";
 const AGES_KEPT = 2000;
@@ -12,8 +16,9 @@ const AGES_KEPT = 2000;
 export class JpegCameraSource {
   /** Newest frame only: the server sends at most one frame at a time (queue_length 1), and while a frame is being
    * decoded (in a worker, off the main thread) newer ones replace each other: never a backlog. */
-  constructor(ros, {onError = () => {}, placeholder = null} = {}) {
+  constructor(ros, {onError = () => {}, placeholder = null, clock = null} = {}) {
     this.onError = onError;
+    this.now = clock ? () => clock.now() : () => Date.now() / 1000;  // the server's clock, when synchronised
     this.texture = new THREE.Texture(placeholder ?? undefined);
     this.texture.colorSpace = THREE.SRGBColorSpace;
     this.texture.generateMipmaps = false;
@@ -80,7 +85,7 @@ export class JpegCameraSource {
     if (this.uploading === null) return;
     this.uploaded += 1;
     this.shownStamp = this.uploading;
-    this.ages.push(Date.now() / 1000 - this.uploading);
+    this.ages.push(this.now() - this.uploading);
     if (this.ages.length > AGES_KEPT) this.ages.splice(0, this.ages.length - AGES_KEPT);
     this.uploading = null;
   }
@@ -90,10 +95,9 @@ export class JpegCameraSource {
     this.onError(text);
   }
 
-  /** Seconds between the shown frame's stamp and now (server and page share a clock on one machine; across
-   * machines, the two clocks' offset adds in). */
+  /** Seconds between the shown frame's stamp and now, on the server's clock (/vr_teleop/clock). */
   frameAge() {
-    return this.shownStamp === null ? null : Date.now() / 1000 - this.shownStamp;
+    return this.shownStamp === null ? null : this.now() - this.shownStamp;
   }
 
   stats() {
@@ -103,5 +107,215 @@ export class JpegCameraSource {
   dispose() {
     this.worker.terminate();
     this.texture.dispose();
+  }
+}
+
+export class VideoCameraSource {
+  /** WebRTC video: the <video> element decodes (the browser's media pipeline, off the main thread) and presents
+   * the newest frame; the VideoTexture uploads it when the video presents one (requestVideoFrameCallback), so a
+   * late frame is never queued behind another: newest only, by nature. */
+  constructor(renderTimes, clock) {
+    this.renderTimes = renderTimes;
+    this.clock = clock;
+    const video = this.video = document.createElement("video");
+    video.muted = true;  // until a user gesture (the autoplay rule): then the robot's audio plays from here
+    video.playsInline = true;
+    video.autoplay = true;
+    // In the document, invisible: a video that is part of the page is presented (and calls back) like any other.
+    Object.assign(video.style, {position: "fixed", left: "0", top: "0", width: "2px", height: "2px", opacity: "0",
+                                pointerEvents: "none"});
+    video.setAttribute("aria-hidden", "true");
+    document.body.append(video);
+    this.texture = new THREE.VideoTexture(video);
+    this.texture.colorSpace = THREE.SRGBColorSpace;
+    this.aspect = 4 / 3;
+    this.received = 0;       // frames the video presented
+    this.uploaded = 0;       // frames uploaded to the GPU
+    this.ages = [];          // render-to-upload ages in seconds, on the server's clock (the bench reads them)
+    this.latestRtp = null;   // RTP timestamp of the frame the video presents now
+    this.shownRtp = null;    // ... of the frame on the texture
+    this.texture.onUpdate = () => this.uploadedFrame();
+    this.stopFrames = onVideoFrames(video, (now, meta) => this.presented(meta));
+  }
+
+  attach(stream) {
+    this.video.srcObject = stream;
+    this.video.play().catch(() => {});
+  }
+
+  presented(meta) {
+    this.received += 1;
+    if (meta.width && meta.height) this.aspect = meta.width / meta.height;
+    if (meta.rtpTimestamp !== undefined) {
+      this.latestRtp = meta.rtpTimestamp;
+      this.renderTimes.saw(meta.rtpTimestamp);
+    }
+  }
+
+  uploadedFrame() {
+    this.uploaded += 1;
+    const rtp = this.latestRtp;
+    if (rtp === null || rtp === this.shownRtp) return;
+    this.shownRtp = rtp;
+    const at = this.clock.now();
+    this.renderTimes.whenKnown(rtp, (rendered) => {
+      this.ages.push(at - rendered);
+      if (this.ages.length > AGES_KEPT) this.ages.splice(0, this.ages.length - AGES_KEPT);
+    });
+  }
+
+  /** Seconds between the shown frame's render time (by its RTP timestamp, from the telemetry) and now, on the
+   * server's clock; null until the telemetry has told this page about its frames. */
+  frameAge() {
+    if (this.shownRtp === null) return null;
+    const rendered = this.renderTimes.estimate(this.shownRtp);
+    return rendered === null ? null : this.clock.now() - rendered;
+  }
+
+  stats() {
+    return {received: this.received, replaced: 0, uploaded: this.uploaded};
+  }
+
+  dispose() {
+    this.stopFrames();
+    this.video.pause();
+    this.video.srcObject = null;
+    this.video.remove();
+    this.texture.dispose();
+  }
+}
+
+export class CameraFeed {
+  /** The panel's camera: WebRTC video when negotiated, else the JPEG topic. Call connected() on every (re)opened
+   * rosbridge connection (the server closes a connection's peer connection with it): WebRTC is negotiated again,
+   * unless the page has fallen back to JPEG (a refusal, no WebRTC, a failed connection), where it stays.
+   *  - onMessage(text, level): what to say on the HUD (the fallback and its reason);
+   *  - onAudio(on): the robot's audio arrives over WebRTC (on) or not: the topic's chunks must not play as well;
+   *  - prepare(pc): called before each offer, to add to the same peer connection (e.g. a data channel);
+   *  - mode: "webrtc" or "jpeg" (the URL's #camera=jpeg). */
+  constructor(ros, {onMessage = () => {}, onAudio = () => {}, prepare = null, placeholder = null,
+                    mode = cameraMode()} = {}) {
+    this.ros = ros;
+    this.onMessage = onMessage;
+    this.onAudio = onAudio;
+    this.prepare = prepare;
+    this.placeholderImage = placeholder;
+    this.placeholder = new THREE.Texture(placeholder ?? undefined);
+    this.placeholder.colorSpace = THREE.SRGBColorSpace;
+    this.placeholder.minFilter = THREE.LinearFilter;
+    this.placeholder.generateMipmaps = false;
+    if (placeholder) this.placeholder.needsUpdate = true;
+    this.clock = new ServerClock(ros);
+    this.renderTimes = null;
+    this.video = null;         // VideoCameraSource while on WebRTC
+    this.jpeg = null;          // JpegCameraSource once fallen back
+    this.pc = null;
+    this.path = "";            // "WebRTC", "JPEG", or "" while negotiating
+    this.audioViaWebRtc = false;
+    this.generation = 0;       // counts rosbridge connections: a negotiation of an older one is dropped
+    this.unlocked = false;
+    this.forced = mode === "jpeg" ? "#camera=jpeg" : webRtcMissing();
+    for (const type of ["pointerdown", "keydown"]) window.addEventListener(type, () => this.unmute(), true);
+  }
+
+  get source() {
+    return this.path === "JPEG" ? this.jpeg : this.path === "WebRTC" ? this.video : null;
+  }
+
+  get texture() {
+    const s = this.source;
+    if (s === this.video && s && s.received === 0) return this.placeholder;  // no frame decoded yet
+    return s ? s.texture : this.placeholder;
+  }
+
+  get aspect() { return this.source?.aspect ?? 4 / 3; }
+  get uploaded() { return this.source?.uploaded ?? 0; }
+  get ages() { return this.source?.ages ?? []; }
+  frameAge() { return this.source ? this.source.frameAge() : null; }
+  stats() { return {path: this.path, ...(this.source?.stats() ?? {received: 0, replaced: 0, uploaded: 0})}; }
+
+  connected() {
+    this.generation += 1;
+    this.clock.sync().catch(() => {});  // a server without the clock service: its stamps taken as ours
+    if (this.path === "JPEG") return;   // the rosbridge client subscribes again by itself
+    if (this.forced) {
+      this.useJpeg(this.forced === "#camera=jpeg" ? "" : `camera: ${this.forced}; showing the JPEG topic`);
+      return;
+    }
+    this.startWebRtc(this.generation);
+  }
+
+  async startWebRtc(generation) {
+    this.closePeer();
+    const pc = this.pc = createPeerConnection({video: true, audio: true});
+    const stream = new MediaStream();
+    pc.addEventListener("track", (event) => stream.addTrack(event.track));
+    try {
+      this.prepare?.(pc);
+      const sends = await negotiate(this.ros, pc);
+      if (this.pc !== pc || generation !== this.generation) { pc.close(); return; }  // a newer connection's turn
+      if (!sends.video) throw new MediaError("the server sends no video (it has no camera)");
+      if (!this.renderTimes) this.renderTimes = new RenderTimes(this.ros);
+      if (!this.video) this.video = new VideoCameraSource(this.renderTimes, this.clock);
+      this.video.attach(stream);
+      if (this.unlocked) this.unmute();
+      this.path = "WebRTC";
+      this.setAudio(sends.audio);
+      pc.addEventListener("connectionstatechange", () => this.stateChanged(pc, generation));
+      this.onMessage(`camera: WebRTC video${sends.audio ? " and the robot's audio" : ""}`, "ok");
+    } catch (err) {
+      if (this.pc === pc) this.closePeer();
+      else pc.close();
+      if (generation !== this.generation || !this.ros.connected) return;  // the next connection negotiates
+      const why = err instanceof MediaError && err.refused ? "refused" : "failed";
+      this.useJpeg(`camera: WebRTC ${why} (${err.message}); showing the JPEG topic`);
+    }
+  }
+
+  stateChanged(pc, generation) {
+    if (pc !== this.pc || !["failed", "closed"].includes(pc.connectionState)) return;
+    if (generation !== this.generation || !this.ros.connected) {  // went with the rosbridge connection
+      this.closePeer();
+      return;
+    }
+    this.useJpeg(`camera: the WebRTC connection ${pc.connectionState}; showing the JPEG topic`);
+  }
+
+  useJpeg(reason) {
+    this.closePeer();
+    this.setAudio(false);
+    this.video?.dispose();
+    this.video = null;
+    this.path = "JPEG";
+    if (!this.jpeg) {
+      this.jpeg = new JpegCameraSource(this.ros, {onError: (text) => this.onMessage(text, "error"),
+                                                  placeholder: this.placeholderImage, clock: this.clock});
+    }
+    if (reason) this.onMessage(reason, "warning");
+  }
+
+  closePeer() {
+    const pc = this.pc;
+    this.pc = null;
+    pc?.close();
+  }
+
+  setAudio(on) {
+    if (on === this.audioViaWebRtc) return;
+    this.audioViaWebRtc = on;
+    this.onAudio(on);
+  }
+
+  /** After a user gesture the video may play sound: the robot's audio, when it came over WebRTC. */
+  unmute() {
+    this.unlocked = true;
+    if (!this.video) return;
+    this.video.video.muted = false;
+    this.video.video.play().catch(() => {});
+  }
+
+  /** The open peer connection (null on JPEG or while negotiating): for stats, and for what prepare() added. */
+  get peerConnection() {
+    return this.path === "WebRTC" ? this.pc : null;
   }
 }

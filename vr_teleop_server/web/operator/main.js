@@ -6,7 +6,7 @@
 import * as THREE from "three";
 import {Rosbridge, stampSeconds} from "./rosbridge.js";
 import {poseStamped, joyFromGamepad, joyMessage, sameJoy} from "./ros_axes.js";
-import {JpegCameraSource} from "./camera.js";
+import {CameraFeed} from "./camera.js";
 import {MenuError, MenuNavigator, TOGGLE_COMMANDS, parseMenus} from "./menus.js";
 import {drawHud, drawMenu} from "./panels.js";
 import {Audio} from "./audio.js";
@@ -94,7 +94,9 @@ const placeholder = canvas(640, 480);
   ctx.textAlign = "center";
   ctx.fillText("waiting for the robot's camera…", 320, 240);
 }
-const cameraSource = new JpegCameraSource(ros, {onError: (text) => say(text, "error"), placeholder});
+// WebRTC video (and the robot's audio) when negotiated, else the JPEG topic: camera.js.
+const cameraSource = new CameraFeed(ros, {onMessage: (text, level) => say(text, level), placeholder,
+                                          onAudio: (on) => { audio.topicMuted = on; }});
 const panelAnchor = new THREE.Group();
 const panelWidth = 2 * PANEL_DISTANCE * Math.tan(THREE.MathUtils.degToRad(CAMERA_HFOV_DEG / 2));
 const panel = new THREE.Mesh(new THREE.PlaneGeometry(panelWidth, panelWidth),
@@ -167,6 +169,7 @@ function pulse(intensity = 0.7, ms = 80) {
 ros.onopen = () => {
   audio.sendInfo();
   say("connected to the server", "ok");
+  cameraSource.connected();  // after: what it says about the camera stays on the HUD
 };
 ros.onclose = (reason) => {
   state.me = null;
@@ -419,6 +422,7 @@ function placePanels() {
   panelAnchor.position.copy(head.position);
   panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(robotHead.pitch),
                            zero.yaw + THREE.MathUtils.degToRad(robotHead.yaw), 0, "YXZ");
+  panel.material.map = cameraSource.texture;  // the source changes: placeholder, WebRTC video or JPEG
   panel.scale.y = 1 / cameraSource.aspect;
   headLocked.position.copy(head.position);
   headLocked.quaternion.copy(head.quaternion);
@@ -472,7 +476,8 @@ function hudLines() {
   lines.push({id: "clamped", text: `clamped joints: ${clamped}`, level: s?.clamped?.length ? "warning" : "muted"});
   const rtt = state.rtt === null ? "–" : `${state.rtt.toFixed(0)} ms`;
   const age = cameraSource.frameAge();
-  const ageText = age === null ? "no frames yet" : `${Math.max(0, age * 1000).toFixed(0)} ms old`;
+  const path = cameraSource.path ? ` (${cameraSource.path})` : "";
+  const ageText = (age === null ? "no frames yet" : `${Math.max(0, age * 1000).toFixed(0)} ms old`) + path;
   const talking = audio.talking ? " · TALKING" : "";
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
               level: "info"});

@@ -1,0 +1,243 @@
+"""The operator page's camera and the robot's audio over WebRTC (issues 19 and 20), in Debian's Chromium with the
+headset emulated by IWER, against the stand-in: the page negotiates through /vr_teleop/media/offer on its rosbridge
+connection, shows the video on its panel with the frame's age from the telemetry's RTP mapping, and falls back to
+the JPEG topic when WebRTC is refused, missing or fails later, saying so on the HUD."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from support import RunningServer, wait_for
+from test_operator_page import (SLOW, close_page, enter_vr, frames, hud, open_page, pixels_differ, screenshot,
+                                set_head, settles, take_control)
+from vr_teleop_server.settings import ServerSettings
+from test_operator_page import iwer  # noqa: F401  (the fixture)
+
+pytestmark = pytest.mark.timeout(300)
+
+# Chromium offers only codecs the server cannot send (VP9, AV1): the server refuses the offer, for real.
+NO_COMMON_CODEC = """(() => {
+  const add = RTCPeerConnection.prototype.addTransceiver;
+  RTCPeerConnection.prototype.addTransceiver = function (kind, init) {
+    const t = add.call(this, kind, init);
+    if (kind === "video") {
+      t.setCodecPreferences(RTCRtpReceiver.getCapabilities("video").codecs
+        .filter((c) => /VP9|AV1/i.test(c.mimeType)));
+    }
+    return t;
+  };
+})();"""
+
+
+@pytest.fixture(scope="module")
+def media_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
+    """The stand-in with its bystanders silent: the robot's audio holds only what the tests make it say."""
+    tmp = tmp_path_factory.mktemp("operator_media")
+    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, gesture_dir=tmp / "g",
+                                          audio_dir=tmp / "a"))
+    yield server
+    server.stop()
+
+
+def peers(server: RunningServer) -> int:
+    return server.call(lambda: len(server.server.media.peers))
+
+
+def test_the_panel_shows_webrtc_video_that_follows_the_head(browser, iwer, media_server):  # noqa: F811
+    standin = media_server.server.robot.standin
+    page = open_page(browser, media_server, headset=iwer, camera="webrtc")
+    try:
+        enter_vr(page)
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.uploaded >= 3",
+                               timeout=SLOW)
+        assert peers(media_server) == 1
+        assert page.evaluate("window.operator.camera.jpeg") is None  # the JPEG topic was never asked for
+        take_control(page)
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 0.0, 2.0)
+        uploaded = page.evaluate("window.operator.camera.uploaded")
+        page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
+        before = page.evaluate("window.operator.readPixels()")
+        screenshot(page, "operator_vr_webrtc.png")
+
+        set_head(page, 30.0)
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 30.0, 2.0), standin.joint_positions()
+        uploaded = page.evaluate("window.operator.camera.uploaded")
+        page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
+        after = page.evaluate("window.operator.readPixels()")
+        assert pixels_differ(before, after) > 5, "the WebRTC panel did not change as the robot's head turned"
+        screenshot(page, "operator_vr_webrtc_turned.png")
+
+        # The frame's age, from its RTP timestamp and the telemetry's render times, on the HUD and in the figures.
+        page.wait_for_function("/camera frame \\d+ ms old \\(WebRTC\\)/.test("
+                               "document.getElementById('hud-numbers').textContent)", timeout=SLOW)
+        page.wait_for_function("window.operator.camera.ages.length >= 10", timeout=SLOW)
+        ages = page.evaluate("window.operator.camera.ages")
+        # Rendered before shown (a clock synchronised to the server), and not older than the server keeps frames.
+        assert all(-0.02 < a < 5.0 for a in ages), ages
+        assert page.evaluate("window.operator.camera.clock.synced")
+        assert page.errors == []
+    finally:
+        close_page(page)
+    assert wait_for(lambda: peers(media_server) == 0, 10)  # the peer connection went with the page
+
+
+def test_a_refused_offer_falls_back_to_the_jpeg_topic_and_says_so(browser, iwer, media_server):  # noqa: F811
+    page = open_page(browser, media_server, headset=iwer, camera="webrtc", init_scripts=(NO_COMMON_CODEC,))
+    try:
+        page.wait_for_function("window.operator.camera.path === 'JPEG'", timeout=SLOW)
+        page.wait_for_function("document.getElementById('hud-message').textContent"
+                               ".startsWith('camera: WebRTC refused (no common codec')", timeout=SLOW)
+        assert "showing the JPEG topic" in hud(page, "message")
+        enter_vr(page)
+        page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)  # JPEG frames on the panel
+        page.wait_for_function("/camera frame \\d+ ms old \\(JPEG\\)/.test("
+                               "document.getElementById('hud-numbers').textContent)", timeout=SLOW)
+        assert peers(media_server) == 0
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_camera_jpeg_in_the_url_or_no_webrtc_means_the_jpeg_topic(browser, iwer, media_server):  # noqa: F811
+    page = open_page(browser, media_server, camera="jpeg")
+    try:
+        page.wait_for_function("window.operator.camera.path === 'JPEG' && window.operator.camera.uploaded >= 2",
+                               timeout=SLOW)
+        frames(page, 10)
+        assert peers(media_server) == 0  # never offered
+    finally:
+        close_page(page)
+    page = open_page(browser, media_server, camera="webrtc", init_scripts=("delete window.RTCPeerConnection;",))
+    try:
+        page.wait_for_function("window.operator.camera.path === 'JPEG' && window.operator.camera.uploaded >= 2",
+                               timeout=SLOW)
+        assert "this browser has no WebRTC" in hud(page, "message")
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_a_peer_connection_that_fails_later_falls_back_to_the_jpeg_topic(browser, iwer, media_server):  # noqa: F811
+    page = open_page(browser, media_server, headset=iwer, camera="webrtc")
+    try:
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.uploaded >= 3",
+                               timeout=SLOW)
+        media = media_server.server.media
+        owner = media_server.call(lambda: next(iter(media.peers)))
+        # The server's teardown of a failed peer (ICE consent lost, DTLS failed), while the WebSocket stays up.
+        asyncio.run_coroutine_threadsafe(media._close_peer(owner), media_server.loop).result(10)
+        page.wait_for_function("window.operator.camera.path === 'JPEG'", timeout=60_000)
+        page.wait_for_function("document.getElementById('hud-message').textContent"
+                               ".startsWith('camera: the WebRTC connection')", timeout=SLOW)
+        uploaded = page.evaluate("window.operator.camera.uploaded")
+        page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
+        assert page.evaluate("window.operator.ros.connected")
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_a_reconnected_page_negotiates_webrtc_again(browser, tmp_path):
+    """The server closes a connection's peer connection with it: after a dropped connection the page offers again
+    on the new one, and does not fall back to JPEG for what was only the connection going."""
+    first = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+    port = first.port
+    page = open_page(browser, first, camera="webrtc", ready="window.operator && window.operator.ros.connected")
+    try:
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.uploaded >= 3",
+                               timeout=SLOW)
+        first.stop()
+        page.wait_for_function("document.getElementById('hud-connection').textContent.includes('DISCONNECTED')",
+                               timeout=SLOW)
+        second = RunningServer(ServerSettings(port=port, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+        try:
+            page.wait_for_function("document.getElementById('hud-connection').textContent.startsWith('● connected')",
+                                   timeout=SLOW)
+            assert wait_for(lambda: peers(second) == 1, 30)
+            received = page.evaluate("window.operator.camera.video.received")
+            page.wait_for_function(f"window.operator.camera.video.received >= {received + 5}", timeout=SLOW)
+            assert page.evaluate("window.operator.camera.path") == "WebRTC"
+            assert page.evaluate("window.operator.camera.jpeg") is None
+            assert page.errors == []
+        finally:
+            second.stop()
+    finally:
+        close_page(page)
+
+
+def test_the_robots_audio_comes_over_webrtc_and_plays_once(browser, media_server):
+    """Said through the speech menu: the audio track carries energy, and the AudioData topic's copy is not played
+    as well."""
+    page = open_page(browser, media_server, camera="webrtc", viewport={"width": 1000, "height": 640})
+    try:
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.audioViaWebRtc",
+                               timeout=SLOW)
+        page.keyboard.press("y")  # a user gesture: sound may play; Y opens the speech menu
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Speech'", timeout=SLOW)
+        assert not page.evaluate("window.operator.camera.video.video.muted")
+        energy = """async () => {
+          const stats = await window.operator.camera.peerConnection.getStats();
+          let e = 0;
+          stats.forEach((s) => { if (s.type === 'inbound-rtp' && s.kind === 'audio') e = s.totalAudioEnergy || 0; });
+          return e;
+        }"""
+        time.sleep(1.0)
+        quiet = page.evaluate(energy)
+        page.keyboard.down("ArrowUp")
+        page.keyboard.down("ArrowLeft")  # the diagonal item, Sentences
+        page.keyboard.up("ArrowLeft")
+        page.keyboard.up("ArrowUp")
+        page.keyboard.press("Enter")
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Speech › Sentences'",
+                               timeout=SLOW)
+        page.keyboard.press("ArrowDown")
+        page.keyboard.press("Enter")  # "Hello everyone, I am QT."
+        assert wait_for(lambda: page.evaluate(energy) > quiet + 0.01, 30), (quiet, page.evaluate(energy))
+        assert page.evaluate("window.operator.audio.topicMuted")
+        assert page.evaluate("window.operator.audio.played") == 0  # not twice
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_rtp_mapping_and_url_modes_under_node(tmp_path):
+    """webrtc.js's pure parts, run by Node: RTP timestamps across the 32-bit wrap, the telemetry entry that is
+    ours (RTP timestamps near the ones we receive), estimates between reports, and #camera=... parsing."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    module = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web" / "webrtc.js"
+    script = tmp_path / "check.mjs"
+    script.write_text(f"""
+import {{rtpDelta, RenderTimes, cameraMode}} from {json.dumps(str(module))};
+let onTelemetry = null;
+const times = new RenderTimes({{subscribe: (topic, type, cb) => {{ onTelemetry = cb; }}}});
+const out = {{}};
+out.wrap = rtpDelta(5, 2 ** 32 - 5);
+out.back = rtpDelta(2 ** 32 - 5, 5);
+const entry = (rtp, t) => ({{rtp_clock_rate: 90000, rtp_timestamp: rtp, rtp_render_time: t,
+                            frame_rtp_timestamps: [rtp - 3000, rtp], frame_render_times: [t - 1 / 30, t]}});
+const known = [];
+times.whenKnown(4294963996, (t) => known.push(t));  // before we saw any frame: waits
+times.saw(4294967000);
+onTelemetry({{clients: [entry(123456789, 50.0), entry(4294967296 - 300, 100.0)]}});  // theirs, ours
+out.known = known;
+out.lookup = times.lookup(4294966996);
+out.theirs = times.lookup(123456789) ?? null;
+out.estimate = times.estimate(2700);  // 3000 ticks after our newest (across the wrap): 1/30 s later
+out.modes = [cameraMode("#token=abc&camera=jpeg"), cameraMode("#camera=webrtc"), cameraMode("")];
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["wrap"] == 10 and out["back"] == -10
+    assert out["known"] == [100.0 - 1 / 30] and out["lookup"] == 100.0
+    assert out["theirs"] is None  # another peer's frames are not ours
+    assert abs(out["estimate"] - (100.0 + 1 / 30)) < 1e-9
+    assert out["modes"] == ["jpeg", "webrtc", "webrtc"]
