@@ -152,7 +152,7 @@ def test_the_head_follows_the_headset_and_the_panel_shows_the_robots_view(browse
         screenshot(page, "operator_vr_turned.png")
 
         # The HUD: a round trip in milliseconds, and who holds control.
-        page.wait_for_function("/round trip \\d+ ms/.test(document.getElementById('hud-numbers').textContent)",
+        page.wait_for_function("/round trip \\d+ ms/.test((document.getElementById('hud-numbers')?.textContent ?? ''))",
                                timeout=SLOW)
         assert state.latest["engaged"] and state.latest["holder"]
         assert "camera frame" in hud(page, "numbers") and "ms old" in hud(page, "numbers")
@@ -174,12 +174,12 @@ def test_a_clamped_joint_is_shown_and_felt(browser, iwer, sim_server):
         take_control(page)
         pulses = page.evaluate("window.operator.state.pulses")
         set_head(page, 85.0)  # past HeadYaw's 60 degree limit
-        page.wait_for_function("document.getElementById('hud-clamped').textContent === 'clamped joints: HeadYaw'",
+        page.wait_for_function("(document.getElementById('hud-clamped')?.textContent ?? '') === 'clamped joints: HeadYaw'",
                                timeout=SLOW)
         page.wait_for_function(f"window.operator.state.pulses > {pulses}", timeout=SLOW)  # a haptic pulse
         assert settles(lambda: standin.joint_positions()["HeadYaw"], 60.0, 2.0)
         set_head(page, 0.0)
-        page.wait_for_function("document.getElementById('hud-clamped').textContent === 'clamped joints: none'",
+        page.wait_for_function("(document.getElementById('hud-clamped')?.textContent ?? '') === 'clamped joints: none'",
                                timeout=SLOW)
         assert page.errors == []
     finally:
@@ -194,7 +194,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         enter_vr(page)
         take_control(page)
         press(page, "right", "trigger")  # again: release
-        page.wait_for_function("document.getElementById('hud-control').textContent.startsWith('no one in control')",
+        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('no one in control')",
                                timeout=SLOW)
         assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 10)
 
@@ -203,7 +203,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
                       "xrDevice.controllers.right.position.set(0.75, 1.45, 0.0)")  # a T-pose
         frames(page, 5)
         press(page, "right", "thumbstick")  # the right stick alone: calibrate
-        page.wait_for_function("document.getElementById('hud-message').textContent.startsWith('calibrated: ')",
+        page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '').startsWith('calibrated: ')",
                                timeout=SLOW)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "calibrate"), 10)
 
@@ -212,7 +212,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         frames(page)
         page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 0);"
                       "xrDevice.controllers.right.updateButtonValue('thumbstick', 0)")
-        page.wait_for_function("document.getElementById('hud-control').textContent.startsWith('E-STOPPED')",
+        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('E-STOPPED')",
                                timeout=SLOW)
         assert wait_for(lambda: state.latest.get("state") == "estopped" and not state.latest["engaged"], 10)
         frames(page, 30)  # the right stick's release, part of the e-stop, did not calibrate as well
@@ -308,10 +308,10 @@ def test_another_holder_is_shown_and_the_refused_engage_is_said(browser, iwer, s
         page = open_page(browser, sim_server, headset=iwer)
         try:
             enter_vr(page)
-            page.wait_for_function(f"document.getElementById('hud-control').textContent"
+            page.wait_for_function(f"(document.getElementById('hud-control')?.textContent ?? '')"
                                    f".includes('control held by {holder}')", timeout=SLOW)
             press(page, "right", "trigger")
-            page.wait_for_function("document.getElementById('hud-message').textContent"
+            page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '')"
                                    ".startsWith('taking control refused: control is held by another client')",
                                    timeout=SLOW)
             assert state.latest["holder"] == holder
@@ -336,7 +336,7 @@ def test_the_flat_view_drives_the_head_with_the_mouse(browser, sim_server):
     try:
         assert page.get_by_role("button", name="Enter VR").is_disabled()  # no headset: the flat view
         page.keyboard.press("e")  # E takes control, as the page's help says
-        page.wait_for_function("document.getElementById('hud-control').textContent.startsWith('YOU HAVE CONTROL')",
+        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('YOU HAVE CONTROL')",
                                timeout=SLOW)
         page.mouse.move(500, 300)
         page.mouse.down()
@@ -371,7 +371,7 @@ def test_an_undrawable_menu_message_is_said_and_the_last_menus_stay(browser, sim
                "items": [{"id": "m.x", "menu": "m", "parent": "nowhere", "label": "X", "slot": "top",
                           "position": 0, "icon": "", "command": "estop", "args": ""}]}
         page.evaluate("(msg) => window.operator.ros.receive({op: 'publish', topic: '/vr_teleop/menus', msg})", bad)
-        page.wait_for_function("document.getElementById('hud-message').textContent.startsWith('menus cannot be "
+        page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '').startsWith('menus cannot be "
                                "drawn (item m.x: its parent nowhere is unknown)')", timeout=SLOW)
         page.keyboard.press("b")  # the last good menus still work
         page.wait_for_function("document.getElementById('menu-title').textContent === 'Emotions'", timeout=SLOW)
@@ -386,12 +386,12 @@ def test_a_dropped_connection_is_said_and_the_page_reconnects_by_itself(browser,
     page = open_page(browser, first, ready="window.operator && window.operator.ros.connected")
     try:
         first.stop()
-        page.wait_for_function("document.getElementById('hud-connection').textContent.includes('DISCONNECTED')",
+        page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').includes('DISCONNECTED')",
                                timeout=SLOW)
         frames(page, 5)  # still running
         second = RunningServer(ServerSettings(port=port, backend="none"))
         try:
-            page.wait_for_function("document.getElementById('hud-connection').textContent.startsWith('● connected')",
+            page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').startsWith('● connected')",
                                    timeout=SLOW)
             sent = page.evaluate("window.operator.state.posesSent")
             page.wait_for_function(f"window.operator.state.posesSent > {sent + 10}", timeout=SLOW)

@@ -73,7 +73,7 @@ def test_the_panel_shows_webrtc_video_that_follows_the_head(browser, iwer, media
 
         # The frame's age, from its RTP timestamp and the telemetry's render times, on the HUD and in the figures.
         page.wait_for_function("/camera frame \\d+ ms old \\(WebRTC\\)/.test("
-                               "document.getElementById('hud-numbers').textContent)", timeout=SLOW)
+                               "(document.getElementById('hud-numbers')?.textContent ?? ''))", timeout=SLOW)
         page.wait_for_function("window.operator.camera.ages.length >= 10", timeout=SLOW)
         ages = page.evaluate("window.operator.camera.ages")
         # Rendered before shown (a clock synchronised to the server), and not older than the server keeps frames.
@@ -89,13 +89,13 @@ def test_a_refused_offer_falls_back_to_the_jpeg_topic_and_says_so(browser, iwer,
     page = open_page(browser, media_server, headset=iwer, camera="webrtc", init_scripts=(NO_COMMON_CODEC,))
     try:
         page.wait_for_function("window.operator.camera.path === 'JPEG'", timeout=SLOW)
-        page.wait_for_function("document.getElementById('hud-message').textContent"
+        page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '')"
                                ".startsWith('camera: WebRTC refused (no common codec')", timeout=SLOW)
         assert "showing the JPEG topic" in hud(page, "message")
         enter_vr(page)
         page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)  # JPEG frames on the panel
         page.wait_for_function("/camera frame \\d+ ms old \\(JPEG\\)/.test("
-                               "document.getElementById('hud-numbers').textContent)", timeout=SLOW)
+                               "(document.getElementById('hud-numbers')?.textContent ?? ''))", timeout=SLOW)
         assert peers(media_server) == 0
         assert page.errors == []
     finally:
@@ -131,7 +131,7 @@ def test_a_peer_connection_that_fails_later_falls_back_to_the_jpeg_topic(browser
         # The server's teardown of a failed peer (ICE consent lost, DTLS failed), while the WebSocket stays up.
         asyncio.run_coroutine_threadsafe(media._close_peer(owner), media_server.loop).result(10)
         page.wait_for_function("window.operator.camera.path === 'JPEG'", timeout=60_000)
-        page.wait_for_function("document.getElementById('hud-message').textContent"
+        page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '')"
                                ".startsWith('camera: the WebRTC connection')", timeout=SLOW)
         uploaded = page.evaluate("window.operator.camera.uploaded")
         page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
@@ -151,11 +151,11 @@ def test_a_reconnected_page_negotiates_webrtc_again(browser, tmp_path):
         page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.uploaded >= 3",
                                timeout=SLOW)
         first.stop()
-        page.wait_for_function("document.getElementById('hud-connection').textContent.includes('DISCONNECTED')",
+        page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').includes('DISCONNECTED')",
                                timeout=SLOW)
         second = RunningServer(ServerSettings(port=port, backend="sim", bystander_interval=0, audio_dir=tmp_path))
         try:
-            page.wait_for_function("document.getElementById('hud-connection').textContent.startsWith('● connected')",
+            page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').startsWith('● connected')",
                                    timeout=SLOW)
             assert wait_for(lambda: peers(second) == 1, 30)
             received = page.evaluate("window.operator.camera.video.received")

@@ -42,7 +42,8 @@ class Rosbridge {
       // a refusal is a successful call whose response says so (success/status false, message why)
       const refused = msg.result && msg.values && (msg.values.success === false || msg.values.status === false);
       msg.result && !refused ? waiter.resolve(msg.values)
-        : waiter.reject(new Error(refused ? String(msg.values.message || "refused") : String(msg.values)));
+        : waiter.reject(Object.assign(new Error(refused ? String(msg.values.message || "refused") : String(msg.values)),
+                                      {refused}));
     } else if (msg.op === "status") this.onstatus(msg);
   }
   subscribe(topic, type, callback, options = {}) {

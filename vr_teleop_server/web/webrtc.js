@@ -61,7 +61,8 @@ export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000} = 
   let answer;
   try {
     answer = await ros.call(OFFER_SERVICE, {sdp: pc.localDescription.sdp, type: "offer"});
-  } catch (err) {
+  } catch (err) {  // a client that rejects refusals (success false) marks them `refused`, keeping the server's reason
+    if (err.refused) throw new MediaError(err.message, {refused: true});
     throw new MediaError(`${OFFER_SERVICE} failed: ${err.message}`);
   }
   if (!answer.success) throw new MediaError(answer.message || "the server refused the offer", {refused: true});

@@ -103,7 +103,7 @@ export class Rosbridge {
       clearTimeout(waiter.timer);
       // a refusal is a successful call whose response says so (success/status false, message why)
       const refused = msg.result && msg.values && (msg.values.success === false || msg.values.status === false);
-      if (refused) waiter.reject(new Error(String(msg.values.message || "refused")));
+      if (refused) waiter.reject(Object.assign(new Error(String(msg.values.message || "refused")), {refused: true}));
       else if (msg.result) waiter.resolve(msg.values);
       else waiter.reject(new Error(typeof msg.values === "string" ? msg.values : JSON.stringify(msg.values)));
     } else if (msg.op === "status") {
