@@ -198,13 +198,13 @@ def test_perception_query_over_the_protocol(server):
             == pytest.approx(0.70)
         client.send({"op": "call_service", "id": "q3", "service": "/perception/query",
                      "args": {"object": "teapot", "tracker": "", "query_point": ""}})
-        status = client.expect("status", id="q3", level="error")
-        assert "unknown object 'teapot'" in status["msg"] and "red_bin" in status["msg"]
-        client.expect("service_response", id="q3", result=False)
+        refusal = client.expect("service_response", id="q3", result=True)["values"]  # refused inside the response
+        assert refusal["success"] is False
+        assert "unknown object 'teapot'" in refusal["message"] and "red_bin" in refusal["message"]
         client.send({"op": "call_service", "id": "q4", "service": "/perception/query",
                      "args": {"object": "red_bin", "tracker": "", "query_point": "handle"}})
-        assert "no query point 'handle'" in client.expect("status", id="q4", level="error")["msg"]
-        client.expect("service_response", id="q4", result=False)
+        refusal = client.expect("service_response", id="q4", result=True)["values"]
+        assert refusal["success"] is False and "no query point 'handle'" in refusal["message"]
         client.alive()
     finally:
         client.close()

@@ -67,6 +67,9 @@ class RosbridgeClient:
             self._calls.pop(call_id, None)
         if not reply.get("result", False):
             raise RuntimeError(str(reply.get("values")))
+        values = reply.get("values")
+        if isinstance(values, dict) and values.get("success") is False:  # a refusal inside the response (ROS way)
+            raise RuntimeError(str(values.get("message") or "refused"))
         return reply.get("values") or {}
 
     async def _read(self) -> None:
