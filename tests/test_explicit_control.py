@@ -219,3 +219,30 @@ def test_calibration_measures_the_operator_in_a_t_pose(ros, headset):
     body = json.loads(reply["message"])
     assert 0.55 < body["arm_length_m"] + body["shoulder_half_width_m"] < 0.95
     assert np.isfinite(list(body.values())).all()
+
+
+def test_the_telemetry_tells_the_holder_how_good_its_link_is(ros, headset, state, watch):
+    """The holder's telemetry entry carries the watchdog's threshold, and the link's word turns poor while the
+    robot holds on a silent stream, then names the hold for the next minute."""
+    me = call(ros, "/vr_teleop/whoami", "vr_teleop_msgs/WhoAmI")["connection"]
+    telemetry = watch("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry")
+
+    def mine() -> dict:
+        return next((c for c in telemetry.latest.get("clients", []) if c["client"] == me), {})
+
+    engage(ros)
+    assert wait_for(lambda: mine().get("watchdog_threshold", -1) > 0 and mine()["link_quality"], 10), mine()
+    entry = mine()
+    assert 0.2 <= entry["watchdog_threshold"] <= 0.5 and entry["watchdog_holds"] == 0
+    assert entry["link_quality"] in ("good", "degraded") and entry["pose_jitter"] >= 0  # loopback, busy or not
+    headset.stop()
+    assert wait_for(lambda: state.latest.get("state") == "stalled", 3), state.latest
+    assert wait_for(lambda: mine().get("link_quality") == "poor", 5), mine()
+    assert "not arriving" in mine()["link_warning"] and mine()["watchdog_holds"] == 1
+    headset.start()
+    assert wait_for(lambda: state.latest.get("state") == "active", 3)
+    assert wait_for(lambda: "not arriving" not in mine()["link_warning"], 5), mine()
+    assert mine()["link_quality"] in ("degraded", "poor") and "held 1 time in the last minute" in mine()["link_warning"]
+    call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
+    # not holding: no watchdog figures
+    assert wait_for(lambda: mine().get("watchdog_threshold") == -1.0 and mine()["watchdog_holds"] == 0, 5), mine()

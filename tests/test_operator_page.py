@@ -363,6 +363,29 @@ def test_the_flat_view_drives_the_head_with_the_mouse(browser, sim_server):
         close_page(page)
 
 
+def test_the_hud_shows_the_links_quality_and_warns_after_a_hold(browser, sim_server):
+    """The link line follows this page's entry of /vr_teleop/telemetry: measured and named on loopback; after the
+    page stalls long enough for the watchdog to hold the robot, it warns and says so."""
+    page = open_page(browser, sim_server)
+    try:
+        page.keyboard.press("e")
+        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('YOU HAVE CONTROL')",
+                               timeout=SLOW)
+        # loopback: good, or degraded by a busy machine's jitter, but measured
+        page.wait_for_function("/^(link good · round trip \\d+ ms|LINK DEGRADED: .+)$/.test("
+                               "document.getElementById('hud-link')?.textContent ?? '')", timeout=SLOW)
+        # the page's thread busy for 1.5 s: no poses, the watchdog (ceiling 0.5 s) holds the robot
+        page.evaluate("() => { const t = performance.now(); while (performance.now() - t < 1500) {} }")
+        page.wait_for_function("/held 1 time in the last minute/.test(document.getElementById('hud-link')?.textContent"
+                               " ?? '')", timeout=SLOW)
+        assert hud(page, "link").startswith(("LINK DEGRADED: ", "LINK POOR: "))
+        assert page.get_attribute("#hud-link", "class") in ("warning", "error")
+        assert page.errors == []
+    finally:
+        close_page(page)
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 10)
+
+
 def test_an_undrawable_menu_message_is_said_and_the_last_menus_stay(browser, sim_server):
     page = open_page(browser, sim_server)
     try:

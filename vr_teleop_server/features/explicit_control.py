@@ -22,6 +22,7 @@ import asyncio
 import json
 import logging
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -30,6 +31,7 @@ from client_protocol import names
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.events import declare_event_topic, publish_event
 from ..core.tasks import cancel_and_wait
+from ..media.link_quality import ControlLink
 from ..robot.interface import Robot
 from ..teleop import TeleopError, TeleopMapper, TeleopOutput, TeleopSettings, WatchdogState
 
@@ -37,6 +39,7 @@ log = logging.getLogger(__name__)
 
 STATE_RATE_HZ = 30.0
 REFUSAL_INTERVAL_S = 1.0  # a refused client hears about it at most this often, not 90 times a second
+HOLDS_WINDOW_S = 60.0  # link_view counts the watchdog's holds over this long
 
 
 class ExplicitControl:
@@ -57,6 +60,7 @@ class ExplicitControl:
         self._last_refusal: dict[str, float] = {}
         self._robot_connected = True
         self._tick_task: asyncio.Task[None] | None = None
+        self._holds: deque[float] = deque()  # when the watchdog held (stalled), for link_view
         self.may_override = may_override  # whether a caller may take control from its holder
         # Control is held by an operator, which may use several connections (one per ROS# component):
         # operator_of(owner) names it; operator_online(operator, gone) says whether it keeps another connection.
@@ -148,6 +152,8 @@ class ExplicitControl:
             self.bus.publish(names.PART_COMMAND_TOPICS[part], {"data": list(values)})
         if out.state is not before:
             level = "info" if out.state is WatchdogState.ACTIVE else "warning"
+            if out.state is WatchdogState.STALLED:
+                self._holds.append(now)
             age, made = self.mapper.head_pose_age(now), self.mapper.head_pose_made_age(now)
             self._event(f"watchdog_{out.state.value}", level, {
                 "holder": self.holder, "threshold_s": round(out.watchdog_timeout_s, 4),
@@ -208,6 +214,7 @@ class ExplicitControl:
         except TeleopError as exc:
             raise BusError(str(exc)) from None
         self.holder = caller
+        self._holds.clear()  # link_view counts this engagement's holds
         self._ever_engaged = True
         self._event("engage", "info", {"holder": caller})
         self._publish_state()
@@ -281,6 +288,19 @@ class ExplicitControl:
         self._publish_state()
 
     # ---- telemetry ----------------------------------------------------------------------------------------------
+    def link_view(self, connection: str) -> ControlLink | None:
+        """The watchdog as the connection's operator meets it, while that operator holds control (its holds since
+        it engaged, over the last minute); else None."""
+        if self.holder is None or self.operator_of(connection) != self.holder:
+            return None
+        now = self.clock()
+        while self._holds and now - self._holds[0] > HOLDS_WINDOW_S:
+            self._holds.popleft()
+        settings = self.mapper.settings
+        return ControlLink(state=self.state_name(), threshold_s=self.mapper.watchdog_timeout_s,
+                           floor_s=settings.watchdog_timeout_s, ceiling_s=settings.watchdog_ceiling_s,
+                           holds_last_minute=len(self._holds))
+
     def _event(self, kind: str, level: str, detail: Any) -> None:
         log.info("teleop %s %s", kind, detail)
         publish_event(self.bus, "teleop", kind, level, detail)

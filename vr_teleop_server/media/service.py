@@ -30,6 +30,7 @@ from client_protocol import names
 from ..core.access import AccessDenied, AccessPolicy, Role
 from ..core.bus import SERVER_NODE, Bus, Published
 from ..robot.interface import Robot
+from . import link_quality
 from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
 from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, VideoHub
@@ -90,11 +91,13 @@ class MediaService:
     def __init__(self, bus: Bus, robot: Robot | None, access: AccessPolicy,
                  sessions: Callable[[], Mapping[str, SessionView]], *, camera_fps: float = 30.0,
                  render_line: Callable[[str], Awaitable[Rendered]] | None = None, bystander_interval: float = 0.0,
-                 ice_servers: list[str] | None = None) -> None:
+                 ice_servers: list[str] | None = None,
+                 control: Callable[[str], link_quality.ControlLink | None] = lambda connection: None) -> None:
         self.bus = bus
         self.robot = robot
         self.access = access
         self.sessions = sessions
+        self.control = control  # the watchdog as a connection's operator meets it (for the link quality)
         self.ice_servers = list(ice_servers or [])
         self.video = VideoHub(robot, camera_fps) if robot is not None else None
         self.audio = AudioMixer(bus, render_line=render_line, bystander_interval=bystander_interval)
@@ -421,6 +424,14 @@ class MediaService:
                                                  and self.robot is not None else peer.voice.level)
         entry.update(camera_frames_sent=sent % 2**32, camera_frames_dropped=dropped % 2**32,
                      camera_frame_age=age_sum / age_n if age_n else -1.0)
+        control = self.control(name)
+        jitter = link_quality.pose_jitter(link.poses, now)
+        quality, warning = link_quality.assess(ws_rtt=link.ws_rtt, rtc_rtt=entry["rtc_rtt"],
+                                               fraction_lost=entry["rtc_fraction_lost"], pose_jitter_s=jitter,
+                                               control=control)
+        entry.update(pose_jitter=jitter, watchdog_threshold=control.threshold_s if control else -1.0,
+                     watchdog_holds=control.holds_last_minute if control else 0, link_quality=quality,
+                     link_warning=warning)
         return entry
 
 

@@ -19,7 +19,9 @@ const TOPICS = {
 const SERVICES = {
   engage: "/vr_teleop/control/engage", calibrate: "/vr_teleop/control/calibrate",
   estop: "/vr_teleop/control/estop", select: "/vr_teleop/menu/select", time: "/rosapi/get_time",
+  whoami: "/vr_teleop/whoami",
 };
+const TELEMETRY_TOPIC = "/vr_teleop/telemetry";
 const JOY_KEEPALIVE_MS = 33;   // Joy goes out on every change, and at least at 30 Hz
 const HUD_PERIOD_MS = 200;     // the heads-up display is redrawn five times a second
 const RTT_PERIOD_MS = 1000;
@@ -38,6 +40,8 @@ const ros = new Rosbridge(`${scheme}://${location.host}/`, {token, idPrefix: "op
 const state = {
   teleop: null,                        // the newest /vr_teleop/teleop_state
   me: null,                            // our session's name once we hold control (the holder field says it)
+  connection: null,                    // this rosbridge connection's name (/vr_teleop/whoami), for the telemetry
+  link: null,                          // our entry of the newest /vr_teleop/telemetry: the link's quality
   claimHolder: false, engaging: false, pulses: 0, disconnectReason: "",
   rtt: null, message: null, menusProblem: null, footer: null,
   headOn: true, armsOn: true, recording: false,  // the menu switches' states, from the events
@@ -167,12 +171,15 @@ function pulse(intensity = 0.7, ms = 80) {
 }
 
 ros.onopen = () => {
+  learnConnection();
   audio.sendInfo();
   say("connected to the server", "ok");
   cameraSource.connected();  // after: what it says about the camera stays on the HUD
 };
 ros.onclose = (reason) => {
   state.me = null;
+  state.connection = null;
+  state.link = null;
   state.disconnectReason = reason;
   updateHud(true);
 };
@@ -182,6 +189,29 @@ ros.onstatus = (msg) => {
   if (m && m.level === "error" && performance.now() - m.at < 1500 && !m.text.startsWith("server:")) return;
   say(`server: ${msg.msg}`, msg.level);
 };
+
+// ---- the link's quality (the server's telemetry names each connection: ours is the one whoami names) ---------
+async function learnConnection() {
+  try {
+    state.connection = (await ros.call(SERVICES.whoami, {}, 5000)).connection;
+  } catch { /* an older server: no link line */ }
+}
+
+ros.subscribe(TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", (msg) => {
+  const mine = (msg.clients || []).find((c) => c.client === state.connection);
+  if (!mine) return;
+  if (mine.link_quality === "poor" && state.link?.link_quality !== "poor") pulse(0.8, 120);
+  state.link = mine;
+}, {queue_length: 1});
+
+function linkLine() {
+  const l = state.link;
+  if (!l || !l.link_quality) return {id: "link", text: "link: measuring", level: "muted"};
+  const rtt = l.ws_rtt >= 0 ? ` · round trip ${(l.ws_rtt * 1000).toFixed(0)} ms` : "";
+  if (l.link_quality === "good") return {id: "link", text: `link good${rtt}`, level: "ok"};
+  const level = l.link_quality === "poor" ? "error" : "warning";
+  return {id: "link", text: `LINK ${l.link_quality.toUpperCase()}: ${l.link_warning}`, level};
+}
 
 // ---- the robot's state ----------------------------------------------------------------------------------------------
 ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
@@ -472,6 +502,7 @@ function hudLines() {
   if (s && !s.robot_connected) {
     lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
   }
+  if (ros.connected) lines.push(linkLine());
   const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";
   lines.push({id: "clamped", text: `clamped joints: ${clamped}`, level: s?.clamped?.length ? "warning" : "muted"});
   const rtt = state.rtt === null ? "–" : `${state.rtt.toFixed(0)} ms`;
