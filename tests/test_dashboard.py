@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from support import RawClient, RunningServer, wait_for
+import roslibpy
+
+from support import Headset, RawClient, RunningServer, call, engage, wait_for
 from vr_teleop_server.recording.format import read_recording
 from vr_teleop_server.settings import ServerSettings
 
@@ -96,6 +98,31 @@ def test_a_button_shows_an_emotion_and_escape_stops_the_robot(browser, dashboard
         page.screenshot(path=str(SCREENSHOTS / "estop.png"), full_page=True)
         client.close()
     finally:
+        page.close()
+
+
+def test_the_holders_link_quality_is_shown(browser, dashboard_server):
+    """The Teleoperation panel names the holding operator's link from the telemetry, and turns red while the
+    robot holds on the operator's silent stream."""
+    page = open_page(browser, dashboard_server, "supervisor")
+    operator = roslibpy.Ros(host="127.0.0.1", port=dashboard_server.port, headers={
+        "Authorization": f"Bearer {TOKENS['operator']}"})
+    operator.run(timeout=10)
+    headset = Headset(operator).start()
+    try:
+        engage(operator)
+        page.wait_for_function("/^(good|degraded|poor)/.test(document.getElementById('teleop-link').textContent)",
+                               timeout=30_000)
+        headset.stop()
+        page.wait_for_function("document.getElementById('teleop-link').textContent.startsWith('poor: head poses are "
+                               "not arriving')", timeout=30_000)
+        assert page.get_attribute("#teleop-link", "class") == "danger"
+        call(operator, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
+        page.wait_for_function("document.getElementById('teleop-link').textContent === '–'", timeout=30_000)
+        assert page.errors == []
+    finally:
+        headset.stop()
+        operator.close()
         page.close()
 
 

@@ -207,6 +207,22 @@ ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
   clamped = new Set(s.clamped);
   for (const [name, g] of gauges) g.row.classList.toggle("clamped", clamped.has(name));
 }, {throttle_rate: 100, queue_length: 1});
+// The holding operator's link: the worst of its connections' telemetry entries (only the holder's carry a watchdog
+// threshold).
+const QUALITY_RANK = {"": 0, good: 1, degraded: 2, poor: 3};
+ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", (t) => {
+  const holding = (t.clients || []).filter((c) => c.watchdog_threshold >= 0);
+  const worst = holding.sort((a, b) => QUALITY_RANK[b.link_quality] - QUALITY_RANK[a.link_quality])[0];
+  const link = $("teleop-link");
+  if (!worst) {
+    link.textContent = "–";
+    link.className = "";
+    return;
+  }
+  const rtt = worst.ws_rtt >= 0 ? `, round trip ${(worst.ws_rtt * 1000).toFixed(0)} ms` : "";
+  link.textContent = `${worst.link_quality || "measuring"}${worst.link_warning ? ": " + worst.link_warning : rtt}`;
+  link.className = {poor: "danger", degraded: "warning"}[worst.link_quality] || "";
+});
 ros.subscribe("/vr_teleop/clamps", "vr_teleop_msgs/Clamp", (c) => {
   for (const name of c.joints) {
     const g = gauges.get(name);

@@ -202,7 +202,7 @@ ros.subscribe(TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", (msg) => {
   if (!mine) return;
   if (mine.link_quality === "poor" && state.link?.link_quality !== "poor") pulse(0.8, 120);
   state.link = mine;
-}, {queue_length: 1});
+});  // no queue_length: the camera's RenderTimes reads every report of the same subscription
 
 function linkLine() {
   const l = state.link;
