@@ -97,7 +97,7 @@ class MediaService:
         self.sessions = sessions
         self.ice_servers = list(ice_servers or [])
         self.video = VideoHub(robot, camera_fps) if robot is not None else None
-        self.audio = AudioMixer(bus, render_line=render_line, bystander_interval=bystander_interval)
+        self.audio = AudioMixer(bus, robot=robot, render_line=render_line, bystander_interval=bystander_interval)
         self.peers: dict[str, Peer] = {}
         self.links: dict[str, ClientLink] = {}
         self._tasks: set[asyncio.Task[Any]] = set()

@@ -5,6 +5,10 @@ stored under a lock and handed to asyncio waiters with call_soon_threadsafe. ros
 (0.5 s growing to MAX_BACKOFF_S) and re-subscribes by itself. While the robot is unreachable, `connected` is False
 and `connection_changed` listeners hear it on the event loop: joint commands are refused (reported as ignored, never
 queued to burst out later), explicit control holds and says so, and services answer with an error.
+
+Audio. The robot's microphone is LuxAI's qt_respeaker_app channel 0 (names.ROBOT_MICROPHONE_TOPIC, AudioData
+carrying mono S16LE at 16 kHz: the ReSpeaker's processed channel), read only while someone listens (the WebRTC
+mixer, through `listen`) and handed to the listeners on the event loop.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ log = logging.getLogger(__name__)
 
 MAX_BACKOFF_S = 5.0
 CALL_TIMEOUT_S = 10.0
+MICROPHONE_RATE = 16000  # qt_respeaker_app's channels: the ReSpeaker array's rate, mono S16LE
 
 
 class RobotUnreachable(RuntimeError):
@@ -110,6 +115,8 @@ class RosRobot(Robot):
         self._motors_topic.subscribe(self._on_motor_states)
         self._camera_topic = roslibpy.Topic(self._ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage",
                                             queue_length=1)
+        self._microphone_topic = roslibpy.Topic(self._ros, names.ROBOT_MICROPHONE_TOPIC, "audio_common_msgs/AudioData")
+        self._listeners: list[Callable[[bytes, int, int], None]] = []
 
     @classmethod
     async def create(cls, url: str, model: RobotModel | None = None) -> RosRobot:
@@ -321,6 +328,41 @@ class RosRobot(Robot):
 
     def camera_closed(self) -> bool:
         return self._frames.closed
+
+    # ---- microphone ---------------------------------------------------------------------------------------------
+    def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
+        self._listeners.append(listener)
+        if len(self._listeners) == 1:
+            self._microphone_topic.subscribe(self._on_microphone)
+
+        def stop() -> None:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+            if not self._listeners and self._microphone_topic.is_subscribed:
+                self._microphone_topic.unsubscribe()
+
+        return stop
+
+    def _on_microphone(self, msg: dict[str, Any]) -> None:
+        """On roslibpy's thread: rosbridge sends uint8[] as base64 (ROS 1) or a list of numbers."""
+        data = msg.get("data", "")
+        try:
+            pcm = base64.b64decode(data) if isinstance(data, str) else bytes(data)
+        except (ValueError, TypeError):
+            log.warning("%s: a message whose data is not audio bytes was ignored", names.ROBOT_MICROPHONE_TOPIC)
+            return
+        loop = self._loop
+        if loop is None or not pcm:
+            return
+        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody listens
+            loop.call_soon_threadsafe(self._hear, pcm)
+
+    def _hear(self, pcm: bytes) -> None:
+        for listener in list(self._listeners):
+            try:
+                listener(pcm, MICROPHONE_RATE, 1)
+            except Exception:
+                log.exception("a microphone listener failed")
 
     def _stop_reconnecting(self) -> None:
         from twisted.internet import reactor
