@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 import roslibpy
-from media_client import MediaPeer, Rosbridge
+from media_client import MediaPeer, Rosbridge, Tone
 from support import (
     Headset,
     RunningServer,
@@ -234,6 +234,61 @@ async def test_the_robots_microphone_reaches_a_webrtc_peer(tmp_path):
             await asyncio.to_thread(server.stop)
         firmware.close()
         await asyncio.to_thread(robot.stop)
+
+
+async def test_the_operators_voice_goes_to_the_robots_speaker_topic(tmp_path):
+    """A tone from an aiortc peer on our server reaches the robot's rosbridge as 16 kHz mono S16LE AudioData on the
+    speaker topic (what audio_play on a QTrobot plays), at its pitch; the telemetry reports the level the robot
+    plays, and a silenced tone is silence there too."""
+    port = free_port()
+    robot = robot_side(port, tmp_path)
+    listener = roslibpy.Ros(host="127.0.0.1", port=port)
+    await asyncio.to_thread(listener.run, 10)
+    chunks: list[np.ndarray] = []
+    speaker = roslibpy.Topic(listener, names.ROBOT_SPEAKER_TOPIC, "audio_common_msgs/AudioData")
+    speaker.subscribe(lambda m: chunks.append(np.frombuffer(base64.b64decode(m["data"]), "<i2")))
+    server = peer = ros = None
+    tone = Tone(440.0, 0.5)
+    try:
+        server = await asyncio.to_thread(RunningServer, ServerSettings(
+            port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}", gesture_dir=tmp_path / "g",
+            audio_dir=tmp_path / "a"))
+        ros = await Rosbridge.open(server.url)
+        peer = MediaPeer(video=False, mic=tone)
+        reply = await peer.negotiate(ros)
+        assert reply["values"]["success"], reply
+        assert await until(lambda: len(chunks) >= 50, 30), len(chunks)  # 2 s of voice
+        assert {c.size for c in chunks} == {640}  # 40 ms at 16 kHz a message
+        heard = np.concatenate(chunks[-25:]).astype(np.float32)
+        assert np.sqrt(np.mean(heard ** 2)) > 5000
+        spectrum = np.abs(np.fft.rfft(heard * np.hanning(heard.size)))
+        assert abs(np.fft.rfftfreq(heard.size, 1 / 16000)[np.argmax(spectrum)] - 440) < 10
+        telemetry = await ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry")
+        assert await until_message(telemetry, lambda m: any(c["operator_voice_level"] > 0.5 for c in m["clients"]))
+
+        tone.amplitude = 0.0
+        assert await until(lambda: len(chunks) > 10 and max(np.abs(c).max() for c in chunks[-5:]) < 100, 30)
+        assert await until_message(telemetry, lambda m: all(c["operator_voice_level"] == 0.0 for c in m["clients"]))
+    finally:
+        if peer is not None:
+            await peer.close()
+        if ros is not None:
+            await ros.close()
+        if server is not None:
+            await asyncio.to_thread(server.stop)
+        listener.close()
+        await asyncio.to_thread(robot.stop)
+
+
+async def until_message(queue: asyncio.Queue, predicate, timeout: float = 30.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if predicate(await asyncio.wait_for(queue.get(), max(0.1, deadline - time.monotonic()))):
+                return True
+        except asyncio.TimeoutError:
+            break
+    return False
 
 
 async def until(predicate, timeout: float) -> bool:
