@@ -169,9 +169,9 @@ export class Audio {
     } catch (err) {
       this.micState = "denied";
       this.talking = false;
-      const why = err.name === "NotAllowedError" ? "the microphone was refused (allow it in the site settings)"
-        : err.name === "NotFoundError" ? "there is no microphone" : `microphone: ${err.message}`;
-      this.onError(`${why}; push-to-talk is off`);
+      const why = err.name === "NotAllowedError" ? "refused (allow it in the site settings, then reload)"
+        : err.name === "NotFoundError" ? "none found" : err.message;
+      this.onError(`microphone: ${why}; push-to-talk is off`);
     }
   }
 
