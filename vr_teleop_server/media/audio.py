@@ -25,6 +25,7 @@ import asyncio
 import fractions
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 
@@ -54,7 +55,8 @@ BYSTANDER_LINES = (
 )
 HEARD_START_S = 0.06
 HEARD_MAX_S = 0.5
-OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
+OPERATOR_CHUNK_S = 0.1
+LEVEL_HOLD_S = 0.25  # as long as the stand-in's mouth stays open after the last piece of voice  # operator audio published on the bus in chunks of this length, as clients send it
 
 # (pcm s16 bytes, sample rate, channels) of a rendered line
 Rendered = tuple[bytes, int, int]
@@ -292,7 +294,7 @@ class OperatorVoice:
         self.owner = owner
         self.track = track
         self.may_speak = may_speak
-        self.level = 0.0
+        self._level = (0.0, 0.0)  # (level, monotonic time) of the newest frame
         self.frames = 0
         self._resampler = av.AudioResampler(format="s16", layout="mono", rate=RATE)
         self._pending: list[bytes] = []
@@ -311,11 +313,18 @@ class OperatorVoice:
         except Exception:
             log.exception("%s: the operator's voice track failed", self.owner)
         finally:
-            self.level = 0.0
+            self._level = (0.0, 0.0)
+
+    @property
+    def level(self) -> float:
+        """The voice's level now: 0 once no frame came for LEVEL_HOLD_S (a browser's push-to-talk released sends
+        nothing at all)."""
+        level, at = self._level
+        return level if time.monotonic() - at < LEVEL_HOLD_S else 0.0
 
     def _take(self, samples: np.ndarray) -> None:
         self.frames += 1
-        self.level = voice_level(samples)
+        self._level = (voice_level(samples), time.monotonic())
         if not self.may_speak:
             return  # a spectator's microphone is neither played nor logged
         pcm = samples.tobytes()
