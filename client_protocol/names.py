@@ -21,6 +21,12 @@ COMMAND_TOPIC_PARTS = MappingProxyType({topic: part for part, topic in PART_COMM
 CAMERA_TOPIC = "/camera/color/image_raw/compressed"
 CAMERA_FRAME_ID = "camera_color_optical_frame"
 MOTOR_STATES_TOPIC = "/qt_robot/motors/states"  # the real robot's, read by the ros backend
+# The real robot's microphone as LuxAI's qt_respeaker_app publishes it (audio_common_msgs/AudioData, mono S16LE at
+# 16 kHz: channel 0 is the ReSpeaker's processed, beamformed channel), read by the ros backend for the WebRTC audio.
+ROBOT_MICROPHONE_TOPIC = "/qt_respeaker_app/channel0"
+# The operator's voice for a real robot's speaker (audio_common_msgs/AudioData, mono S16LE at 16 kHz), published by the
+# ros backend on the robot's rosbridge; audio_common's audio_play on the robot plays it (README, "Media").
+ROBOT_SPEAKER_TOPIC = "/vr_teleop/robot/speaker"
 EMOTION_SHOW_SERVICE = "/qt_robot/emotion/show"
 SPEECH_SAY_SERVICE = "/qt_robot/speech/say"
 SPEECH_STOP_SERVICE = "/qt_robot/speech/stop"

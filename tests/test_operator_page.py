@@ -494,6 +494,8 @@ def test_push_to_talk_streams_the_microphone(browser_type_with_fake_microphone, 
         page.get_by_role("button", name="Hold to talk").hover()
         page.mouse.down()
         page.wait_for_function("window.operator.audio.sentChunks >= 5", timeout=SLOW)
+        assert page.evaluate("window.operator.audio.path") == "rosbridge"  # no peer connection: the fallback
+        assert "TALKING (rosbridge)" in hud(page, "numbers")
         page.mouse.up()
         sent = page.evaluate("window.operator.audio.sentChunks")
         frames(page, 20)

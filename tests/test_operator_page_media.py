@@ -6,8 +6,13 @@ the JPEG topic when WebRTC is refused, missing or fails later, saying so on the 
 from __future__ import annotations
 
 import asyncio
+import shutil
 import time
+import wave
 from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
 
 import pytest
 
@@ -45,6 +50,43 @@ def media_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningSe
 
 def peers(server: RunningServer) -> int:
     return server.call(lambda: len(server.server.media.peers))
+
+
+@pytest.fixture(scope="module")
+def tone_browser(browser, tmp_path_factory: pytest.TempPathFactory):
+    """A second Chromium from the same Playwright whose microphone is a steady 440 Hz tone (Chromium's fake capture
+    device playing a WAV in a loop), the permission granted without a prompt."""
+    path = tmp_path_factory.mktemp("tone") / "tone.wav"
+    t = np.arange(48000) / 48000
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(48000)
+        w.writeframes((np.sin(2 * np.pi * 440 * t) * 0.5 * 32767).astype("<i2").tobytes())
+    b = browser.browser_type.launch(executable_path=shutil.which("chromium") or shutil.which("chromium-browser"),
+                                    args=["--no-sandbox", "--enable-unsafe-swiftshader",
+                                          "--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream",
+                                          f"--use-file-for-fake-audio-capture={path}"])
+    yield b
+    b.close()
+
+
+def left_trigger(page, value: float) -> None:
+    page.evaluate(f"xrDevice.controllers.left.updateButtonValue('trigger', {value})")
+    frames(page)
+
+
+def voice_frames(server: RunningServer) -> int:
+    """Operator voice frames the server decoded from the page's peer connection."""
+    def count() -> int:
+        return sum(p.voice.frames for p in server.server.media.peers.values() if p.voice is not None)
+    return server.call(count)
+
+
+def stopped(read, settle: float = 1.0) -> bool:
+    value = read()
+    time.sleep(settle)
+    return read() == value
 
 
 def test_the_panel_shows_webrtc_video_that_follows_the_head(browser, iwer, media_server):  # noqa: F811
@@ -199,6 +241,66 @@ def test_the_robots_audio_comes_over_webrtc_and_plays_once(browser, media_server
         assert wait_for(lambda: page.evaluate(energy) > quiet + 0.01, 30), (quiet, page.evaluate(energy))
         assert page.evaluate("window.operator.audio.topicMuted")
         assert page.evaluate("window.operator.audio.played") == 0  # not twice
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_the_left_trigger_sends_the_voice_over_webrtc_and_releasing_it_stops(tone_browser, iwer,  # noqa: F811
+                                                                           media_server):
+    """Push-to-talk on the peer connection the camera negotiated: the stand-in's mouth moves with the tone (the
+    rosbridge road does not move it), the page publishes no PCM chunk, and releasing the trigger stops the
+    track's packets and closes the mouth."""
+    standin = media_server.server.robot.standin
+    audio_dir = Path(media_server.settings.audio_dir)
+    before = set(audio_dir.glob("*.wav")) if audio_dir.exists() else set()
+    page = open_page(tone_browser, media_server, headset=iwer, camera="webrtc")
+    try:
+        enter_vr(page)
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.audio.path === 'WebRTC'",
+                               timeout=SLOW)
+        assert wait_for(lambda: peers(media_server) == 1, 10)
+        assert voice_frames(media_server) == 0  # a place for the voice, nothing sent before push-to-talk
+        left_trigger(page, 1.0)
+        page.wait_for_function("(document.getElementById('hud-numbers')?.textContent ?? '')"
+                               ".includes('TALKING (WebRTC)')", timeout=SLOW)
+        assert wait_for(lambda: standin.voice_level > 0.5, 30), standin.voice_level
+        assert wait_for(lambda: voice_frames(media_server) >= 50, 30)
+        assert page.evaluate("window.operator.audio.sentChunks") == 0  # not over the rosbridge topic as well
+
+        left_trigger(page, 0.0)
+        page.wait_for_function("!(document.getElementById('hud-numbers')?.textContent ?? '').includes('TALKING')",
+                               timeout=SLOW)
+        assert wait_for(lambda: stopped(lambda: voice_frames(media_server)), 30), "the voice kept coming"
+        assert wait_for(lambda: standin.voice_level == 0.0, 10)
+        assert page.evaluate("window.operator.camera.path") == "WebRTC"  # the camera went on meanwhile
+
+        left_trigger(page, 1.0)  # a second press: on the same peer connection again
+        assert wait_for(lambda: standin.voice_level > 0.5, 30), standin.voice_level
+        left_trigger(page, 0.0)
+        assert wait_for(lambda: standin.voice_level == 0.0, 30)
+        assert page.evaluate("window.operator.audio.sentChunks") == 0
+        wavs = set(audio_dir.glob("*.wav")) - before  # logged as the rosbridge road's voice is
+        assert wavs and max(p.stat().st_size for p in wavs) > 48000, wavs
+        assert page.errors == []
+    finally:
+        close_page(page)
+
+
+def test_without_a_microphone_push_to_talk_is_off_and_says_so(browser, media_server):
+    """Chromium with no microphone allowed: the first press says why push-to-talk is off and the HUD keeps saying
+    it; the camera stays on WebRTC."""
+    page = open_page(browser, media_server, camera="webrtc")
+    try:
+        page.wait_for_function("window.operator.camera.path === 'WebRTC'", timeout=SLOW)
+        page.keyboard.down("t")
+        page.wait_for_function("window.operator.audio.micState === 'denied'", timeout=SLOW)
+        page.keyboard.up("t")
+        assert "push-to-talk is off" in hud(page, "message")
+        page.wait_for_function("(document.getElementById('hud-numbers')?.textContent ?? '')"
+                               ".includes('voice OFF (no microphone)')", timeout=SLOW)
+        assert page.evaluate("window.operator.audio.sentChunks") == 0
+        assert page.evaluate("window.operator.camera.path") == "WebRTC"
         assert page.errors == []
     finally:
         close_page(page)

@@ -4,11 +4,14 @@ Out: `AudioMixer` (one per server) makes 20 ms frames of 48 kHz mono in real tim
 hands each to every `RobotAudioTrack` (aiortc's sender encodes it as Opus). What it mixes:
 - the robot's speech: the PCM chunks on /vr_teleop/audio/robot (the same audio the JSON path carries), which
   the speaker sends 300 ms ahead of real time; they wait in a FIFO and play at real time;
-- the classroom microphone (the stand-in's only): what the robot hears besides itself. On the stand-in that is
-  its bystanders: a line every `bystander_interval` seconds, synthesised once with the server's TTS (the function
-  is passed in by the app) and mixed at BYSTANDER_GAIN, as voices a few metres away. The robot's own speech
-  reaches its microphone too; on the stand-in it is the same signal at the same time as the speech feed, so it
-  is not added a second time (it would only make the speech louder).
+- the classroom microphone: what the robot hears besides itself. On the stand-in that is its bystanders: a line
+  every `bystander_interval` seconds, synthesised once with the server's TTS (the function is passed in by the
+  app) and mixed at BYSTANDER_GAIN, as voices a few metres away. The robot's own speech reaches its microphone
+  too; on the stand-in it is the same signal at the same time as the speech feed, so it is not added a second
+  time (it would only make the speech louder). A real robot's microphone (`Robot.listen`, heard only while some
+  peer listens) is mixed as it comes: it arrives in bursts over the robot's rosbridge, so it starts once
+  HEARD_START_S is buffered and is cut back to that when more than HEARD_MAX_S waits (latency stays bounded
+  however the robot's clock and ours drift).
 
 In: `OperatorVoice` reads one peer's incoming Opus track (aiortc decodes it), and for an operator or supervisor
 (a spectator only listens) publishes it on /vr_teleop/audio/operator as that client (so OperatorAudioLog writes
@@ -22,6 +25,7 @@ import asyncio
 import fractions
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 
@@ -49,7 +53,10 @@ BYSTANDER_LINES = (
     "What is your name, robot?",
     "I think it can see us.",
 )
-OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
+HEARD_START_S = 0.06
+HEARD_MAX_S = 0.5
+OPERATOR_CHUNK_S = 0.1
+LEVEL_HOLD_S = 0.25  # as long as the stand-in's mouth stays open after the last piece of voice  # operator audio published on the bus in chunks of this length, as clients send it
 
 # (pcm s16 bytes, sample rate, channels) of a rendered line
 Rendered = tuple[bytes, int, int]
@@ -93,6 +100,10 @@ class _Fifo:
         self.size -= filled
         return out
 
+    def drop(self, n: int) -> None:
+        """Forget the oldest n samples."""
+        self.pull(n)
+
     def clear(self) -> None:
         self._chunks.clear()
         self.size = 0
@@ -101,15 +112,20 @@ class _Fifo:
 class AudioMixer:
     """The robot's audio for every peer: speech plus the classroom microphone, in real time, 20 ms frames."""
 
-    def __init__(self, bus: Bus, *, render_line: Callable[[str], Awaitable[Rendered]] | None = None,
+    def __init__(self, bus: Bus, *, robot: Robot | None = None,
+                 render_line: Callable[[str], Awaitable[Rendered]] | None = None,
                  bystander_interval: float = 0.0, lines: Sequence[str] = BYSTANDER_LINES) -> None:
         self.bus = bus
+        self.robot = robot
         self.render_line = render_line
         self.bystander_interval = bystander_interval
         self.lines = tuple(lines)
         self._tracks: set[RobotAudioTrack] = set()
         self._speech = _Fifo()
         self._mic = _Fifo()
+        self._heard = _Fifo()  # the robot's own microphone
+        self._heard_playing = False
+        self._unlisten: Callable[[], None] | None = None
         self._speech_format = (22050, 1)
         self._task: asyncio.Task[None] | None = None
         self._rendered: list[np.ndarray] = []
@@ -138,20 +154,38 @@ class AudioMixer:
         rate, channels = self._speech_format
         self._speech.push(to_mono48k(bytes(published.value.data), rate, channels))
 
+    def _on_heard(self, pcm: bytes, rate: int, channels: int) -> None:
+        self._heard.push(to_mono48k(pcm, rate, channels))
+        if self._heard.size > HEARD_MAX_S * RATE:
+            self._heard.drop(self._heard.size - int(HEARD_START_S * RATE))
+
+    def _pull_heard(self) -> np.ndarray:
+        if not self._heard_playing and self._heard.size < HEARD_START_S * RATE:
+            return np.zeros(FRAME_SAMPLES, np.float32)
+        self._heard_playing = self._heard.size > FRAME_SAMPLES  # runs dry: buffer again before going on
+        return self._heard.pull(FRAME_SAMPLES)
+
     def attach(self, track: RobotAudioTrack) -> None:
         self._tracks.add(track)
         if self._task is None or self._task.done():
             self._task = asyncio.ensure_future(self._run())
+        if self.robot is not None and self._unlisten is None:
+            self._unlisten = self.robot.listen(self._on_heard)
         if self.render_line is not None and self.bystander_interval > 0 and self._render_task is None:
             self._render_task = asyncio.ensure_future(self._render_lines())
 
     def detach(self, track: RobotAudioTrack) -> None:
         self._tracks.discard(track)
+        if not self._tracks and self._unlisten is not None:
+            self._unlisten()
+            self._unlisten = None
         if not self._tracks and self._task is not None:
             self._task.cancel()
             self._task = None
             self._speech.clear()
             self._mic.clear()
+            self._heard.clear()
+            self._heard_playing = False
 
     async def _render_lines(self) -> None:
         """The bystanders' lines, synthesised once."""
@@ -179,7 +213,7 @@ class AudioMixer:
                     if self._rendered:
                         self._mic.push(self._rendered[line_index % len(self._rendered)])
                         line_index += 1
-                mixed = self._speech.pull(FRAME_SAMPLES) + self._mic.pull(FRAME_SAMPLES)
+                mixed = self._speech.pull(FRAME_SAMPLES) + self._mic.pull(FRAME_SAMPLES) + self._pull_heard()
                 pcm = np.clip(mixed, -32768, 32767).astype(np.int16)
                 frame = av.AudioFrame.from_ndarray(pcm.reshape(1, -1), format="s16", layout="mono")
                 frame.sample_rate = RATE
@@ -198,7 +232,7 @@ class AudioMixer:
 
     async def close(self) -> None:
         for track in list(self._tracks):
-            track.stop()
+            track.stop()  # the last one stops listening to the robot's microphone
         for task in (self._task, self._render_task):
             if task is not None:
                 task.cancel()
@@ -260,7 +294,7 @@ class OperatorVoice:
         self.owner = owner
         self.track = track
         self.may_speak = may_speak
-        self.level = 0.0
+        self._level = (0.0, 0.0)  # (level, monotonic time) of the newest frame
         self.frames = 0
         self._resampler = av.AudioResampler(format="s16", layout="mono", rate=RATE)
         self._pending: list[bytes] = []
@@ -279,11 +313,18 @@ class OperatorVoice:
         except Exception:
             log.exception("%s: the operator's voice track failed", self.owner)
         finally:
-            self.level = 0.0
+            self._level = (0.0, 0.0)
+
+    @property
+    def level(self) -> float:
+        """The voice's level now: 0 once no frame came for LEVEL_HOLD_S (a browser's push-to-talk released sends
+        nothing at all)."""
+        level, at = self._level
+        return level if time.monotonic() - at < LEVEL_HOLD_S else 0.0
 
     def _take(self, samples: np.ndarray) -> None:
         self.frames += 1
-        self.level = voice_level(samples)
+        self._level = (voice_level(samples), time.monotonic())
         if not self.may_speak:
             return  # a spectator's microphone is neither played nor logged
         pcm = samples.tobytes()

@@ -100,7 +100,7 @@ class MediaService:
         self.control = control  # the watchdog as a connection's operator meets it (for the link quality)
         self.ice_servers = list(ice_servers or [])
         self.video = VideoHub(robot, camera_fps) if robot is not None else None
-        self.audio = AudioMixer(bus, render_line=render_line, bystander_interval=bystander_interval)
+        self.audio = AudioMixer(bus, robot=robot, render_line=render_line, bystander_interval=bystander_interval)
         self.peers: dict[str, Peer] = {}
         self.links: dict[str, ClientLink] = {}
         self._tasks: set[asyncio.Task[Any]] = set()

@@ -18,8 +18,10 @@ import abc
 import asyncio
 import math
 import threading
-from collections.abc import AsyncIterator, Mapping, Sequence
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 from robot_models import RobotModel
 from robot_models.types import CameraFrame, MotorMode
@@ -86,6 +88,13 @@ def part_command(model: RobotModel, part: str, degrees: Sequence[float]) -> dict
     if len(values) != len(joints):
         raise ValueError(f"part {part} takes {len(joints)} values ({', '.join(joints)}), got {len(values)}")
     return dict(zip(joints, values))
+
+
+def pcm_level(pcm: bytes) -> float:
+    """How loud a piece of S16LE voice is, 0..1, as a robot shows it: RMS from -50 dBFS (0) to -10 dBFS (1)."""
+    samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % 2], "<i2").astype(np.float32) / 32768.0
+    rms = float(np.sqrt(np.mean(np.square(samples)))) if samples.size else 0.0
+    return min(1.0, max(0.0, (20 * math.log10(max(rms, 1e-9)) + 50.0) / 40.0))
 
 
 @dataclass(frozen=True)
@@ -329,10 +338,19 @@ class Robot(abc.ABC):
         finally:
             self.remove_camera_subscriber()
 
+    # ------------------------------------------------------------------------------------------------ microphone
+    def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
+        """Hear what the robot's microphone hears: listener(pcm S16LE, sample rate, channels) is called on the event
+        loop with each piece, from now until the returned function is called (the microphone may be read only while
+        someone listens). The default hears nothing: a backend without a microphone stream (the stand-in's
+        classroom is synthesised by the media mixer instead)."""
+        return lambda: None
+
     # ------------------------------------------------------------------------------------------------ voice
     def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
         """Play a piece of the operator's voice (PCM S16LE) through the robot. Called on the loop: must return at
-        once. The default plays nothing (a backend without an audio path); the stand-in moves its mouth."""
+        once. The default plays nothing (a backend without an audio path); the stand-in moves its mouth; the real
+        robot gets it on its speaker topic."""
 
     @property
     def voice_level(self) -> float:

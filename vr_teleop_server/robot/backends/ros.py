@@ -5,6 +5,14 @@ stored under a lock and handed to asyncio waiters with call_soon_threadsafe. ros
 (0.5 s growing to MAX_BACKOFF_S) and re-subscribes by itself. While the robot is unreachable, `connected` is False
 and `connection_changed` listeners hear it on the event loop: joint commands are refused (reported as ignored, never
 queued to burst out later), explicit control holds and says so, and services answer with an error.
+
+Audio. The robot's microphone is LuxAI's qt_respeaker_app channel 0 (names.ROBOT_MICROPHONE_TOPIC, AudioData
+carrying mono S16LE at 16 kHz: the ReSpeaker's processed channel), read only while someone listens (the WebRTC
+mixer, through `listen`) and handed to the listeners on the event loop. LuxAI's ROS 1 API has no way to stream
+sound into the robot (`/qt_robot/audio/play` plays a file already on it), so the operator's voice goes out on our
+own topic (names.ROBOT_SPEAKER_TOPIC: AudioData, mono S16LE at 16 kHz, 40 ms a message), which audio_common's
+`audio_play` node, run on the robot, plays on its speaker (README). While the robot is away the voice is dropped,
+never queued to burst out later.
 """
 
 from __future__ import annotations
@@ -20,6 +28,8 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 from urllib.parse import urlparse
 
+import av
+import numpy as np
 import roslibpy
 from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
 
@@ -39,12 +49,17 @@ from ..interface import (
     Robot,
     SpeechResult,
     clamp_command,
+    pcm_level,
 )
 
 log = logging.getLogger(__name__)
 
 MAX_BACKOFF_S = 5.0
 CALL_TIMEOUT_S = 10.0
+MICROPHONE_RATE = 16000  # qt_respeaker_app's channels: the ReSpeaker array's rate, mono S16LE
+SPEAKER_RATE = 16000  # the operator's voice for the robot's speaker: speech, at the rate audio_play defaults to
+SPEAKER_CHUNK_S = 0.04
+VOICE_HOLD_S = 0.25  # the voice level reads 0 this long after the last piece (as the stand-in's mouth closes)
 
 
 class RobotUnreachable(RuntimeError):
@@ -110,6 +125,14 @@ class RosRobot(Robot):
         self._motors_topic.subscribe(self._on_motor_states)
         self._camera_topic = roslibpy.Topic(self._ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage",
                                             queue_length=1)
+        self._microphone_topic = roslibpy.Topic(self._ros, names.ROBOT_MICROPHONE_TOPIC, "audio_common_msgs/AudioData")
+        self._listeners: list[Callable[[bytes, int, int], None]] = []
+        self._speaker_topic = roslibpy.Topic(self._ros, names.ROBOT_SPEAKER_TOPIC, "audio_common_msgs/AudioData")
+        self._speaker_topic.advertise()
+        self._speaker_format: tuple[int, int] = (0, 0)
+        self._speaker_resampler: av.AudioResampler | None = None
+        self._speaker_pending = bytearray()
+        self._voice = (0.0, 0.0)  # (level, monotonic time) of the newest piece of voice
 
     @classmethod
     async def create(cls, url: str, model: RobotModel | None = None) -> RosRobot:
@@ -321,6 +344,68 @@ class RosRobot(Robot):
 
     def camera_closed(self) -> bool:
         return self._frames.closed
+
+    # ---- microphone ---------------------------------------------------------------------------------------------
+    def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
+        self._listeners.append(listener)
+        if len(self._listeners) == 1:
+            self._microphone_topic.subscribe(self._on_microphone)
+
+        def stop() -> None:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+            if not self._listeners and self._microphone_topic.is_subscribed:
+                self._microphone_topic.unsubscribe()
+
+        return stop
+
+    def _on_microphone(self, msg: dict[str, Any]) -> None:
+        """On roslibpy's thread: rosbridge sends uint8[] as base64 (ROS 1) or a list of numbers."""
+        data = msg.get("data", "")
+        try:
+            pcm = base64.b64decode(data) if isinstance(data, str) else bytes(data)
+        except (ValueError, TypeError):
+            log.warning("%s: a message whose data is not audio bytes was ignored", names.ROBOT_MICROPHONE_TOPIC)
+            return
+        loop = self._loop
+        if loop is None or not pcm:
+            return
+        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody listens
+            loop.call_soon_threadsafe(self._hear, pcm)
+
+    def _hear(self, pcm: bytes) -> None:
+        for listener in list(self._listeners):
+            try:
+                listener(pcm, MICROPHONE_RATE, 1)
+            except Exception:
+                log.exception("a microphone listener failed")
+
+    # ---- the operator's voice -----------------------------------------------------------------------------------
+    def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
+        self._voice = (pcm_level(pcm), time.monotonic())
+        if not self.connected:
+            self._speaker_pending.clear()
+            return
+        if (sample_rate, channels) != self._speaker_format:
+            self._speaker_format = (sample_rate, channels)
+            self._speaker_resampler = av.AudioResampler(format="s16", layout="mono", rate=SPEAKER_RATE)
+            self._speaker_pending.clear()
+        samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % (2 * channels)], "<i2")
+        frame = av.AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16",
+                                           layout="stereo" if channels == 2 else "mono")
+        frame.sample_rate = sample_rate
+        for out in self._speaker_resampler.resample(frame):
+            self._speaker_pending += out.to_ndarray().tobytes()
+        step = int(SPEAKER_RATE * SPEAKER_CHUNK_S) * 2
+        while len(self._speaker_pending) >= step:
+            chunk = bytes(self._speaker_pending[:step])
+            del self._speaker_pending[:step]
+            self._speaker_topic.publish(roslibpy.Message({"data": base64.b64encode(chunk).decode("ascii")}))
+
+    @property
+    def voice_level(self) -> float:
+        level, at = self._voice
+        return level if time.monotonic() - at < VOICE_HOLD_S else 0.0
 
     def _stop_reconnecting(self) -> None:
         from twisted.internet import reactor

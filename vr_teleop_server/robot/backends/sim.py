@@ -12,8 +12,6 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-import numpy as np
-
 from robot_models import RobotModel, load_qtrobot
 from sim import StandIn
 
@@ -30,6 +28,7 @@ from ..interface import (
     Robot,
     SpeechResult,
     clamp_command,
+    pcm_level,
 )
 
 SETTLE_TOLERANCE_DEG = 1.0  # a gesture counts as finished when every joint is this close to its last waypoint
@@ -195,9 +194,7 @@ class SimRobot(Robot):
     # ------------------------------------------------------------------------------------------------ voice
     def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
         """The stand-in has no speaker: its mouth opens with the voice's level (RMS, -50..-10 dBFS to 0..1)."""
-        samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % 2], "<i2").astype(np.float32) / 32768.0
-        rms = float(np.sqrt(np.mean(np.square(samples)))) if samples.size else 0.0
-        self._standin.set_voice_level(min(1.0, max(0.0, (20 * math.log10(max(rms, 1e-9)) + 50.0) / 40.0)))
+        self._standin.set_voice_level(pcm_level(pcm))
 
     @property
     def voice_level(self) -> float:

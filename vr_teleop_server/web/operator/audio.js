@@ -1,7 +1,16 @@
 // Sound both ways. The robot's speech (/vr_teleop/audio/robot, PCM chunks in the format of the latched /info
-// topic) is played with WebAudio, each chunk scheduled right after the previous one; the operator's microphone
-// (getUserMedia, an AudioWorklet cutting PCM S16LE chunks) goes to /vr_teleop/audio/operator while push-to-talk is
-// held.
+// topic) is played with WebAudio, each chunk scheduled right after the previous one (unless it comes over WebRTC:
+// camera.js). The operator's microphone (getUserMedia, asked for on the first push-to-talk) goes out while
+// push-to-talk is held, by one of two roads:
+//  - WebRTC (issue 20): an Opus track on the camera's peer connection. The server takes one peer connection per
+//    rosbridge connection, so the voice's place is made before the offer (`prepare(pc)`: the audio transceiver
+//    becomes sendrecv, with no track yet) and the microphone is put on it and taken off with replaceTrack: no
+//    renegotiation, nothing sent while not talking, and the permission prompt comes with the first press, not
+//    with the page;
+//  - rosbridge, the fallback (no peer connection, or the server does not take our audio): an AudioWorklet cuts
+//    PCM S16LE chunks that go to /vr_teleop/audio/operator.
+// Without a microphone (refused, none, or a page that is not a secure context) push-to-talk is off, and `status`
+// says so for the HUD.
 
 const ROBOT_TOPIC = "/vr_teleop/audio/robot";
 const OPERATOR_TOPIC = "/vr_teleop/audio/operator";
@@ -32,9 +41,12 @@ export class Audio {
     this.nextTime = 0;
     this.played = 0;
     this.talking = false;
-    this.mic = null;        // {stream, node} once granted
-    this.micState = "off";  // off, asking, ready, denied
-    this.sentChunks = 0;
+    this.mic = null;          // {stream, node, track} once granted
+    this.micState = "off";    // off, asking, ready, denied
+    this.sentChunks = 0;      // chunks published on the topic (the rosbridge road)
+    this.pc = null;           // the newest peer connection (prepare) and its audio transceiver
+    this.transceiver = null;
+    this.rtcError = "";
     this.topicMuted = false;  // the robot's audio comes over WebRTC (camera.js): its topic's chunks are not played
     ros.subscribe(`${ROBOT_TOPIC}/info`, "audio_common_msgs/AudioInfo", (info) => this.setFormat(info));
     ros.subscribe(ROBOT_TOPIC, "audio_common_msgs/AudioData", (msg) => this.play(msg));
@@ -89,9 +101,50 @@ export class Audio {
     this.played += 1;
   }
 
+  /** Before each offer (CameraFeed's prepare hook): the peer connection's audio may carry our voice. */
+  prepare(pc) {
+    const transceiver = pc.getTransceivers().find((t) => t.receiver.track?.kind === "audio");
+    if (!transceiver) return;
+    transceiver.direction = "sendrecv";
+    this.pc = pc;
+    this.transceiver = transceiver;
+    this.rtcError = "";
+    pc.addEventListener("connectionstatechange", () => this.route());
+  }
+
+  /** The sender our voice goes out on, or null: the peer connection is up and the server takes our audio. */
+  voiceSender() {
+    const t = this.transceiver;
+    if (!t || this.rtcError || this.pc.connectionState !== "connected") return null;
+    return ["sendrecv", "sendonly"].includes(t.currentDirection) ? t.sender : null;
+  }
+
+  /** "WebRTC" or "rosbridge": the road the voice takes now. */
+  get path() {
+    return this.voiceSender() ? "WebRTC" : "rosbridge";
+  }
+
+  /** The microphone on the peer connection while talking, off it otherwise. */
+  route() {
+    const sender = this.voiceSender();
+    const track = this.talking && this.mic ? this.mic.track : null;
+    if (!sender || sender.track === track) return;
+    sender.replaceTrack(track).catch((err) => {
+      this.rtcError = err.message;
+      this.onError(`the voice cannot go over WebRTC (${err.message}); it goes over rosbridge`);
+    });
+  }
+
+  /** For the HUD: how push-to-talk stands. */
+  get status() {
+    if (this.micState === "denied") return "voice OFF (no microphone)";
+    return this.talking ? `TALKING (${this.path})` : "";
+  }
+
   /** Push-to-talk pressed (true) or released (false). The first press asks for the microphone. */
   async talk(on) {
     this.talking = on;
+    this.route();
     if (!on || this.mic || this.micState === "asking") return;
     if (this.micState === "denied") {
       this.onError("the microphone was denied: allow it in the browser's site settings, then reload");
@@ -109,13 +162,16 @@ export class Audio {
         {processorOptions: {chunkSamples: Math.round(this.context.sampleRate * CHUNK_S)}});
       node.port.onmessage = (event) => this.chunk(event.data);
       source.connect(node);
-      this.mic = {stream, node};
+      this.mic = {stream, node, track: stream.getAudioTracks()[0]};
       this.micState = "ready";
       this.sendInfo();
+      this.route();  // still held: on the peer connection from now
     } catch (err) {
       this.micState = "denied";
       this.talking = false;
-      this.onError(`microphone: ${err.name === "NotAllowedError" ? "denied" : err.message}; push-to-talk is off`);
+      const why = err.name === "NotAllowedError" ? "refused (allow it in the site settings, then reload)"
+        : err.name === "NotFoundError" ? "none found" : err.message;
+      this.onError(`microphone: ${why}; push-to-talk is off`);
     }
   }
 
@@ -128,7 +184,7 @@ export class Audio {
   }
 
   chunk(buffer) {
-    if (!this.talking) return;
+    if (!this.talking || this.voiceSender()) return;  // over WebRTC, not twice
     if (this.ros.publish(OPERATOR_TOPIC, {data: bytesToBase64(new Uint8Array(buffer))})) this.sentChunks += 1;
   }
 }

@@ -99,8 +99,10 @@ const placeholder = canvas(640, 480);
   ctx.fillText("waiting for the robot's camera…", 320, 240);
 }
 // WebRTC video (and the robot's audio) when negotiated, else the JPEG topic: camera.js.
+// Its peer connection carries the operator's voice too (audio.js): prepared before each offer.
 const cameraSource = new CameraFeed(ros, {onMessage: (text, level) => say(text, level), placeholder,
-                                          onAudio: (on) => { audio.topicMuted = on; }});
+                                          onAudio: (on) => { audio.topicMuted = on; },
+                                          prepare: (pc) => audio.prepare(pc)});
 const panelAnchor = new THREE.Group();
 const panelWidth = 2 * PANEL_DISTANCE * Math.tan(THREE.MathUtils.degToRad(CAMERA_HFOV_DEG / 2));
 const panel = new THREE.Mesh(new THREE.PlaneGeometry(panelWidth, panelWidth),
@@ -509,7 +511,7 @@ function hudLines() {
   const age = cameraSource.frameAge();
   const path = cameraSource.path ? ` (${cameraSource.path})` : "";
   const ageText = (age === null ? "no frames yet" : `${Math.max(0, age * 1000).toFixed(0)} ms old`) + path;
-  const talking = audio.talking ? " · TALKING" : "";
+  const talking = audio.status ? ` · ${audio.status}` : "";
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
               level: "info"});
   if (!state.xr) {
