@@ -53,10 +53,10 @@ BYSTANDER_LINES = (
     "What is your name, robot?",
     "I think it can see us.",
 )
-HEARD_START_S = 0.06
-HEARD_MAX_S = 0.5
-OPERATOR_CHUNK_S = 0.1
-LEVEL_HOLD_S = 0.25  # as long as the stand-in's mouth stays open after the last piece of voice  # operator audio published on the bus in chunks of this length, as clients send it
+HEARD_START_S = 0.06  # a real robot's microphone starts playing once this much is buffered...
+HEARD_MAX_S = 0.5     # ...and is cut back to HEARD_START_S when more than this waits (bounded latency)
+OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
+LEVEL_HOLD_S = 0.25  # as long as the stand-in's mouth stays open after the last piece of voice
 
 # (pcm s16 bytes, sample rate, channels) of a rendered line
 Rendered = tuple[bytes, int, int]
