@@ -233,7 +233,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
                  "rtc_bitrate": 840000.0, "rtc_target_bitrate": 900000.0, "rtc_frames_sent": 905,
                  "rtp_timestamp": 1772474006, "rtp_render_time": 1700000000.27, "rtp_clock_rate": 90000,
                  "frame_rtp_timestamps": [1772471006, 1772474006],
-                 "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42}]}),
+                 "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42,
+                 "dc_received": 8100, "dc_refused": 0, "dc_stale_dropped": 12, "dc_last_refusal": ""}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint(names.HEAD_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

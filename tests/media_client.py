@@ -109,12 +109,63 @@ class Tone(MediaStreamTrack):
         return frame
 
 
+class PoseSender:
+    """The sending end of the poses data channel: never queues poses behind the channel. Each topic keeps only its
+    newest frame until the channel can take it (nothing buffered: `bufferedAmount` at most the low threshold, 0),
+    so a congested channel sends fewer, fresher poses instead of a growing backlog of stale ones; the topic that
+    has waited longest goes first."""
+
+    def __init__(self, channel: Any) -> None:
+        self.channel = channel
+        channel.bufferedAmountLowThreshold = 0
+        self._pending: dict[str, str] = {}
+        self.sent = 0
+        self.replaced = 0  # frames overtaken by a newer one of their topic before the channel could take them
+        self.sent_at: dict[str, list[tuple[float, str]]] = {}  # with `keep_sent`: topic -> (send time, frame)
+        self.keep_sent = False
+        channel.on("bufferedamountlow", self._pump)
+
+    @property
+    def open(self) -> bool:
+        return self.channel.readyState == "open"
+
+    def send(self, topic: str, msg: dict[str, Any]) -> None:
+        if topic in self._pending:
+            self.replaced += 1
+        self._pending[topic] = json.dumps({"op": "publish", "topic": topic, "msg": msg})
+        self._pump()
+
+    def send_raw(self, data: str | bytes) -> None:
+        """Anything at all, at once (bad-input tests)."""
+        self.channel.send(data)
+
+    def _pump(self) -> None:
+        while self._pending and self.open and self.channel.bufferedAmount <= self.channel.bufferedAmountLowThreshold:
+            topic = next(iter(self._pending))
+            frame = self._pending.pop(topic)
+            self.channel.send(frame)
+            self.sent += 1
+            if self.keep_sent:
+                self.sent_at.setdefault(topic, []).append((time.monotonic(), frame))
+
+    async def wait_open(self, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not self.open:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the poses channel did not open (state {self.channel.readyState})")
+            await asyncio.sleep(0.02)
+
+
 class MediaPeer:
-    """An aiortc peer that receives the robot's video and audio and may send a microphone track."""
+    """An aiortc peer that receives the robot's video and audio, may send a microphone track, and with `poses`
+    opens the poses data channel (unordered, no retransmissions) before the offer, as the operator page does."""
 
     def __init__(self, video: bool = True, audio: bool = True, mic: MediaStreamTrack | None = None,
-                 video_codec: str | None = None) -> None:
+                 video_codec: str | None = None, poses: bool = False) -> None:
         self.pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+        self.poses: PoseSender | None = None
+        if poses:
+            self.poses = PoseSender(self.pc.createDataChannel("poses", ordered=False, maxRetransmits=0))
         self.frames: list[tuple[float, Any]] = []  # (monotonic receive time, av.VideoFrame)
         self.audio_frames: list[tuple[float, np.ndarray]] = []
         self.keep_frames = 5
