@@ -211,9 +211,13 @@ class MediaPeer:
                                                           "type": self.pc.localDescription.type})
         values = reply.get("values")
         if reply.get("op") == "service_response" and reply.get("result") and values["success"]:
-            await self.pc.setRemoteDescription(RTCSessionDescription(values["sdp"], values["type"]))
-            self._watch_rtp()
+            await self.accept(values)
         return reply
+
+    async def accept(self, values: dict[str, Any]) -> None:
+        """Takes the server's answer (a successful /vr_teleop/media/offer response's values)."""
+        await self.pc.setRemoteDescription(RTCSessionDescription(values["sdp"], values["type"]))
+        self._watch_rtp()
 
     def _watch_rtp(self) -> None:
         """aiortc's decoded frames count pts from the first frame's RTP timestamp: keep that timestamp, so that
@@ -297,3 +301,49 @@ class LinkShaper:
 
     def close(self) -> None:
         self.task.cancel()
+
+
+class ChannelRoad:
+    """The poses data channel as `vr-teleop replay`'s road (tools/replay.py PoseRoad): a peer connection offered
+    over the replay's own rosbridge connection, with the channel and, with `video`, the camera (counted, not
+    decoded: a viewer whose decoding is not this machine's business)."""
+
+    def __init__(self, video: bool = False) -> None:
+        self.video = video
+        self.peer: MediaPeer | None = None  # made in open(), on the replay's loop and in its thread's namespace
+        self.video_frames: list[tuple[float, int]] = []  # (monotonic time, frames so far) at open and close
+
+    async def open(self, call: Any) -> None:
+        self.peer = MediaPeer(video=self.video, audio=False, poses=True)
+        self.peer.light = True
+        pc = self.peer.pc
+        await pc.setLocalDescription(await pc.createOffer())
+        values = await call("/vr_teleop/media/offer", {"sdp": pc.localDescription.sdp, "type": "offer"})
+        if not values.get("success"):
+            raise RuntimeError(f"the server refused the offer: {values.get('message')}")
+        await self.peer.accept(values)
+        await self.peer.poses.wait_open()
+        self.video_frames.append((time.monotonic(), self.peer.video_count))
+
+    @property
+    def sender(self) -> PoseSender:
+        assert self.peer is not None and self.peer.poses is not None
+        return self.peer.poses
+
+    def send(self, topic: str, msg: dict[str, Any]) -> bool:
+        if not self.sender.open:
+            return False
+        self.sender.send(topic, msg)
+        return True
+
+    @property
+    def video_fps(self) -> float | None:
+        if len(self.video_frames) < 2:
+            return None
+        (t0, n0), (t1, n1) = self.video_frames[0], self.video_frames[-1]
+        return (n1 - n0) / max(t1 - t0, 1e-9)
+
+    async def close(self) -> None:
+        if self.peer is not None:
+            self.video_frames.append((time.monotonic(), self.peer.video_count))
+            await self.peer.close()
