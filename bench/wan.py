@@ -3,8 +3,9 @@
 For each profile of netem/profiles.yaml, the server (`vr-teleop serve --backend sim --insecure`) runs in the
 emulator's server namespace and `vr-teleop replay`'s client plays `vr-teleop synth classroom` (seed 0) from the
 client namespace, twice: over the WebSocket path, then with the operator's streams on the poses data channel
-(issue 21: an aiortc peer negotiated over the replay's connection, which also receives the camera as WebRTC video;
-poses go over the WebSocket until engage succeeds, as the channel requires). An observer beside the server (no
+(issue 21: poses go over the WebSocket until engage succeeds, as the channel requires). On both runs the replay
+client has an aiortc peer connection, negotiated over its own rosbridge connection, that receives the camera as
+WebRTC video (so both carry the same load); on the second its poses channel carries the operator's streams. An observer beside the server (no
 impairment) records the head commands, the head poses as the bus gets them, and the watchdog's events. Reported
 per profile and path:
 - watchdog holds per minute of the session (stalled events while the operator streams);
@@ -44,7 +45,7 @@ from wan_support import Observer, intent_errors, pose_latencies, replay_in, serv
 
 
 def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> dict:
-    road = ChannelRoad(video=True) if channel else None
+    road = ChannelRoad(video=True, carry=channel)  # both paths receive the camera: the same load on both
     with Emulator(name) as net:
         url = serve(net, "--camera-fps", str(camera_fps))
         observer = Observer(net, url, poses=True)
@@ -65,13 +66,12 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
     def pct(a: np.ndarray, q: float) -> float | None:
         return round(float(np.percentile(a, q)), 2) if a.size else None
 
-    extra = {}
-    if road is not None:
+    extra = {"video_fps": round(road.video_fps, 1) if road.video_fps is not None else None}
+    if channel:
         head_sent = sum(1 for t, _i in got.sent_head if t > start)
         head_arrived = sum(1 for t, _s in seen.poses if t > start)
         extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_replaced": road.sender.replaced,
-                 "head_arrival": round(head_arrived / max(head_sent, 1), 3),
-                 "video_fps": round(road.video_fps, 1) if road.video_fps is not None else None}
+                 "head_arrival": round(head_arrived / max(head_sent, 1), 3), **extra}
     return {"profile": name, "path": "datachannel" if channel else "websocket", **extra,
             "session_s": round(steps[-1].t, 1), "holds": len(holds),
             "holds_per_min": round(len(holds) / minutes, 2),
@@ -94,7 +94,7 @@ def table(rows: list[dict]) -> str:
     ws = {r["profile"]: r for r in rows if r["path"] == "websocket"}
     dc = {r["profile"]: r for r in rows if r["path"] == "datachannel"}
     head = ("| profile | holds/min | tracking p50 / p95 (deg) | latency p50 / p99 (ms) | data channel: holds/min, "
-            "tracking, latency | head poses arrived (DC) | video fps | tracking p95 vs lan (WS / DC) | "
+            "tracking, latency | head poses arrived (DC) | video fps (WS / DC) | tracking p95 vs lan (WS / DC) | "
             "latency p50 vs lan (WS / DC) |")
     lines = [head, "|" + "---|" * 9]
     for name in dict.fromkeys([*ws, *dc]):
@@ -108,9 +108,10 @@ def table(rows: list[dict]) -> str:
         if d:
             t, lat = d["tracking_deg"], d["latency_ms"]
             cells += [f"{d['holds_per_min']}/min, {t['p50']} / {t['p95']} deg, {lat['p50']} / {lat['p99']} ms",
-                      f"{d['head_arrival']:.0%}", str(d["video_fps"])]
+                      f"{d['head_arrival']:.0%}"]
         else:
-            cells += ["-", "-", "-"]
+            cells += ["-", "-"]
+        cells.append(f"{w['video_fps'] if w else '-'} / {d['video_fps'] if d else '-'}")
         cells += [f"{_ratio(w, ws.get('lan'), 'tracking_deg', 'p95', 2)} / "
                   f"{_ratio(d, dc.get('lan'), 'tracking_deg', 'p95', 2)}",
                   f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / {_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}"]

@@ -111,9 +111,16 @@ class Tone(MediaStreamTrack):
 
 class PoseSender:
     """The sending end of the poses data channel: never queues poses behind the channel. Each topic keeps only its
-    newest frame until the channel can take it (nothing buffered: `bufferedAmount` at most the low threshold, 0),
-    so a congested channel sends fewer, fresher poses instead of a growing backlog of stale ones; the topic that
-    has waited longest goes first."""
+    newest frame until the channel can take it (`bufferedAmount` at most the low threshold), so a congested
+    channel sends fewer, fresher poses instead of a growing backlog of stale ones. The threshold is 0 here: aiortc
+    lowers bufferedAmount, and says so, on this loop as soon as SCTP takes a message, and anything buffered waits for
+    the congestion window (measured on continent: a budget of one frame's poses raised the latency p50 by a third).
+    The page's is one frame's poses (pose_channel.js): a browser's events come from its network thread, a task
+    later each, and with 0 the page could send about one pose per event instead of a frame's. The head pose
+    (what the watchdog times and the camera follows) may take every other send; the other topics share the rest,
+    the one that has waited longest first. The operator page's sender (web/operator/pose_channel.js) does the same."""
+
+    HEAD = "/vr/head/pose"
 
     def __init__(self, channel: Any) -> None:
         self.channel = channel
@@ -123,6 +130,7 @@ class PoseSender:
         self.replaced = 0  # frames overtaken by a newer one of their topic before the channel could take them
         self.sent_at: dict[str, list[tuple[float, str]]] = {}  # with `keep_sent`: topic -> (send time, frame)
         self.keep_sent = False
+        self._head_last = False  # the last frame sent was a head pose
         channel.on("bufferedamountlow", self._pump)
 
     @property
@@ -141,7 +149,9 @@ class PoseSender:
 
     def _pump(self) -> None:
         while self._pending and self.open and self.channel.bufferedAmount <= self.channel.bufferedAmountLowThreshold:
-            topic = next(iter(self._pending))
+            others = (t for t in self._pending if t != self.HEAD)
+            topic = self.HEAD if self.HEAD in self._pending and not self._head_last else next(others, self.HEAD)
+            self._head_last = topic == self.HEAD
             frame = self._pending.pop(topic)
             self.channel.send(frame)
             self.sent += 1
@@ -306,10 +316,12 @@ class LinkShaper:
 class ChannelRoad:
     """The poses data channel as `vr-teleop replay`'s road (tools/replay.py PoseRoad): a peer connection offered
     over the replay's own rosbridge connection, with the channel and, with `video`, the camera (counted, not
-    decoded: a viewer whose decoding is not this machine's business)."""
+    decoded: a viewer whose decoding is not this machine's business). With `carry` False the channel is opened but
+    nothing is sent on it: the poses stay on the WebSocket beside the same media (a baseline with the same load)."""
 
-    def __init__(self, video: bool = False) -> None:
+    def __init__(self, video: bool = False, carry: bool = True) -> None:
         self.video = video
+        self.carry = carry
         self.peer: MediaPeer | None = None  # made in open(), on the replay's loop and in its thread's namespace
         self.video_frames: list[tuple[float, int]] = []  # (monotonic time, frames so far) at open and close
 
@@ -331,7 +343,7 @@ class ChannelRoad:
         return self.peer.poses
 
     def send(self, topic: str, msg: dict[str, Any]) -> bool:
-        if not self.sender.open:
+        if not self.carry or not self.sender.open:
             return False
         self.sender.send(topic, msg)
         return True
