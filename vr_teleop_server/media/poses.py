@@ -76,17 +76,17 @@ class PoseChannel:
             return
         topic = frame["topic"]
         stamp = _stamp_seconds(frame.get("msg"))
-        if stamp is not None:
-            newest = self._newest.get(topic)
-            if newest is not None and 0 < newest - stamp <= CLOCK_RESET_S:
-                self.counts.stale_dropped += 1  # overtaken by a newer one: never replayed
-                return
-            self._newest[topic] = stamp
+        newest = self._newest.get(topic)
+        if stamp is not None and newest is not None and 0 < newest - stamp <= CLOCK_RESET_S:
+            self.counts.stale_dropped += 1  # overtaken by a newer one: never replayed
+            return
         errors = session.counters.get("errors", 0)
         await session.handle_frame(message)  # the WebSocket's own path: validation, access, bus, holder rule
         if session.counters.get("errors", 0) != errors:  # it answered with a status error (already sent)
             self.counts.refused += 1
             self.counts.last_refusal = session.last_error[:200]
+        elif stamp is not None:
+            self._newest[topic] = stamp
 
     def _check(self, message: str | bytes) -> tuple[dict[str, Any], str]:
         if self.label != names.POSES_CHANNEL:

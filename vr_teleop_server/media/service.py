@@ -7,6 +7,9 @@ connection belongs to the calling session and is closed when that WebSocket clos
 when ICE or DTLS fail (a peer that vanished: aioice's consent checks notice within about 30 s). Every refusal is
 answered inside the response (success false, message naming the problem and the fix).
 
+A "poses" data channel in the offer carries the operator's poses and Joy into the client's own session (poses.py);
+an offer with one is not refused for a media section without a common codec: that section alone is rejected.
+
 Access is the camera topic's: a client that may not subscribe to the head camera gets no media. An operator's or
 supervisor's microphone is played on the robot and logged; a spectator's is ignored.
 """
