@@ -46,9 +46,11 @@ def joy(stamp: float, grip: float = 0.0) -> dict:
             "axes": [0.0, 0.0, 0.0, grip], "buttons": [0, 0, 0, 0]}
 
 
-async def connect_with_poses(url: str, **peer: bool) -> tuple[Rosbridge, MediaPeer]:
+async def connect_with_poses(url: str, extra_channel: str = "", **peer: bool) -> tuple[Rosbridge, MediaPeer]:
     ros = await Rosbridge.open(url)
     client = MediaPeer(poses=True, **({"audio": False} | peer))
+    if extra_channel:
+        client.extra = client.pc.createDataChannel(extra_channel, ordered=False, maxRetransmits=0)
     reply = await client.negotiate(ros)
     assert reply["result"] and reply["values"]["success"], reply
     await client.poses.wait_open()
@@ -195,7 +197,7 @@ async def test_a_video_section_without_a_common_codec_is_rejected_and_the_channe
 
 
 async def test_bad_input_on_the_channel_is_refused_counted_and_never_reaches_the_robot(dc_server) -> None:
-    ros, client = await connect_with_poses(dc_server.url)
+    ros, client = await connect_with_poses(dc_server.url, extra_channel="chat")
     other_ros, other = await connect_with_poses(dc_server.url)
     watcher = await Rosbridge.open(dc_server.url)
     try:
@@ -230,8 +232,12 @@ async def test_bad_input_on_the_channel_is_refused_counted_and_never_reaches_the
                 (json.dumps({"op": "publish", "topic": HEAD_POSE, "msg": {"pose": "far left"}}), HEAD_POSE),
             ]
             before = await my_telemetry(ros, name, lambda e: True)
-            for data, reason in bad:
-                client.poses.send_raw(data)
+            pose = json.dumps({"op": "publish", "topic": HEAD_POSE, "msg": head_pose(0.0)})
+            for data, reason in [(None, "'chat' is not one this server reads"), *bad]:
+                if data is None:  # a channel of another label: refused however good its message
+                    client.extra.send(pose)
+                else:
+                    client.poses.send_raw(data)
                 entry = await my_telemetry(ros, name, lambda e, n=before["dc_refused"]: e["dc_refused"] > n)
                 assert entry["dc_refused"] == before["dc_refused"] + 1, (data, entry)
                 assert reason in entry["dc_last_refusal"], (data, entry["dc_last_refusal"])

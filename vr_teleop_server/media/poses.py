@@ -55,22 +55,22 @@ class ChannelCounts:
 
 @dataclass
 class PoseChannel:
-    """One client's poses channel: checks each message, then hands it to the client's session as a publish."""
+    """One client's data channels (one peer connection's): checks each message, then hands it to the client's
+    session as a publish. Only the channel labelled POSES_CHANNEL carries poses; another's messages are refused."""
 
     session: ChannelSession
     holds_control: Callable[[str], bool]  # the session's name -> whether its operator holds control
-    label: str = names.POSES_CHANNEL
     clock: Callable[[], float] = time.monotonic
     counts: ChannelCounts = field(default_factory=ChannelCounts)
     _newest: dict[str, float] = field(default_factory=dict)  # topic -> newest stamp taken
     _last_told: float = -1e9
 
-    async def on_message(self, message: str | bytes) -> None:
+    async def on_message(self, message: str | bytes, label: str = names.POSES_CHANNEL) -> None:
         session = self.session
         if session.closed:
             return
         self.counts.received += 1
-        frame, reason = self._check(message)
+        frame, reason = self._check(message, label)
         if reason:
             self._refuse(reason)
             return
@@ -88,9 +88,9 @@ class PoseChannel:
         elif stamp is not None:
             self._newest[topic] = stamp
 
-    def _check(self, message: str | bytes) -> tuple[dict[str, Any], str]:
-        if self.label != names.POSES_CHANNEL:
-            return {}, (f"data channel {self.label[:40]!r} is not one this server reads: open one labelled "
+    def _check(self, message: str | bytes, label: str) -> tuple[dict[str, Any], str]:
+        if label != names.POSES_CHANNEL:
+            return {}, (f"data channel {label[:40]!r} is not one this server reads: open one labelled "
                         f"{names.POSES_CHANNEL!r} for poses")
         if not isinstance(message, str):
             return {}, "a binary message: send each publish frame as text (JSON)"

@@ -231,10 +231,10 @@ class MediaService:
 
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:
-            poses = PoseChannel(session, self.holds_control, channel.label)
-            if channel.label == names.POSES_CHANNEL and peer.poses is None:
-                peer.poses = poses
-            channel.on("message", poses.on_message)
+            if peer.poses is None:
+                peer.poses = PoseChannel(session, self.holds_control)
+            channel.on("message", lambda message, poses=peer.poses, label=channel.label:
+                       poses.on_message(message, label))
 
         @pc.on("connectionstatechange")
         async def on_state() -> None:
