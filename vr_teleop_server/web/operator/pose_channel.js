@@ -6,14 +6,16 @@
 // channel is not open: no WebRTC, #camera=jpeg, a failed negotiation).
 //
 // Never a backlog at the sender: each topic keeps only its newest frame until the channel has buffered no more
-// than about one XR frame's poses (bufferedAmount at most bufferedAmountLowThreshold, BUFFER_BUDGET bytes; the
-// browser's SCTP takes them on its network thread and says so in bufferedamountlow events), so a congested channel
-// sends fewer, fresher poses. The head pose (what the server's watchdog times and the camera follows) may take
-// every other send; the other topics share the rest, the one waiting longest first.
+// than about two poses (bufferedAmount at most bufferedAmountLowThreshold, BUFFER_BUDGET bytes), so a congested
+// channel sends fewer, fresher poses. Not 0 as the tests' aiortc sender: the browser's SCTP takes messages on its
+// network thread and says so in bufferedamountlow events a task later each, and with 0 the page sent about one
+// pose per event on loopback; more than two poses per event would let the head, one pose per frame, take a
+// smaller share when the channel is congested. The head pose (what the server's watchdog times and the camera
+// follows) may take every other send; the other topics share the rest, the one waiting longest first.
 
 export const POSES_LABEL = "poses";
 const HEAD = "/vr/head/pose";
-export const BUFFER_BUDGET = 1500;  // bytes: head, both controllers and Joy of one frame (about 330 bytes each)
+export const BUFFER_BUDGET = 700;   // bytes: about two poses (330 bytes each): the head and one other per event
 
 export class PoseChannel {
   constructor() {
