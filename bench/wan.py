@@ -5,9 +5,9 @@ emulator's server namespace and `vr-teleop replay`'s client plays `vr-teleop syn
 client namespace, twice: over the WebSocket path, then with the operator's streams on the poses data channel
 (issue 21: poses go over the WebSocket until engage succeeds, as the channel requires). On both runs the replay
 client has an aiortc peer connection, negotiated over its own rosbridge connection, that receives the camera as
-WebRTC video (so both carry the same load); on the second its poses channel carries the operator's streams. An observer beside the server (no
-impairment) records the head commands, the head poses as the bus gets them, and the watchdog's events. Reported
-per profile and path:
+WebRTC video (so both carry the same load); on the second its poses channel carries the operator's streams. An
+observer beside the server (no impairment) records the head commands, the head poses as the bus gets them, and the
+watchdog's events. Reported per profile and path:
 - watchdog holds per minute of the session (stalled events while the operator streams);
 - head tracking error against the operator's intent, p50/p95 (degrees; the intent is the same mapping computed
   offline at the moments the poses were sent, so filter and caps are in it and the network is what shows), and
@@ -114,7 +114,8 @@ def table(rows: list[dict]) -> str:
         cells.append(f"{w['video_fps'] if w else '-'} / {d['video_fps'] if d else '-'}")
         cells += [f"{_ratio(w, ws.get('lan'), 'tracking_deg', 'p95', 2)} / "
                   f"{_ratio(d, dc.get('lan'), 'tracking_deg', 'p95', 2)}",
-                  f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / {_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}"]
+                  f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / "
+                  f"{_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
