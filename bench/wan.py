@@ -2,15 +2,21 @@
 
 For each profile of netem/profiles.yaml, the server (`vr-teleop serve --backend sim --insecure`) runs in the
 emulator's server namespace and `vr-teleop replay`'s client plays `vr-teleop synth classroom` (seed 0) from the
-client namespace over the WebSocket path; an observer beside the server (no impairment) records the head commands,
-the head poses as the bus gets them, and the watchdog's events. Reported per profile:
+client namespace, twice: over the WebSocket path, then with the operator's streams on the poses data channel
+(issue 21: poses go over the WebSocket until engage succeeds, as the channel requires). On both runs the replay
+client has an aiortc peer connection, negotiated over its own rosbridge connection, that receives the camera as
+WebRTC video (so both carry the same load); on the second its poses channel carries the operator's streams. An
+observer beside the server (no impairment) records the head commands, the head poses as the bus gets them, and the
+watchdog's events. Reported per profile and path:
 - watchdog holds per minute of the session (stalled events while the operator streams);
 - head tracking error against the operator's intent, p50/p95 (degrees; the intent is the same mapping computed
   offline at the moments the poses were sent, so filter and caps are in it and the network is what shows), and
   `vr-teleop replay`'s own tracking_error_deg (p99; it pairs commands with poses, which a WAN's holds upset);
 - pose-to-command latency p50/p99 (ms: the operator sending a head pose to the server stepping on it);
-- the data-channel path (issue 20/21, WebRTC) and video fps: columns left for them ("-" until they exist).
-`lan` is the baseline: the last columns are ratios against it, from the same run.
+- on the data channel: the share of head poses sent after engaging that reached the bus (the sender keeps only the
+  newest pose per topic while the channel is busy, so a congested channel sends fewer, fresher poses), and the
+  video frames per second the peer received (counted by their last RTP packet, not decoded).
+`lan` is the baseline: the last columns are ratios against it (each path against its own lan run), same run.
 
     python bench/wan.py --quick            # the first 60 s of the session, every profile
     python bench/wan.py --profiles lan continent
@@ -34,14 +40,16 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 from netem import Emulator, available, cleanup_leftovers, load_profiles  # noqa: E402
 from vr_teleop_server.tools.replay import load_steps, report  # noqa: E402
 from vr_teleop_server.tools.synth import build, write  # noqa: E402
+from media_client import ChannelRoad  # noqa: E402
 from wan_support import Observer, intent_errors, pose_latencies, replay_in, serve  # noqa: E402
 
 
-def run_profile(name: str, steps, camera_fps: float) -> dict:
+def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> dict:
+    road = ChannelRoad(video=True, carry=channel)  # both paths receive the camera: the same load on both
     with Emulator(name) as net:
         url = serve(net, "--camera-fps", str(camera_fps))
         observer = Observer(net, url, poses=True)
-        got, elapsed = replay_in(net, steps, url)
+        got, elapsed = replay_in(net, steps, url, road=road)
         seen = observer.stop()
         link = net.stats()
     last_sent = got.sent_head[-1][0]
@@ -58,31 +66,57 @@ def run_profile(name: str, steps, camera_fps: float) -> dict:
     def pct(a: np.ndarray, q: float) -> float | None:
         return round(float(np.percentile(a, q)), 2) if a.size else None
 
-    return {"profile": name, "session_s": round(steps[-1].t, 1), "holds": len(holds),
+    extra = {"video_fps": round(road.video_fps, 1) if road.video_fps is not None else None}
+    if channel:
+        head_sent = sum(1 for t, _i in got.sent_head if t > start)
+        head_arrived = sum(1 for t, _s in seen.poses if t > start)
+        extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_replaced": road.sender.replaced,
+                 "head_arrival": round(head_arrived / max(head_sent, 1), 3), **extra}
+    return {"profile": name, "path": "datachannel" if channel else "websocket", **extra,
+            "session_s": round(steps[-1].t, 1), "holds": len(holds),
             "holds_per_min": round(len(holds) / minutes, 2),
             "threshold_s": [min(thresholds), max(thresholds)] if thresholds else None,
             "tracking_deg": {"p50": pct(errors, 50), "p95": pct(errors, 95), "n": int(errors.size)},
             "replay_tracking_error_deg_p99": r["tracking_error_deg"]["p99"],
             "latency_ms": {"p50": pct(latency, 50), "p99": pct(latency, 99), "n": int(latency.size)},
             "forwarder_late_ms": link.get("late_ms"),
-            "link": {d: link["stats"][d] for d in ("up", "down")},
-            "datachannel": None, "video_fps": None}
+            "link": {d: link["stats"][d] for d in ("up", "down")}}
+
+
+def _ratio(row: dict | None, base: dict | None, key: str, q: str, digits: int) -> str:
+    if not row or not base or not base[key][q] or row[key][q] is None:
+        return "-"
+    return f"x{row[key][q] / base[key][q]:.{digits}f}"
 
 
 def table(rows: list[dict]) -> str:
-    base = next((r for r in rows if r["profile"] == "lan"), None)
+    """One line per profile: the WebSocket path, then the data channel (each ratio against its own path on lan)."""
+    ws = {r["profile"]: r for r in rows if r["path"] == "websocket"}
+    dc = {r["profile"]: r for r in rows if r["path"] == "datachannel"}
     head = ("| profile | holds/min | tracking p50 / p95 (deg) | latency p50 / p99 (ms) | data channel: holds/min, "
-            "tracking, latency | video fps | tracking p95 vs lan | latency p50 vs lan |")
-    lines = [head, "|" + "---|" * 8]
-    for r in rows:
-        t, lat = r["tracking_deg"], r["latency_ms"]
-        vs_t = vs_l = "-"
-        if base and base["tracking_deg"]["p95"] and t["p95"] is not None:
-            vs_t = f"x{t['p95'] / base['tracking_deg']['p95']:.2f}"
-        if base and base["latency_ms"]["p50"] and lat["p50"] is not None:
-            vs_l = f"x{lat['p50'] / base['latency_ms']['p50']:.1f}"
-        lines.append(f"| {r['profile']} | {r['holds_per_min']} | {t['p50']} / {t['p95']} | {lat['p50']} / "
-                     f"{lat['p99']} | - (issue 20) | - (issue 20) | {vs_t} | {vs_l} |")
+            "tracking, latency | head poses arrived (DC) | video fps (WS / DC) | tracking p95 vs lan (WS / DC) | "
+            "latency p50 vs lan (WS / DC) |")
+    lines = [head, "|" + "---|" * 9]
+    for name in dict.fromkeys([*ws, *dc]):
+        w, d = ws.get(name), dc.get(name)
+        cells = [name]
+        if w:
+            t, lat = w["tracking_deg"], w["latency_ms"]
+            cells += [str(w["holds_per_min"]), f"{t['p50']} / {t['p95']}", f"{lat['p50']} / {lat['p99']}"]
+        else:
+            cells += ["-", "-", "-"]
+        if d:
+            t, lat = d["tracking_deg"], d["latency_ms"]
+            cells += [f"{d['holds_per_min']}/min, {t['p50']} / {t['p95']} deg, {lat['p50']} / {lat['p99']} ms",
+                      f"{d['head_arrival']:.0%}"]
+        else:
+            cells += ["-", "-"]
+        cells.append(f"{w['video_fps'] if w else '-'} / {d['video_fps'] if d else '-'}")
+        cells += [f"{_ratio(w, ws.get('lan'), 'tracking_deg', 'p95', 2)} / "
+                  f"{_ratio(d, dc.get('lan'), 'tracking_deg', 'p95', 2)}",
+                  f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / "
+                  f"{_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}"]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -91,8 +125,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="the first 60 s of the session instead of 5 minutes")
     parser.add_argument("--profiles", nargs="+", default=profiles, choices=profiles)
-    parser.add_argument("--camera-fps", type=float, default=5.0, help="the stand-in's camera rate (nobody watches "
-                        "it here; video belongs to the WebRTC path)")
+    parser.add_argument("--camera-fps", type=float, default=30.0, help="the stand-in's camera rate (rendered only "
+                        "while watched: on the data-channel run, whose peer receives it as video)")
+    parser.add_argument("--paths", nargs="+", default=["websocket", "datachannel"],
+                        choices=["websocket", "datachannel"], help="which roads the poses take (each its own run)")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args()
     why = available()
@@ -108,11 +144,13 @@ def main() -> int:
         steps = [s for s in steps if s.t < 60.0]
     rows = []
     for name in args.profiles:
-        row = run_profile(name, steps, args.camera_fps)
-        rows.append(row)
-        print(f"{name}: {json.dumps(row)}", flush=True)
+        for path in args.paths:
+            row = run_profile(name, steps, args.camera_fps, channel=path == "datachannel")
+            rows.append(row)
+            print(f"{name} {path}: {json.dumps(row)}", flush=True)
     print()
-    print(f"WebSocket path, {'first 60 s of ' if args.quick else ''}the classroom session, per profile:")
+    print(f"{'First 60 s of the' if args.quick else 'The'} classroom session, per profile, WebSocket path and data "
+          "channel (DC):")
     print(table(rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")

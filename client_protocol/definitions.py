@@ -174,13 +174,17 @@ MESSAGES: dict[str, str] = {
         "# which the robot holds, and watchdog_holds, the holds in the last minute (-1 and 0 otherwise).\n"
         "# link_quality: good, degraded or poor ('' while nothing is measured); link_warning: why, in words\n"
         "# (README 'Link quality').\n"
+        "# dc_*: the poses data channel (cumulative): messages received, refused (not a publish frame, not an\n"
+        "# operator stream topic, control not held, or refused as a WebSocket publish would be), dropped as stale\n"
+        "# (stamped before the newest taken on their topic), and the newest refusal's reason.\n"
         "string client\nstring role\nfloat64 ws_rtt\nfloat64 pose_rate\nfloat64 pose_age\n"
         "uint32 camera_frames_sent\nuint32 camera_frames_dropped\nfloat64 camera_frame_age\nbool webrtc\n"
         "string video_codec\nstring rtc_state\nfloat64 rtc_rtt\nfloat64 rtc_jitter\nuint32 rtc_packets_lost\n"
         "float64 rtc_fraction_lost\nfloat64 rtc_bitrate\nfloat64 rtc_target_bitrate\nuint32 rtc_frames_sent\n"
         "uint32 rtp_timestamp\nfloat64 rtp_render_time\nuint32 rtp_clock_rate\nuint32[] frame_rtp_timestamps\n"
         "float64[] frame_render_times\nfloat32 operator_voice_level\nfloat64 pose_jitter\n"
-        "float64 watchdog_threshold\nuint32 watchdog_holds\nstring link_quality\nstring link_warning"
+        "float64 watchdog_threshold\nuint32 watchdog_holds\nstring link_quality\nstring link_warning\n"
+        "uint32 dc_received\nuint32 dc_refused\nuint32 dc_stale_dropped\nstring dc_last_refusal"
     ),
     "vr_teleop_msgs/Telemetry": (
         "# Every client's link, on /vr_teleop/telemetry at 2 Hz\nHeader header\nClientTelemetry[] clients"

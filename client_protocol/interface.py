@@ -213,7 +213,10 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "what its microphone hears) and your microphone in (Opus: played on the robot and logged, for an "
              "operator or supervisor). One peer connection per rosbridge connection, closed with it. Same access "
              "as the camera topic. Refusals: success false and the reason in message (malformed SDP, no common "
-             "codec, no camera access, a second offer on this connection).",
+             "codec, no camera access, a second offer on this connection). A data channel labelled 'poses' "
+             "(ordered false, maxRetransmits 0) carries the holder's /vr/* pose and Joy publish frames (README, "
+             "Media); with one in the offer, a media section without a common codec is answered rejected (port 0, "
+             "success true, the reason in message) instead of refusing the offer.",
              example={"sdp": "v=0\r\no=- 1 1 IN IP4 0.0.0.0\r\ns=-\r\nt=0 0\r\n"
                              "m=video 9 UDP/TLS/RTP/SAVPF 96\r\na=rtpmap:96 VP8/90000\r\na=recvonly\r\n",
                       "type": "offer"}),
@@ -224,7 +227,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
     Endpoint(names.TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", "subscribe",
              "Every client's link: WebSocket round trip, pose rate and age, camera frames sent and dropped and "
              "their age at send, and for a peer connection its RTT, jitter, loss, bitrate, frames sent and each "
-             "video frame's render time by RTP timestamp (see the type's comments).", "2 Hz",
+             "video frame's render time by RTP timestamp, the poses data channel's counts, and the link's quality for "
+             "teleoperation with the reasons (see the type's comments).", "2 Hz",
              {"header": _stamp(), "clients": [{
                  "client": "/rosbridge_websocket/client_3", "role": "operator", "ws_rtt": 0.0021,
                  "pose_rate": 90.0, "pose_age": 0.011, "camera_frames_sent": 912, "camera_frames_dropped": 3,
@@ -233,7 +237,9 @@ ENDPOINTS: tuple[Endpoint, ...] = (
                  "rtc_bitrate": 840000.0, "rtc_target_bitrate": 900000.0, "rtc_frames_sent": 905,
                  "rtp_timestamp": 1772474006, "rtp_render_time": 1700000000.27, "rtp_clock_rate": 90000,
                  "frame_rtp_timestamps": [1772471006, 1772474006],
-                 "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42}]}),
+                 "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42,
+                 "pose_jitter": 0.004, "watchdog_threshold": 0.2, "watchdog_holds": 0, "link_quality": "good",
+                 "link_warning": "", "dc_received": 8100, "dc_refused": 0, "dc_stale_dropped": 12, "dc_last_refusal": ""}]}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint(names.HEAD_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

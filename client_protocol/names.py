@@ -111,3 +111,5 @@ def all_names() -> dict[str, str]:
 MEDIA_OFFER_SERVICE = "/vr_teleop/media/offer"
 CLOCK_SERVICE = "/vr_teleop/clock"
 TELEMETRY_TOPIC = "/vr_teleop/telemetry"
+# The data channel the operator's poses and Joy take beside the media (label; ordered false, maxRetransmits 0)
+POSES_CHANNEL = "poses"

@@ -109,12 +109,73 @@ class Tone(MediaStreamTrack):
         return frame
 
 
+class PoseSender:
+    """The sending end of the poses data channel: never queues poses behind the channel. Each topic keeps only its
+    newest frame until the channel can take it (`bufferedAmount` at most the low threshold), so a congested
+    channel sends fewer, fresher poses instead of a growing backlog of stale ones. The threshold is 0 here: aiortc
+    lowers bufferedAmount, and says so, on this loop as soon as SCTP takes a message, and anything buffered waits for
+    the congestion window (measured on continent: a budget of one frame's poses raised the latency p50 by a third).
+    The page's is one frame's poses (pose_channel.js): a browser's events come from its network thread, a task
+    later each, and with 0 the page could send about one pose per event instead of a frame's. The head pose
+    (what the watchdog times and the camera follows) may take every other send; the other topics share the rest,
+    the one that has waited longest first. The operator page's sender (web/operator/pose_channel.js) does the same."""
+
+    HEAD = "/vr/head/pose"
+
+    def __init__(self, channel: Any) -> None:
+        self.channel = channel
+        channel.bufferedAmountLowThreshold = 0
+        self._pending: dict[str, str] = {}
+        self.sent = 0
+        self.replaced = 0  # frames overtaken by a newer one of their topic before the channel could take them
+        self.sent_at: dict[str, list[tuple[float, str]]] = {}  # with `keep_sent`: topic -> (send time, frame)
+        self.keep_sent = False
+        self._head_last = False  # the last frame sent was a head pose
+        channel.on("bufferedamountlow", self._pump)
+
+    @property
+    def open(self) -> bool:
+        return self.channel.readyState == "open"
+
+    def send(self, topic: str, msg: dict[str, Any]) -> None:
+        if topic in self._pending:
+            self.replaced += 1
+        self._pending[topic] = json.dumps({"op": "publish", "topic": topic, "msg": msg})
+        self._pump()
+
+    def send_raw(self, data: str | bytes) -> None:
+        """Anything at all, at once (bad-input tests)."""
+        self.channel.send(data)
+
+    def _pump(self) -> None:
+        while self._pending and self.open and self.channel.bufferedAmount <= self.channel.bufferedAmountLowThreshold:
+            others = (t for t in self._pending if t != self.HEAD)
+            topic = self.HEAD if self.HEAD in self._pending and not self._head_last else next(others, self.HEAD)
+            self._head_last = topic == self.HEAD
+            frame = self._pending.pop(topic)
+            self.channel.send(frame)
+            self.sent += 1
+            if self.keep_sent:
+                self.sent_at.setdefault(topic, []).append((time.monotonic(), frame))
+
+    async def wait_open(self, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        while not self.open:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the poses channel did not open (state {self.channel.readyState})")
+            await asyncio.sleep(0.02)
+
+
 class MediaPeer:
-    """An aiortc peer that receives the robot's video and audio and may send a microphone track."""
+    """An aiortc peer that receives the robot's video and audio, may send a microphone track, and with `poses`
+    opens the poses data channel (unordered, no retransmissions) before the offer, as the operator page does."""
 
     def __init__(self, video: bool = True, audio: bool = True, mic: MediaStreamTrack | None = None,
-                 video_codec: str | None = None) -> None:
+                 video_codec: str | None = None, poses: bool = False) -> None:
         self.pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+        self.poses: PoseSender | None = None
+        if poses:
+            self.poses = PoseSender(self.pc.createDataChannel("poses", ordered=False, maxRetransmits=0))
         self.frames: list[tuple[float, Any]] = []  # (monotonic receive time, av.VideoFrame)
         self.audio_frames: list[tuple[float, np.ndarray]] = []
         self.keep_frames = 5
@@ -160,9 +221,13 @@ class MediaPeer:
                                                           "type": self.pc.localDescription.type})
         values = reply.get("values")
         if reply.get("op") == "service_response" and reply.get("result") and values["success"]:
-            await self.pc.setRemoteDescription(RTCSessionDescription(values["sdp"], values["type"]))
-            self._watch_rtp()
+            await self.accept(values)
         return reply
+
+    async def accept(self, values: dict[str, Any]) -> None:
+        """Takes the server's answer (a successful /vr_teleop/media/offer response's values)."""
+        await self.pc.setRemoteDescription(RTCSessionDescription(values["sdp"], values["type"]))
+        self._watch_rtp()
 
     def _watch_rtp(self) -> None:
         """aiortc's decoded frames count pts from the first frame's RTP timestamp: keep that timestamp, so that
@@ -246,3 +311,51 @@ class LinkShaper:
 
     def close(self) -> None:
         self.task.cancel()
+
+
+class ChannelRoad:
+    """The poses data channel as `vr-teleop replay`'s road (tools/replay.py PoseRoad): a peer connection offered
+    over the replay's own rosbridge connection, with the channel and, with `video`, the camera (counted, not
+    decoded: a viewer whose decoding is not this machine's business). With `carry` False the channel is opened but
+    nothing is sent on it: the poses stay on the WebSocket beside the same media (a baseline with the same load)."""
+
+    def __init__(self, video: bool = False, carry: bool = True) -> None:
+        self.video = video
+        self.carry = carry
+        self.peer: MediaPeer | None = None  # made in open(), on the replay's loop and in its thread's namespace
+        self.video_frames: list[tuple[float, int]] = []  # (monotonic time, frames so far) at open and close
+
+    async def open(self, call: Any) -> None:
+        self.peer = MediaPeer(video=self.video, audio=False, poses=True)
+        self.peer.light = True
+        pc = self.peer.pc
+        await pc.setLocalDescription(await pc.createOffer())
+        values = await call("/vr_teleop/media/offer", {"sdp": pc.localDescription.sdp, "type": "offer"})
+        if not values.get("success"):
+            raise RuntimeError(f"the server refused the offer: {values.get('message')}")
+        await self.peer.accept(values)
+        await self.peer.poses.wait_open()
+        self.video_frames.append((time.monotonic(), self.peer.video_count))
+
+    @property
+    def sender(self) -> PoseSender:
+        assert self.peer is not None and self.peer.poses is not None
+        return self.peer.poses
+
+    def send(self, topic: str, msg: dict[str, Any]) -> bool:
+        if not self.carry or not self.sender.open:
+            return False
+        self.sender.send(topic, msg)
+        return True
+
+    @property
+    def video_fps(self) -> float | None:
+        if len(self.video_frames) < 2:
+            return None
+        (t0, n0), (t1, n1) = self.video_frames[0], self.video_frames[-1]
+        return (n1 - n0) / max(t1 - t0, 1e-9)
+
+    async def close(self) -> None:
+        if self.peer is not None:
+            self.video_frames.append((time.monotonic(), self.peer.video_count))
+            await self.peer.close()

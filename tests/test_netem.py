@@ -438,3 +438,41 @@ def test_a_link_down_for_2_s_holds_within_the_ceiling_and_resumes_only_on_fresh_
     print(f"link down at +0, held {held_at - cut['down']:.3f} s later ({held_at - last_before:.3f} s after the last "
           f"head command; threshold {hold['detail']['threshold_s']} s), link up at +{cut['up'] - cut['down']:.2f} s, "
           f"resumed at +{resumed_at - cut['down']:.2f} s on a pose {resume['detail']['pose_made_age_s']} s old")
+
+
+@needs_netns
+def test_on_continent_poses_over_the_data_channel_never_hold_and_the_robot_follows(tmp_path) -> None:
+    from media_client import ChannelRoad
+    from vr_teleop_server.teleop import TeleopSettings
+    from wan_support import Observer, intent_errors, pose_latencies, replay_in, serve
+
+    steps = _head_session(tmp_path, 30.0)
+    road = ChannelRoad()
+    with Emulator("continent") as net:
+        url = serve(net, "--camera-fps", "5")
+        observer = Observer(net, url, poses=True)
+        got, elapsed = replay_in(net, steps, url, road=road)
+        seen = observer.stop()
+    assert _leftovers(net) == []
+    kinds = seen.kinds()
+    assert "engage" in kinds and len(seen.head) > 500, kinds
+    engaged_at = next(t for t, e in seen.events if e["kind"] == "engage")
+    last_sent = got.sent_head[-1][0]
+    streams = sum(1 for s in steps if s.kind == "publish" and s.topic.startswith("/vr/"))
+    assert got.by_road > 0.8 * streams, (got.by_road, streams)  # after engaging, everything took the channel
+    holds = [e for t, e in seen.events if e["kind"] == "watchdog_stalled" and engaged_at <= t <= last_sent]
+    sender = road.sender
+    head_sent = sum(1 for t, i in got.sent_head if t > engaged_at)
+    head_arrived = sum(1 for t, _s in seen.poses if t > engaged_at)
+    latency = pose_latencies(steps, got, seen)
+    errors = intent_errors(steps, got, seen)
+    p50, p95 = np.percentile(errors, [50, 95])
+    print(f"continent, data channel: {len(holds)} holds in {steps[-1].t:.0f} s; head poses arrived "
+          f"{head_arrived}/{head_sent} ({head_arrived / max(head_sent, 1):.0%}); channel frames sent {sender.sent}, "
+          f"replaced before sending {sender.replaced}; pose-to-command p50 {np.percentile(latency, 50) * 1e3:.0f} "
+          f"p99 {np.percentile(latency, 99) * 1e3:.0f} ms; head error against intent p50 {p50:.2f} p95 {p95:.2f} deg")
+    assert holds == [], holds
+    _check_no_jump(seen, TeleopSettings())
+    assert errors.size > 30 * 30
+    assert p50 < 10.0, (p50, p95)
+    assert errors[-1] < 1.0, errors[-20:]

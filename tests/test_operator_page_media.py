@@ -24,7 +24,8 @@ from test_operator_page import iwer  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.timeout(300)
 
-# Chromium offers only codecs the server cannot send (VP9, AV1): the server refuses the offer, for real.
+# Chromium offers only codecs the server cannot send (VP9, AV1): the server rejects the video section, for real
+# (the offer's poses data channel and audio are answered: the connection stays up for them).
 NO_COMMON_CODEC = """(() => {
   const add = RTCPeerConnection.prototype.addTransceiver;
   RTCPeerConnection.prototype.addTransceiver = function (kind, init) {
@@ -138,7 +139,9 @@ def test_a_refused_offer_falls_back_to_the_jpeg_topic_and_says_so(browser, iwer,
         page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)  # JPEG frames on the panel
         page.wait_for_function("/camera frame \\d+ ms old \\(JPEG\\)/.test("
                                "(document.getElementById('hud-numbers')?.textContent ?? ''))", timeout=SLOW)
-        assert peers(media_server) == 0
+        # Issue 21: the peer connection stays for the poses channel (before, the whole offer was refused).
+        assert peers(media_server) == 1
+        page.wait_for_function("window.operator.poses.open", timeout=SLOW)
         assert page.errors == []
     finally:
         close_page(page)
@@ -343,3 +346,59 @@ console.log(JSON.stringify(out));
     assert out["theirs"] is None  # another peer's frames are not ours
     assert abs(out["estimate"] - (100.0 + 1 / 30)) < 1e-9
     assert out["modes"] == ["jpeg", "webrtc", "webrtc"]
+
+
+def _counts(server: RunningServer) -> tuple[int, int, int]:
+    """(poses received on the holder's data channel, refused there, frames the holder's WebSocket carried: the
+    session's frames_in counts the channel's messages it was handed too)."""
+    def read() -> tuple[int, int, int]:
+        app = server.server
+        holder = app.control.holder
+        session = next(s for s in app.sessions.values() if s.operator == holder)
+        peer = app.media.peers.get(session.name)
+        counts = peer.poses.counts if peer is not None and peer.poses is not None else None
+        received, refused = (counts.received, counts.refused) if counts else (0, 0)
+        return received, refused, session.counters["frames_in"] - (received - refused)
+    return server.call(read)
+
+
+def test_poses_take_the_data_channel_when_webrtc_is_up_and_rosbridge_when_not(browser, iwer, media_server):  # noqa: F811
+    standin = media_server.server.robot.standin
+    page = open_page(browser, media_server, headset=iwer, camera="webrtc")
+    try:
+        enter_vr(page)
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.poses.open",
+                               timeout=SLOW)
+        take_control(page)  # engaging takes poses over rosbridge: the channel carries the holder's only
+        set_head(page, 25.0)
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 25.0, 2.0), standin.joint_positions()
+        channel0, refused0, websocket0 = _counts(media_server)
+        frames(page, 60)
+        channel1, refused1, websocket1 = _counts(media_server)
+        # Head, both controllers and Joy every frame on the channel; the WebSocket carries a few calls at most.
+        assert channel1 - channel0 >= 120, (channel0, channel1)
+        assert websocket1 - websocket0 < (channel1 - channel0) / 10, (websocket0, websocket1, channel0, channel1)
+        assert refused1 == refused0 == 0
+        set_head(page, -20.0)  # and the robot follows what came over the channel
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], -20.0, 2.0), standin.joint_positions()
+        assert page.evaluate("window.operator.poses.sent") >= channel1
+        assert page.errors == []
+    finally:
+        close_page(page)
+    assert wait_for(lambda: peers(media_server) == 0, 10)
+    assert wait_for(lambda: media_server.server.control.holder is None, 10)
+    page = open_page(browser, media_server, headset=iwer, camera="jpeg")
+    try:
+        enter_vr(page)
+        take_control(page)
+        set_head(page, 15.0)
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 15.0, 2.0), standin.joint_positions()
+        channel0, _, websocket0 = _counts(media_server)
+        frames(page, 60)
+        channel1, _, websocket1 = _counts(media_server)
+        assert peers(media_server) == 0 and channel1 == channel0 == 0
+        assert websocket1 - websocket0 >= 120, (websocket0, websocket1)  # the poses took rosbridge
+        assert not page.evaluate("window.operator.poses.open")
+        assert page.errors == []
+    finally:
+        close_page(page)

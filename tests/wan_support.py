@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from netem import Emulator
-from vr_teleop_server.tools.replay import Collected, Step, expected_commands, run_replay
+from vr_teleop_server.tools.replay import Collected, PoseRoad, Step, expected_commands, run_replay
 
 PORT = 9090  # the namespace is ours alone: a fixed port is free
 HEAD_COMMAND = "/qt_robot/head_position/command"
@@ -152,9 +152,13 @@ async def _observe(url: str, poses: bool) -> None:
         out.flush()
 
 
-def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0) -> tuple[Collected, float]:
-    """The replay client inside the client namespace: every pose and call goes through the impaired link."""
-    return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False)))
+def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0,
+              road: PoseRoad | None = None) -> tuple[Collected, float]:
+    """The replay client inside the client namespace: every pose and call goes through the impaired link. With a
+    road (media_client.ChannelRoad), the operator's streams take the poses data channel once it holds control;
+    the road's peer connection is made inside the namespace too (its sockets are the thread's)."""
+    return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False,
+                                                               road=road)))
 
 
 def intent_errors(steps: list[Step], got: Collected, seen: Observed, rate_hz: float = 30.0) -> np.ndarray:

@@ -95,6 +95,11 @@ class TeleopServer:
         return {"connection": owner, "role": role, "operator": operator,
                 "holding": bool(operator) and holder == operator}
 
+    def _holds_control(self, owner: str) -> bool:
+        """Whether this connection's operator holds explicit control (the poses data channel's rule)."""
+        return self.control is not None and self.control.holder is not None \
+            and self.control.holder == self._operator(owner)
+
     def _operator_online(self, operator: str, gone: str) -> bool:
         return any(name != gone and not session.closed and session.operator == operator
                    for name, session in self.sessions.items())
@@ -204,7 +209,7 @@ class TeleopServer:
         self.media = MediaService(self.bus, self.robot, self.access, lambda: self.sessions,
                                   camera_fps=self.settings.camera_fps, render_line=render_line,
                                   bystander_interval=self.settings.bystander_interval,
-                                  ice_servers=list(self.settings.ice_servers),
+                                  ice_servers=list(self.settings.ice_servers), holds_control=self._holds_control,
                                   control=lambda connection: self.control.link_view(connection)
                                   if self.control is not None else None)
         self._start(self.media)

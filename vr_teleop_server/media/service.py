@@ -7,6 +7,9 @@ connection belongs to the calling session and is closed when that WebSocket clos
 when ICE or DTLS fail (a peer that vanished: aioice's consent checks notice within about 30 s). Every refusal is
 answered inside the response (success false, message naming the problem and the fix).
 
+A "poses" data channel in the offer carries the operator's poses and Joy into the client's own session (poses.py);
+an offer with one is not refused for a media section without a common codec: that section alone is rejected.
+
 Access is the camera topic's: a client that may not subscribe to the head camera gets no media. An operator's or
 supervisor's microphone is played on the robot and logged; a spectator's is ignored.
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Mapping
@@ -23,6 +27,7 @@ from typing import Any
 
 from aiortc import RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
 from aiortc import sdp as aiortc_sdp
+from aiortc.rtcrtpsender import RTCRtpSender
 from aiortc.exceptions import InvalidStateError, OperationError
 
 from client_protocol import names
@@ -33,6 +38,7 @@ from ..robot.interface import Robot
 from . import link_quality
 from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
+from .poses import PoseChannel
 from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, VideoHub
 
 log = logging.getLogger(__name__)
@@ -50,6 +56,7 @@ class Peer:
     video: CameraTrack | None = None
     audio: RobotAudioTrack | None = None
     voice: OperatorVoice | None = None
+    poses: PoseChannel | None = None
     closing: bool = False
     # from the newest stats
     bytes_sent: int = 0
@@ -92,8 +99,10 @@ class MediaService:
                  sessions: Callable[[], Mapping[str, SessionView]], *, camera_fps: float = 30.0,
                  render_line: Callable[[str], Awaitable[Rendered]] | None = None, bystander_interval: float = 0.0,
                  ice_servers: list[str] | None = None,
+                 holds_control: Callable[[str], bool] = lambda _name: False,
                  control: Callable[[str], link_quality.ControlLink | None] = lambda connection: None) -> None:
         self.bus = bus
+        self.holds_control = holds_control  # a session's name -> whether its operator holds control (poses channel)
         self.robot = robot
         self.access = access
         self.sessions = sessions
@@ -180,16 +189,20 @@ class MediaService:
             offer = aiortc_sdp.SessionDescription.parse(request.sdp)
         except Exception as exc:
             return self._refuse(f"malformed SDP: {type(exc).__name__}: {exc}")
-        kinds = [m.kind for m in offer.media if m.kind in ("audio", "video")]
+        kinds = [m.kind for m in offer.media if m.kind in ("audio", "video", "application")]
         if not kinds:
-            return self._refuse("the offer has no audio or video section; add a transceiver (video recvonly for the "
-                                "camera, audio sendrecv for the voice) before createOffer")
+            return self._refuse("the offer has no audio, video or data channel section; add a transceiver (video "
+                                "recvonly for the camera, audio sendrecv for the voice) or a data channel "
+                                f"({names.POSES_CHANNEL!r}) before createOffer")
+        sdp, rejected = request.sdp, []
+        if "application" in kinds:  # a media section without a common codec must not cost the poses channel
+            sdp, rejected = _without_unusable_media(request.sdp, offer)
         config = RTCConfiguration(iceServers=[RTCIceServer(url) for url in self.ice_servers])
         pc = RTCPeerConnection(config)
         peer = self.peers[caller] = Peer(caller, pc)  # reserved before any await: a concurrent offer is refused
         self.peers_created += 1
         try:
-            answer = await self._negotiate(peer, session, request.sdp, offer)
+            answer = await self._negotiate(peer, session, sdp, offer)
         except _Refusal as exc:
             await self._close_peer(caller)
             return self._refuse(str(exc))
@@ -200,7 +213,14 @@ class MediaService:
         if caller not in self.peers or peer.closing:  # the client left while we negotiated
             return self._refuse("the connection closed during negotiation")
         log.info("%s: peer connection negotiated (video %s)", caller, peer.video.codec if peer.video else "none")
-        return {"success": True, "message": "", "sdp": answer.sdp, "type": answer.type}
+        message = ""
+        answer_sdp = answer.sdp
+        if rejected:
+            answer_sdp = _with_rejected_media(answer_sdp, rejected)
+            message = (f"{_no_common_codec(offer, [r.kind for r in rejected])}: "
+                       f"{' and '.join(r.kind for r in rejected)} rejected (answered with port 0; take the camera "
+                       f"from its JPEG topic); the {names.POSES_CHANNEL!r} data channel and the rest are up")
+        return {"success": True, "message": message, "sdp": answer_sdp, "type": answer.type}
 
     async def _negotiate(self, peer: Peer, session: SessionView, sdp: str,
                          offer: aiortc_sdp.SessionDescription) -> RTCSessionDescription:
@@ -211,6 +231,13 @@ class MediaService:
         def on_track(track: Any) -> None:
             if track.kind == "audio" and peer.voice is None:
                 peer.voice = OperatorVoice(self.bus, self.robot, peer.owner, track, may_speak)
+
+        @pc.on("datachannel")
+        def on_datachannel(channel: Any) -> None:
+            if peer.poses is None:
+                peer.poses = PoseChannel(session, self.holds_control)
+            channel.on("message", lambda message, poses=peer.poses, label=channel.label:
+                       poses.on_message(message, label))
 
         @pc.on("connectionstatechange")
         async def on_state() -> None:
@@ -398,7 +425,8 @@ class MediaService:
             "webrtc": peer is not None, "video_codec": "", "rtc_state": "", "rtc_rtt": -1.0, "rtc_jitter": -1.0,
             "rtc_packets_lost": 0, "rtc_fraction_lost": 0.0, "rtc_bitrate": -1.0, "rtc_target_bitrate": -1.0,
             "rtc_frames_sent": 0, "rtp_timestamp": 0, "rtp_render_time": 0.0, "rtp_clock_rate": 0,
-            "frame_rtp_timestamps": [], "frame_render_times": [], "operator_voice_level": 0.0}
+            "frame_rtp_timestamps": [], "frame_render_times": [], "operator_voice_level": 0.0,
+            "dc_received": 0, "dc_refused": 0, "dc_stale_dropped": 0, "dc_last_refusal": ""}
         if peer is not None:
             entry.update(rtc_state=peer.pc.connectionState, rtc_rtt=peer.rtt, rtc_jitter=peer.jitter,
                          rtc_packets_lost=peer.packets_lost, rtc_fraction_lost=peer.fraction_lost,
@@ -419,6 +447,10 @@ class MediaService:
                     entry.update(rtp_timestamp=newest[0][0], rtp_render_time=newest[0][1],
                                  rtp_clock_rate=VIDEO_CLOCK_RATE, frame_rtp_timestamps=[r for r, _ in recent],
                                  frame_render_times=[t for _, t in recent])
+            if peer.poses is not None:
+                counts = peer.poses.counts
+                entry.update(dc_received=counts.received % 2**32, dc_refused=counts.refused % 2**32,
+                             dc_stale_dropped=counts.stale_dropped % 2**32, dc_last_refusal=counts.last_refusal)
             if peer.voice is not None and peer.voice.task is not None and not peer.voice.task.done():
                 entry["operator_voice_level"] = (self.robot.voice_level if peer.voice.may_speak
                                                  and self.robot is not None else peer.voice.level)
@@ -439,13 +471,65 @@ class _Refusal(Exception):
     """A negotiation refused for a reason the client can fix; the text goes into the response."""
 
 
-def _no_common_codec(offer: aiortc_sdp.SessionDescription) -> str:
+def _no_common_codec(offer: aiortc_sdp.SessionDescription, kinds: list[str] | None = None) -> str:
     parts = []
     for media in offer.media:
-        names = sorted({c.name for c in media.rtp.codecs if c.name.lower() not in ("rtx", "red", "ulpfec")})
-        parts.append(f"{media.kind}: {', '.join(names) or 'none'}")
+        if media.kind not in (kinds or ("audio", "video")):
+            continue
+        codecs = sorted({c.name for c in media.rtp.codecs if c.name.lower() not in ("rtx", "red", "ulpfec")})
+        parts.append(f"{media.kind}: {', '.join(codecs) or 'none'}")
     return (f"no common codec: the offer has {'; '.join(parts)}; this server sends video as VP8 or H264 and audio "
             "as Opus (or PCMU/PCMA), and takes Opus from the client")
+
+
+@dataclass(frozen=True)
+class _Rejected:
+    """An offered media section answered with port 0 (RFC 3264): where it was, and its answer line."""
+
+    index: int
+    kind: str
+    section: str
+
+
+def _media_sections(sdp: str) -> list[str]:
+    """The session part, then each media section, as text (each m= line starts one)."""
+    return re.split(r"(?=^m=)", sdp, flags=re.M)
+
+
+def _without_unusable_media(sdp: str, offer: aiortc_sdp.SessionDescription) -> tuple[str, list[_Rejected]]:
+    """The offer without its audio/video sections that share no codec with this server (aiortc refuses a whole
+    offer for one), out of the BUNDLE group too; and what to answer for each."""
+    sections = _media_sections(sdp)
+    if len(sections) != len(offer.media) + 1:
+        return sdp, []
+    rejected = []
+    for index, media in enumerate(offer.media):
+        if media.kind not in ("audio", "video"):
+            continue
+        ours = {(c.mimeType.split("/")[1].lower(), c.clockRate)
+                for c in RTCRtpSender.getCapabilities(media.kind).codecs}
+        if any((c.name.lower(), c.clockRate) in ours for c in media.rtp.codecs
+               if c.name.lower() not in ("rtx", "red", "ulpfec")):
+            continue
+        m_line = sections[index + 1].splitlines()[0].split()
+        rejected.append(_Rejected(index, media.kind, " ".join([m_line[0], "0", *m_line[2:]]) + "\r\n"
+                                  "c=IN IP4 0.0.0.0\r\na=inactive\r\n" f"a=mid:{media.rtp.muxId}\r\n"))
+    if not rejected:
+        return sdp, []
+    mids = {offer.media[r.index].rtp.muxId for r in rejected}
+    gone = {r.index + 1 for r in rejected}
+    head = re.sub(r"^(a=group:BUNDLE)(.*)$",
+                  lambda m: m.group(1) + "".join(f" {x}" for x in m.group(2).split() if x not in mids),
+                  sections[0], flags=re.M)
+    return head + "".join(s for i, s in enumerate(sections) if i and i not in gone), rejected
+
+
+def _with_rejected_media(answer: str, rejected: list[_Rejected]) -> str:
+    """The answer with each rejected section put back where the offer had it (an answer keeps the offer's order)."""
+    sections = _media_sections(answer)
+    for r in sorted(rejected, key=lambda r: r.index):
+        sections.insert(r.index + 1, r.section)
+    return "".join(sections)
 
 
 def _stamp(t: float) -> dict[str, int]:

@@ -11,6 +11,8 @@ What is measured, all from what the server sends back:
   the same send times (the server runs the same mapping; differences are timing, or a bug);
 - camera frames received, their rate and their age (receive time minus the frame's stamp);
 - menu selections acknowledged (successful service responses) and errors (status errors, failed calls).
+With a `road` (tests and benches: the poses data channel), the operator's /vr/* streams take it while the replayed
+operator holds control (as the issue-21 channel requires) and the WebSocket otherwise.
 The plot shows, per joint, the commanded angles against the measured ones (/qt_robot/joints/state).
 """
 
@@ -21,9 +23,10 @@ import json
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from tqdm import tqdm
@@ -94,6 +97,18 @@ def _current_frame_id(msg: Any) -> Any:
     return msg
 
 
+class PoseRoad(Protocol):
+    """Another way for the operator's streams than the WebSocket, opened on the replay's connection (`call` makes
+    a service call over it and returns the response's values)."""
+
+    async def open(self, call: Callable[[str, dict[str, Any]], Awaitable[Any]]) -> None: ...
+
+    def send(self, topic: str, msg: dict[str, Any]) -> bool:
+        """Takes the message (True), or leaves it to the WebSocket (False: this road is not up)."""
+
+    async def close(self) -> None: ...
+
+
 @dataclass
 class Collected:
     sent_head: list[tuple[float, int]] = field(default_factory=list)  # send time, index into steps
@@ -105,6 +120,7 @@ class Collected:
     errors: list[str] = field(default_factory=list)
     last_command: float = 0.0  # when the newest joint command arrived
     started: float = 0.0  # when the first message was sent
+    by_road: int = 0  # operator stream messages handed to the road instead of the WebSocket
     # the server's latched /vr_teleop/menus: selectable id -> (command, args)
     menu_items: dict[str, tuple[str, dict[str, Any]]] = field(default_factory=dict)
 
@@ -139,8 +155,10 @@ async def _receive(ws: Any, got: Collected) -> None:
 
 
 async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = True,
-                     progress: bool = True) -> tuple[Collected, float]:
+                     progress: bool = True, road: PoseRoad | None = None) -> tuple[Collected, float]:
     got = Collected()
+    control: list[tuple[Step, str]] = []  # control calls whose answers are not applied yet, in order sent
+    holding = False
     async with connect(url, max_size=None, compression=None) as ws:
         subscriptions = [*names.COMMAND_TOPIC_PARTS, names.JOINT_STATE_TOPIC] + ([names.CAMERA_TOPIC] if camera else [])
         for topic in subscriptions:  # every command and joint state: a backlog, not the newest only
@@ -150,6 +168,8 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
         for topic in sorted({s.topic for s in steps if s.kind == "publish"} & set(TOPIC_TYPES)):
             await ws.send(json.dumps({"op": "advertise", "topic": topic, "type": TOPIC_TYPES[topic]}))
         receiver = asyncio.create_task(_receive(ws, got))
+        if road is not None:
+            await road.open(lambda service, args: _call(ws, got, service, args))
         await asyncio.sleep(0.3)  # let the subscriptions settle
         loop = asyncio.get_running_loop()
         t0 = loop.time()
@@ -161,12 +181,19 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                 await asyncio.sleep(delay)
             if step.kind == "publish":
                 sent = time.monotonic()
-                await ws.send(json.dumps({"op": "publish", "topic": step.topic, "msg": step.payload}))
+                if road is not None and step.topic.startswith("/vr/"):
+                    holding = _holding(control, got, holding)
+                if holding and road is not None and step.topic.startswith("/vr/") \
+                        and road.send(step.topic, step.payload):
+                    got.by_road += 1
+                else:
+                    await ws.send(json.dumps({"op": "publish", "topic": step.topic, "msg": step.payload}))
                 if step.topic == names.HEAD_POSE_TOPIC:
                     got.sent_head.append((sent, i))
             else:
                 frame = {**step.payload, "id": f"replay:{i}"}
                 got.calls[frame["id"]] = (step.topic, time.monotonic(), frame.get("args") or {})
+                control.append((step, frame["id"]))
                 await ws.send(json.dumps(frame))
             bar.update(1)
         bar.close()
@@ -177,7 +204,31 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                                           or time.monotonic() - got.last_command < QUIET_S):
             await asyncio.sleep(0.05)
         receiver.cancel()
+        if road is not None:
+            await road.close()
     return got, elapsed
+
+
+def _holding(control: list[tuple[Step, str]], got: Collected, holding: bool) -> bool:
+    """Whether the replayed operator holds control, from the answers to its control calls so far (in order)."""
+    while control and control[0][1] in got.responses:
+        step, cid = control.pop(0)
+        action = _control_action(step, got, cid)
+        if action is not None and action[0] in ("engage", "estop"):
+            holding = action == ("engage", True)
+    return holding
+
+
+async def _call(ws: Any, got: Collected, service: str, args: dict[str, Any], timeout: float = 30.0) -> Any:
+    """A service call of the road's (its answer is taken out of got.responses: it is not the session's)."""
+    cid = f"road:{service}:{time.monotonic_ns()}"
+    await ws.send(json.dumps({"op": "call_service", "id": cid, "service": service, "args": args}))
+    deadline = time.monotonic() + timeout
+    while cid not in got.responses:
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"no answer from {service} within {timeout:g} s")
+        await asyncio.sleep(0.01)
+    return got.responses.pop(cid)[1]
 
 
 def _responses(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tuple[

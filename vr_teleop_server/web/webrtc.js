@@ -49,8 +49,10 @@ export function createPeerConnection({video = true, audio = true, iceServers = [
 }
 
 /** Offers pc (after ICE gathering: the server takes no trickled candidates), sets the server's answer and waits
- * until the connection is up. Resolves {video, audio}: whether the server sends each (a server without a camera
- * answers the video section inactive). Throws MediaError; the caller closes pc. */
+ * until the connection is up. Resolves {video, audio, message}: whether the server sends each (a server without a
+ * camera answers the video section inactive) and what it said (why it rejected a section it could not take, e.g.
+ * video without a common codec beside a data channel: the rest of the connection is up). Throws MediaError; the
+ * caller closes pc. */
 export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000} = {}) {
   await pc.setLocalDescription(await pc.createOffer());
   await new Promise((resolve) => {
@@ -85,7 +87,7 @@ export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000} = 
     pc.addEventListener("connectionstatechange", check);
     check();
   });
-  const sends = {video: false, audio: false};
+  const sends = {video: false, audio: false, message: answer.message || ""};
   for (const t of pc.getTransceivers()) {
     const kind = t.receiver.track?.kind;
     if (kind in sends && ["recvonly", "sendrecv"].includes(t.currentDirection)) sends[kind] = true;

@@ -62,6 +62,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
         self.fragments = Reassembly(settings.max_message_size, settings.fragment_timeout, self._fragments_expired)
         self._ids = itertools.count(1)
         self.counters = {"frames_in": 0, "errors": 0, "dropped": 0}
+        self.last_error = ""  # the newest status error's text (the poses data channel reports it)
         self.outbox = Outbox(self.registry, settings.control_queue_bound, wake=self._wake.set, counters=self.counters,
                              ids=self._ids, name=name)
         # Sees every frame but topic messages, in ("in") and out ("out"): (session name, direction, frame).
@@ -200,6 +201,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
     def status(self, level: str, message: str, msg_id: Any = None) -> None:
         if level == "error":
             self.counters["errors"] += 1
+            self.last_error = message
         log.debug("%s status %s (id %r): %s", self.name, level, msg_id, message)
         if LEVELS[level] >= LEVELS[self.level] and level != "none":
             self._send(self._with_id({"op": "status", "level": level, "msg": message}, msg_id))

@@ -254,6 +254,10 @@ export class CameraFeed {
       this.prepare?.(pc);
       const sends = await negotiate(this.ros, pc);
       if (this.pc !== pc || generation !== this.generation) { pc.close(); return; }  // a newer connection's turn
+      if (!sends.video && sends.message) {  // the video section alone was rejected: the rest (prepare's) stays up
+        this.useJpeg(`camera: WebRTC refused (${sends.message}); showing the JPEG topic`, {keepPeer: true});
+        return;
+      }
       if (!sends.video) throw new MediaError("the server sends no video (it has no camera)");
       if (!this.renderTimes) this.renderTimes = new RenderTimes(this.ros);
       if (!this.video) this.video = new VideoCameraSource(this.renderTimes, this.clock);
@@ -281,8 +285,8 @@ export class CameraFeed {
     this.useJpeg(`camera: the WebRTC connection ${pc.connectionState}; showing the JPEG topic`);
   }
 
-  useJpeg(reason) {
-    this.closePeer();
+  useJpeg(reason, {keepPeer = false} = {}) {
+    if (!keepPeer) this.closePeer();
     this.setAudio(false);
     this.video?.dispose();
     this.video = null;

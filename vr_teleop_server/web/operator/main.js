@@ -7,6 +7,7 @@ import * as THREE from "three";
 import {Rosbridge, stampSeconds} from "./rosbridge.js";
 import {poseStamped, joyFromGamepad, joyMessage, sameJoy} from "./ros_axes.js";
 import {CameraFeed} from "./camera.js";
+import {PoseChannel} from "./pose_channel.js";
 import {MenuError, MenuNavigator, TOGGLE_COMMANDS, parseMenus} from "./menus.js";
 import {drawHud, drawMenu} from "./panels.js";
 import {Audio} from "./audio.js";
@@ -98,11 +99,15 @@ const placeholder = canvas(640, 480);
   ctx.textAlign = "center";
   ctx.fillText("waiting for the robot's camera…", 320, 240);
 }
-// WebRTC video (and the robot's audio) when negotiated, else the JPEG topic: camera.js.
-// Its peer connection carries the operator's voice too (audio.js): prepared before each offer.
+// WebRTC video (and the robot's audio) when negotiated, else the JPEG topic: camera.js. The same peer connection
+// carries the operator's voice (audio.js) and the poses data channel (pose_channel.js), both prepared before each offer.
+const poseChannel = new PoseChannel();
 const cameraSource = new CameraFeed(ros, {onMessage: (text, level) => say(text, level), placeholder,
                                           onAudio: (on) => { audio.topicMuted = on; },
-                                          prepare: (pc) => audio.prepare(pc)});
+                                          prepare: (pc) => {
+                                            audio.prepare(pc);
+                                            poseChannel.attach(pc);
+                                          }});
 const panelAnchor = new THREE.Group();
 const panelWidth = 2 * PANEL_DISTANCE * Math.tan(THREE.MathUtils.degToRad(CAMERA_HFOV_DEG / 2));
 const panel = new THREE.Mesh(new THREE.PlaneGeometry(panelWidth, panelWidth),
@@ -399,16 +404,21 @@ function othersHold() {
   return !!(s && s.engaged && s.holder && s.holder !== state.me && !state.engaging);
 }
 
+// The poses data channel while we hold control (the server takes poses there from the holder only), else rosbridge.
+function publishStream(topic, msg) {
+  return (holding() && poseChannel.send(topic, msg)) || ros.publish(topic, msg);
+}
+
 function publishPose(topic, position, orientation) {
   if (othersHold()) return;
-  if (ros.publish(topic, poseStamped(position, orientation))) state.posesSent += 1;
+  if (publishStream(topic, poseStamped(position, orientation))) state.posesSent += 1;
 }
 
 function publishJoy(hand, gamepad, now) {
   const joy = joyFromGamepad(gamepad);
   if (othersHold()) return;
   if (sameJoy(joy, state.joy[hand]) && now - state.joySent[hand] < JOY_KEEPALIVE_MS) return;
-  if (ros.publish(hand === "left" ? TOPICS.leftJoy : TOPICS.rightJoy, joyMessage(joy))) {
+  if (publishStream(hand === "left" ? TOPICS.leftJoy : TOPICS.rightJoy, joyMessage(joy))) {
     state.joy[hand] = joy;
     state.joySent[hand] = now;
   }
@@ -703,6 +713,6 @@ $("estop").addEventListener("click", estop);
 
 // What tests and the bench read (no control goes through here).
 window.operator = {
-  ros, state, nav, camera: cameraSource, audio,
+  ros, state, nav, camera: cameraSource, audio, poses: poseChannel,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };
