@@ -71,6 +71,7 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
         head_sent = sum(1 for t, _i in got.sent_head if t > start)
         head_arrived = sum(1 for t, _s in seen.poses if t > start)
         extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_replaced": road.sender.replaced,
+                 "head_failovers": road.sender.failovers,
                  "head_arrival": round(head_arrived / max(head_sent, 1), 3), **extra}
     return {"profile": name, "path": "datachannel" if channel else "websocket", **extra,
             "session_s": round(steps[-1].t, 1), "holds": len(holds),

@@ -118,12 +118,18 @@ class PoseSender:
     The page's is one frame's poses (pose_channel.js): a browser's events come from its network thread, a task
     later each, and with 0 the page could send about one pose per event instead of a frame's. The head pose
     (what the watchdog times and the camera follows) may take every other send; the other topics share the rest,
-    the one that has waited longest first. The operator page's sender (web/operator/pose_channel.js) does the same."""
+    the one that has waited longest first. A stalled channel (no head pose taken for STALL_S while more is buffered
+than it takes: its congestion window full, waiting out a retransmission timer) hands head poses back to the
+caller for the WebSocket until it takes one again. The operator page's sender (web/operator/pose_channel.js) does
+the same."""
 
     HEAD = "/vr/head/pose"
+    STALL_S = 0.1
 
     def __init__(self, channel: Any) -> None:
         self.channel = channel
+        self.head_taken_at: float | None = None  # when the channel last took a head pose
+        self.failovers = 0  # head poses handed back for the WebSocket: the channel was stalled
         channel.bufferedAmountLowThreshold = 0
         self._pending: dict[str, str] = {}
         self.sent = 0
@@ -137,11 +143,24 @@ class PoseSender:
     def open(self) -> bool:
         return self.channel.readyState == "open"
 
-    def send(self, topic: str, msg: dict[str, Any]) -> None:
+    def send(self, topic: str, msg: dict[str, Any]) -> bool:
+        """Takes the message (True), or hands a head pose back for the WebSocket (False: the channel is stalled)."""
+        if topic == self.HEAD and self.stalled():
+            self._pending.pop(self.HEAD, None)
+            self.failovers += 1
+            return False
         if topic in self._pending:
             self.replaced += 1
         self._pending[topic] = json.dumps({"op": "publish", "topic": topic, "msg": msg})
         self._pump()
+        return True
+
+    def stalled(self) -> bool:
+        now = time.monotonic()
+        if self.head_taken_at is None:
+            self.head_taken_at = now
+        return (now - self.head_taken_at > self.STALL_S
+                and self.channel.bufferedAmount > self.channel.bufferedAmountLowThreshold)
 
     def send_raw(self, data: str | bytes) -> None:
         """Anything at all, at once (bad-input tests)."""
@@ -155,6 +174,8 @@ class PoseSender:
             frame = self._pending.pop(topic)
             self.channel.send(frame)
             self.sent += 1
+            if topic == self.HEAD:
+                self.head_taken_at = time.monotonic()
             if self.keep_sent:
                 self.sent_at.setdefault(topic, []).append((time.monotonic(), frame))
 
@@ -345,8 +366,7 @@ class ChannelRoad:
     def send(self, topic: str, msg: dict[str, Any]) -> bool:
         if not self.carry or not self.sender.open:
             return False
-        self.sender.send(topic, msg)
-        return True
+        return self.sender.send(topic, msg)
 
     @property
     def video_fps(self) -> float | None:

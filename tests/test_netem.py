@@ -469,7 +469,8 @@ def test_on_continent_poses_over_the_data_channel_never_hold_and_the_robot_follo
     p50, p95 = np.percentile(errors, [50, 95])
     print(f"continent, data channel: {len(holds)} holds in {steps[-1].t:.0f} s; head poses arrived "
           f"{head_arrived}/{head_sent} ({head_arrived / max(head_sent, 1):.0%}); channel frames sent {sender.sent}, "
-          f"replaced before sending {sender.replaced}; pose-to-command p50 {np.percentile(latency, 50) * 1e3:.0f} "
+          f"replaced before sending {sender.replaced}, head poses handed to the WebSocket while it stalled "
+          f"{sender.failovers}; pose-to-command p50 {np.percentile(latency, 50) * 1e3:.0f} "
           f"p99 {np.percentile(latency, 99) * 1e3:.0f} ms; head error against intent p50 {p50:.2f} p95 {p95:.2f} deg")
     assert holds == [], holds
     _check_no_jump(seen, TeleopSettings())

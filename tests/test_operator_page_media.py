@@ -348,6 +348,54 @@ console.log(JSON.stringify(out));
     assert out["modes"] == ["jpeg", "webrtc", "webrtc"]
 
 
+def test_a_stalled_pose_channel_hands_the_head_to_rosbridge_under_node(tmp_path):
+    """pose_channel.js with a stand-in channel, run by Node: while the channel takes frames the head goes there;
+    when it has taken no head pose for STALL_MS and still holds more than its budget, send() answers false for
+    head poses (main.js then publishes them over rosbridge) but keeps the other streams; once it drains, the head
+    goes back to the channel."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    module = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web" / "operator" / "pose_channel.js"
+    script = tmp_path / "check.mjs"
+    script.write_text(f"""
+import {{PoseChannel, STALL_MS, BUFFER_BUDGET}} from {json.dumps(str(module))};
+let t = 0;
+const sent = [];
+const channel = {{readyState: "open", bufferedAmount: 0, bufferedAmountLowThreshold: 0, addEventListener() {{}},
+                  send(frame) {{ sent.push(JSON.parse(frame).topic); this.bufferedAmount += frame.length; }}}};
+const pc = {{createDataChannel: () => channel}};
+const poses = new PoseChannel({{now: () => t}});
+poses.attach(pc);
+const head = "/vr/head/pose", left = "/vr/left_controller/pose";
+const out = {{}};
+channel.bufferedAmount = 0;
+out.flowing = poses.send(head, {{n: 1}});                 // taken at once
+channel.bufferedAmount = BUFFER_BUDGET + 1;              // congested from here on: nothing more is taken
+t += STALL_MS / 2;
+out.congested = poses.send(head, {{n: 2}});               // waits in the channel's place: not yet a stall
+t += STALL_MS;
+out.stalled = poses.send(head, {{n: 3}});                 // no head taken for 1.5 x STALL_MS: rosbridge
+out.stalledAgain = poses.send(head, {{n: 4}});
+out.others = poses.send(left, {{n: 5}});                  // the other streams wait for the channel
+channel.bufferedAmount = 0;                              // it drains
+poses.pump();
+out.drained = poses.send(head, {{n: 6}});
+out.sent = sent;
+out.stats = poses.stats();
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["flowing"] and out["congested"] and out["others"] and out["drained"]
+    assert not out["stalled"] and not out["stalledAgain"]
+    # the head before the stall, then (drained) the waiting controller, then the head again; never the stale heads
+    assert out["sent"] == ["/vr/head/pose", "/vr/left_controller/pose", "/vr/head/pose"]
+    assert out["stats"]["failovers"] == 2
+
+
 def _counts(server: RunningServer) -> tuple[int, int, int]:
     """(poses received on the holder's data channel, refused there, frames the holder's WebSocket carried: the
     session's frames_in counts the channel's messages it was handed too)."""

@@ -12,14 +12,23 @@
 // pose per event on loopback; more than two poses per event would let the head, one pose per frame, take a
 // smaller share when the channel is congested. The head pose (what the server's watchdog times and the camera
 // follows) may take every other send; the other topics share the rest, the one waiting longest first.
+//
+// A stalled channel is not a stalled operator: when the channel has taken no head pose for STALL_MS (its
+// congestion window full, waiting out a retransmission timer of a second or more), head poses go over rosbridge
+// (send() answers false) until the channel takes one again. The server merges both roads by stamp (older than
+// the newest taken: dropped), so the watchdog holds only when both roads are stalled.
 
 export const POSES_LABEL = "poses";
 const HEAD = "/vr/head/pose";
 export const BUFFER_BUDGET = 700;   // bytes: about two poses (330 bytes each): the head and one other per event
+export const STALL_MS = 100;        // no head pose taken by the channel for this long: the head goes over rosbridge
 
 export class PoseChannel {
-  constructor() {
+  constructor({now = () => performance.now()} = {}) {
+    this.now = now;
     this.channel = null;
+    this.headTakenAt = null;   // when the channel last took a head pose (null: none on this channel yet)
+    this.failovers = 0;        // head poses sent over rosbridge because the channel was stalled
     this.pending = new Map();  // topic -> frame (text); a Map keeps a key's place when its value is replaced
     this.headLast = false;
     this.sent = 0;             // frames handed to the channel
@@ -37,6 +46,7 @@ export class PoseChannel {
       this.pending.clear();
     });
     this.channel = channel;
+    this.headTakenAt = null;
     this.pending.clear();
   }
 
@@ -47,10 +57,23 @@ export class PoseChannel {
   /** Takes a publish (true) while the channel is open; false: send it over rosbridge instead. */
   send(topic, msg) {
     if (!this.open) return false;
+    if (topic === HEAD && this.stalled()) {  // this head pose over rosbridge, and the one waiting is dropped
+      this.pending.delete(HEAD);
+      this.failovers += 1;
+      return false;
+    }
     if (this.pending.has(topic)) this.replaced += 1;
     this.pending.set(topic, JSON.stringify({op: "publish", topic, msg}));
     this.pump();
     return true;
+  }
+
+  /** The channel has taken no head pose for STALL_MS and still has more buffered than it takes. */
+  stalled() {
+    const now = this.now();
+    this.headTakenAt ??= now;
+    const channel = this.channel;
+    return now - this.headTakenAt > STALL_MS && channel.bufferedAmount > channel.bufferedAmountLowThreshold;
   }
 
   pump() {
@@ -72,10 +95,11 @@ export class PoseChannel {
         return;  // closing: the next frames go over rosbridge
       }
       this.sent += 1;
+      if (topic === HEAD) this.headTakenAt = this.now();
     }
   }
 
   stats() {
-    return {open: this.open, sent: this.sent, replaced: this.replaced};
+    return {open: this.open, sent: this.sent, replaced: this.replaced, failovers: this.failovers};
   }
 }
