@@ -18,6 +18,7 @@ life, and it exits when its socket closes, so it cannot outlive the server.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -120,6 +121,7 @@ class RenderProcess:
 # ---- the worker ----------------------------------------------------------------------------------------------
 def serve(fd: int) -> None:
     """Worker entry point: answer requests until the socket closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the server stops us
     conn = Connection(fd)
     model, width, height, nice = conn.recv()
     os.nice(nice)  # before the GL context: llvmpipe's threads inherit it

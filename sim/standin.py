@@ -541,7 +541,7 @@ class StandIn:
                     self._render_frame(renderer, *state())
         except RenderProcessError as exc:
             self._render_error = exc
-            if self._render_ready.is_set():  # it died while running: the camera closes, the robot goes on
+            if self._render_ready.is_set() and not self._stop.is_set():  # the camera closes, the robot goes on
                 log.error("%s; the head camera is closed (the robot keeps holding and moving as commanded)", exc)
         except BaseException as exc:
             self._render_error = exc
