@@ -10,11 +10,13 @@ Figures:
 - on a 1 Mbit/s bottleneck (LinkShaper, a drop-tail queue on the server's side) with the head sweeping: fps and
   the encoder's bitrate;
 - speech text in to first audio sample (RMS above the floor) out at an aiortc peer, p50;
-- pose round trip p99 with 5 WebRTC viewers against none (the control stream must not suffer: within 1.2x).
+- pose round trip p99 with 5 WebRTC viewers against none (the control stream must not suffer: within 1.2x),
+  over `--rounds` alternating rounds (the machine's load drifts; more rounds, steadier figures).
 
 Servers run as subprocesses (`vr-teleop serve --backend sim`), as in bench/suite.py.
 
-    MUJOCO_GL=egl PYTHONPATH=. python bench/media.py [--seconds S] [--only NAME...]
+    MUJOCO_GL=egl PYTHONPATH=. python bench/media.py [--seconds S] [--rounds N] [--only NAME...]
+    quick look at the control stream: --only control --seconds 5 --rounds 1
 """
 
 from __future__ import annotations
@@ -344,6 +346,7 @@ def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--rounds", type=int, default=2, help="alternating rounds of the control rows")
     parser.add_argument("--only", nargs="+", choices=["glass", "bandwidth", "viewers", "congested", "speech",
                                                        "control"])
     parser.add_argument("--viewers", type=int, help=argparse.SUPPRESS)  # the viewer subprocess
@@ -358,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     parts = {"glass": lambda: glass_rows("640x480", s) + glass_rows("1280x720", s),
              "bandwidth": lambda: bandwidth_rows(s), "viewers": lambda: viewer_rows(s),
              "congested": lambda: congested_rows(s), "speech": lambda: speech_rows(5),
-             "control": lambda: control_rows(s)}
+             "control": lambda: control_rows(s, args.rounds)}
     print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     print(f"| {'figure':<56} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")
     for name in args.only or parts:

@@ -3,9 +3,12 @@
 Three kinds of thread touch it:
 - the physics thread steps MuJoCo at real-time factor 1 and moves each servo's setpoint toward its goal by at
   most max_velocity * dt per step, so no joint outruns its cap whatever the caller sends;
-- the render thread owns the OpenGL context: it draws the face texture, renders the head camera into JPEG
-  (only while someone watches) and serves snapshots; it renders from its own MjData, copied from the physics
-  state under a lock held only for the copy;
+- the render thread decides what to draw and when: the face texture, the head camera as JPEG (only while
+  someone watches), snapshots. The drawing happens in a render process (render_process.py: the OpenGL context,
+  llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
+  delayed by it; the thread sends it the joint state, copied from the physics state under a lock held only for
+  the copy, and waits for the picture. If that process dies, the camera closes (frame waiters and
+  camera-closed listeners are told, snapshots fail with the reason) while the physics goes on: the robot holds;
 - callers (the asyncio loop, tests) only take short locks: every public method returns in microseconds,
   except snapshot() and the wait_* helpers, which block by design and say so.
 """
@@ -21,15 +24,15 @@ from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass
 
-import cv2
 import mujoco
 import numpy as np
 
 from robot_models import RobotModel, load_qtrobot
-from robot_models.mjcf import FACE_TEXTURE, HEAD_CAMERA
+from robot_models.mjcf import HEAD_CAMERA
 from robot_models.types import CameraFrame, MotorMode
 
-from .face import draw_face, normalise_emotion
+from .face import normalise_emotion
+from .render_process import RenderProcess, RenderProcessError
 from .scene import ClassroomScene, build_classroom
 
 log = logging.getLogger(__name__)
@@ -70,6 +73,7 @@ class StandIn:
     Use as a context manager or call close(). Joint names, limits and caps come from `robot`.
     antialias defaults to 0 (no MSAA): without a GPU, 4x MSAA triples the render time (bench/standin.py:
     about 27 ms against 9 ms a 640x480 frame on 2 loaded cores) and costs the 30 fps target.
+    render_nice: how much lower the render process's CPU priority is than this process's (RenderProcess.NICE).
     """
 
     FACE_ANIMATION_HZ = 12.0
@@ -92,6 +96,7 @@ class StandIn:
         shadows: bool = False,
         initial_emotion: str = "neutral",
         ambient_temperature_c: float = 30.0,
+        render_nice: int = RenderProcess.NICE,
     ) -> None:
         self.robot = robot or load_qtrobot()
         cam = self.robot.camera
@@ -103,6 +108,7 @@ class StandIn:
             raise ValueError(f"jpeg_quality must be in 1..100, got {jpeg_quality}")
         self.camera_fps = float(camera_fps)
         self.jpeg_quality = int(jpeg_quality)
+        self.render_nice = int(render_nice)
         self.scene = scene or build_classroom(
             self.robot, shadows=shadows, antialias=antialias,
             offscreen_size=(max(1280, self.camera_width), max(720, self.camera_height)))
@@ -167,14 +173,16 @@ class StandIn:
         self._frame_listeners: list[Callable[[CameraFrame], None]] = []
         self._seq = 0
         self._render_error: BaseException | None = None
+        self._renderer: RenderProcess | None = None
+        self._camera_closed_listeners: list[Callable[[], None]] = []
         self._render_ready = threading.Event()
 
         self._physics_thread = threading.Thread(target=self._physics_loop, name="standin-physics", daemon=True)
         self._render_thread = threading.Thread(target=self._render_loop, name="standin-render", daemon=True)
-        # The renderer starts first: creating a GL context costs a second of CPU that would otherwise make the
-        # physics loop start behind real time.
+        # The renderer starts first: starting its process and a GL context costs a second of CPU that would
+        # otherwise make the physics loop start behind real time.
         self._render_thread.start()
-        if not self._render_ready.wait(30.0) or self._render_error is not None:
+        if not self._render_ready.wait(RenderProcess.START_TIMEOUT_S + 5) or self._render_error is not None:
             self.close()
             raise RuntimeError(f"the stand-in's renderer did not start ({self._render_error!r}); MuJoCo needs "
                                "MUJOCO_GL=egl (or osmesa) and a working libEGL on a headless machine")
@@ -346,6 +354,22 @@ class StandIn:
         with self._frame_cond:
             self._frame_listeners = [c for c in self._frame_listeners if c is not callback]
 
+    def add_camera_closed_listener(self, callback: Callable[[], None]) -> None:
+        """Call `callback()` (from the render thread) once the camera has closed for good: on close(), or when the
+        render process died. Quick and thread-safe, as a frame listener."""
+        with self._frame_cond:
+            self._camera_closed_listeners = [*self._camera_closed_listeners, callback]
+
+    @property
+    def render_error(self) -> BaseException | None:
+        """Why the renderer stopped (its process died, or it did not start), or None while it works."""
+        return self._render_error
+
+    @property
+    def render_pid(self) -> int | None:
+        """The render process's id (for tools and tests), or None before it started."""
+        return None if self._renderer is None else self._renderer.pid
+
     def latest_frame(self) -> CameraFrame | None:
         return self._frame
 
@@ -355,7 +379,7 @@ class StandIn:
         with self._frame_cond:
             while self._frame is None or self._frame.seq <= after_seq:
                 left = deadline - time.monotonic()
-                if left <= 0 or self._stop.is_set():
+                if left <= 0 or self._stop.is_set() or self._render_error is not None:
                     return None
                 self._frame_cond.wait(left)
             return self._frame
@@ -371,13 +395,15 @@ class StandIn:
         with self._render_cond:
             if self._stop.is_set():
                 raise RuntimeError("the stand-in is closed")
+            if self._render_error is not None:
+                raise RuntimeError(f"the stand-in's renderer died: {self._render_error}")
             self._snapshots.append((camera, int(width or self.camera_width), int(height or self.camera_height), fut))
             self._render_cond.notify_all()
         return fut.result(timeout)
 
     # -------------------------------------------------------------------------------------------- lifecycle
     def close(self) -> None:
-        """Stop both threads (promptly: they wake on the stop event) and release the GL context."""
+        """Stop both threads (promptly: they wake on the stop event) and the render process."""
         self._stop.set()
         with self._render_cond:
             self._render_cond.notify_all()
@@ -458,35 +484,22 @@ class StandIn:
                         lag * 1e3, "; dropping the backlog" if resync else "")
 
     def _render_loop(self) -> None:
-        m = self.model
-        renderers: dict[tuple[int, int], mujoco.Renderer] = {}
-        tex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXTURE, FACE_TEXTURE)
-        tw, th = int(m.tex_width[tex_id]), int(m.tex_height[tex_id])
-        tex_slice = slice(int(m.tex_adr[tex_id]), int(m.tex_adr[tex_id]) + tw * th * int(m.tex_nchannel[tex_id]))
-        rdata = mujoco.MjData(m)
+        """Decides what to draw and when; the drawing itself happens in the render process (render_process.py)."""
         period = 1.0 / self.camera_fps
         next_frame = 0.0
         next_face_tick = 0.0
         drawn_talking = False
+        renderer: RenderProcess | None = None
 
-        def renderer(w: int, h: int) -> mujoco.Renderer:
-            r = renderers.get((w, h))
-            if r is None:
-                r = renderers[(w, h)] = mujoco.Renderer(m, h, w)
-                mujoco.mjr_uploadTexture(m, r._mjr_context, tex_id)
-            return r
-
-        def sync_state() -> tuple[float, float, float]:
+        def state() -> tuple[tuple, tuple[float, float, float]]:
             with self._lock:
-                rdata.qpos[:] = self.data.qpos
-                rdata.qvel[:] = self.data.qvel
-                rdata.time = self.data.time
-                stamps = (time.monotonic(), time.time(), self.data.time)
-            mujoco.mj_forward(m, rdata)
-            return stamps
+                qpos, qvel, sim_time = self.data.qpos.copy(), self.data.qvel.copy(), self.data.time
+                stamps = (time.monotonic(), time.time(), sim_time)
+            return (qpos, qvel, sim_time), stamps
 
         try:
-            renderer(self.camera_width, self.camera_height)
+            renderer = self._renderer = RenderProcess(self.model, self.camera_width, self.camera_height,
+                                                      nice=self.render_nice)
             self._render_ready.set()
             while not self._stop.is_set():
                 with self._render_cond:
@@ -508,12 +521,8 @@ class StandIn:
                     snapshots = list(self._snapshots)
                     self._snapshots.clear()
                 if face_due:
-                    phase = now if talking else None
-                    face = draw_face(emotion, tw, th, talking_phase=phase, voice_level=voice)
+                    face = renderer.face(emotion, now if talking else None, voice)
                     drawn_talking = talking
-                    m.tex_data[tex_slice] = face.reshape(-1)
-                    for r in renderers.values():
-                        mujoco.mjr_uploadTexture(m, r._mjr_context, tex_id)
                     next_face_tick = now + 1.0 / self.FACE_ANIMATION_HZ
                     with self._render_cond:
                         self._face_image = face
@@ -521,15 +530,19 @@ class StandIn:
                         self._render_cond.notify_all()
                 for camera, w, h, fut in snapshots:
                     try:
-                        sync_state()
-                        r = renderer(w, h)
-                        r.update_scene(rdata, camera=camera)
-                        fut.set_result(r.render().copy())
-                    except Exception as exc:  # the caller gets the error, the thread lives on
+                        fut.set_result(renderer.snapshot(state()[0], camera, w, h))
+                    except RenderProcessError as exc:
+                        fut.set_exception(RuntimeError(f"the stand-in's renderer died: {exc}"))
+                        raise
+                    except Exception as exc:  # the caller gets the error, the renderer lives on
                         fut.set_exception(exc)
                 if camera_due:
                     next_frame = max(next_frame + period, now) if next_frame else now + period
-                    self._render_frame(renderer(self.camera_width, self.camera_height), rdata, sync_state)
+                    self._render_frame(renderer, *state())
+        except RenderProcessError as exc:
+            self._render_error = exc
+            if self._render_ready.is_set() and not self._stop.is_set():  # the camera closes, the robot goes on
+                log.error("%s; the head camera is closed (the robot keeps holding and moving as commanded)", exc)
         except BaseException as exc:
             self._render_error = exc
             log.exception("stand-in render thread died")
@@ -537,26 +550,32 @@ class StandIn:
             self._render_ready.set()
             with self._render_cond:
                 for *_, fut in self._snapshots:
-                    fut.set_exception(RuntimeError("the stand-in is closed"))
+                    fut.set_exception(RuntimeError("the stand-in is closed" if self._stop.is_set() else
+                                                   f"the stand-in's renderer died: {self._render_error}"))
                 self._snapshots.clear()
-            for r in renderers.values():
-                r.close()
+                self._render_cond.notify_all()
+            with self._frame_cond:
+                self._frame_cond.notify_all()
+                closed_listeners = self._camera_closed_listeners
+            if renderer is not None:
+                renderer.close()
+            for callback in closed_listeners:
+                try:
+                    callback()
+                except Exception:
+                    log.exception("a camera-closed listener failed")
 
-    def _render_frame(self, r: mujoco.Renderer, rdata: mujoco.MjData, sync_state) -> None:
-        t_mono, t_wall, sim_time = sync_state()
-        c0 = time.perf_counter()
-        r.update_scene(rdata, camera=HEAD_CAMERA)
-        rgb = r.render()
-        c1 = time.perf_counter()
-        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-        c2 = time.perf_counter()
-        if not ok:
-            log.error("JPEG encoding of a camera frame failed")
+    def _render_frame(self, renderer: RenderProcess, state: tuple, stamps: tuple[float, float, float]) -> None:
+        t_mono, t_wall, sim_time = stamps
+        try:
+            jpeg, width, height, render_ms, encode_ms = renderer.frame(state, self.jpeg_quality)
+        except RenderProcessError:
+            raise
+        except RuntimeError as exc:
+            log.error("a camera frame failed: %s", exc)
             return
         self._seq += 1
-        frame = CameraFrame(buf.tobytes(), rgb.shape[1], rgb.shape[0], self._seq, t_mono, t_wall, sim_time,
-                            (c1 - c0) * 1e3, (c2 - c1) * 1e3)
+        frame = CameraFrame(jpeg, width, height, self._seq, t_mono, t_wall, sim_time, render_ms, encode_ms)
         with self._frame_cond:
             self._frame = frame
             self._frame_cond.notify_all()

@@ -257,3 +257,29 @@ async def test_live_frames_start_after_the_kept_frame_and_give_the_camera_back(r
         assert robot.standin.camera_subscribers == watchers + 1
     assert first.seq > kept.seq and first.stamp_monotonic > kept.stamp_monotonic
     assert robot.standin.camera_subscribers == watchers
+
+
+async def test_a_dead_render_process_ends_live_frames_and_the_robot_still_moves():
+    """The stand-in's render process crashes while a consumer iterates live_frames(): the iteration ends (the
+    camera is closed, not silently stalled) and joint commands still move the robot."""
+    import psutil
+
+    robot = await SimRobot.create(MODEL)
+    try:
+        frames = []
+
+        async def consume() -> None:
+            async with contextlib.aclosing(robot.live_frames()) as live:
+                async for frame in live:
+                    frames.append(frame)
+
+        consumer = asyncio.ensure_future(consume())
+        assert await until(lambda: len(frames) >= 2, 30)
+        psutil.Process(robot.standin.render_pid).kill()
+        await asyncio.wait_for(consumer, 30)  # ends by itself
+        assert robot.camera_closed()
+        yaw = robot.joint_state().as_dict()["HeadYaw"]
+        robot.set_joint_targets({"HeadYaw": yaw + 15.0})
+        assert await until(lambda: abs(robot.joint_state().as_dict()["HeadYaw"] - (yaw + 15.0)) < 1.0, 30)
+    finally:
+        robot.close()

@@ -13,17 +13,25 @@ import gc
 import json
 import os
 import random
+import socket
+import subprocess
+import sys
 import threading
 import time
 import tracemalloc
+from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 from support import RawClient, wait_for
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect as sync_connect
 
+from client_protocol import names
+
+ROOT = Path(__file__).resolve().parent.parent
 MIB = 1024 * 1024
 CHURN_SECONDS = float(os.environ.get("CHURN_SECONDS", "60"))  # the issue asks for a minute
 
@@ -263,3 +271,80 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
     time.sleep(0.3)
     assert abs(standin.joint_positions()["HeadYaw"] - first) < 0.5, "the head is still moving"
     print(f"last head target change {1000 * last_change:.0f} ms after the drop (watchdog {watchdog:g} s)")
+
+
+def _serve_sim() -> tuple[subprocess.Popen, str]:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port), "--backend",
+                             "sim", "--bystander-interval", "0", "--log-level", "warning"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    assert "listening" in proc.stdout.readline()
+    return proc, f"ws://127.0.0.1:{port}"
+
+
+def _render_worker(server: subprocess.Popen) -> psutil.Process:
+    workers = [p for p in psutil.Process(server.pid).children() if "sim.render_process" in " ".join(p.cmdline())]
+    assert len(workers) == 1, f"expected one render process under the server, found {workers}"
+    return workers[0]
+
+
+def _camera_frame(client: RawClient, timeout: float = 30.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        message = client.recv(timeout)
+        if message.get("op") == "publish" and message.get("topic") == names.CAMERA_TOPIC:
+            return message
+    raise AssertionError("no camera frame")
+
+
+def test_the_render_process_does_not_outlive_a_killed_server():
+    server, url = _serve_sim()
+    try:
+        worker = _render_worker(server)
+    finally:
+        server.kill()  # no clean shutdown: the worker sees its socket close
+        server.communicate()
+    assert wait_for(lambda: not worker.is_running() or worker.status() == psutil.STATUS_ZOMBIE, 30), \
+        "the render process outlived the server"
+
+
+def test_a_crashed_render_process_closes_the_camera_and_leaves_the_server_and_robot_working():
+    server, url = _serve_sim()
+    try:
+        client = RawClient(url)
+        client.send({"op": "subscribe", "topic": names.CAMERA_TOPIC, "type": "sensor_msgs/CompressedImage"})
+        _camera_frame(client)
+        _render_worker(server).kill()
+
+        def camera_stopped() -> bool:  # a second without a frame: the camera is closed, not slow
+            stop = time.monotonic() + 1.0
+            while time.monotonic() < stop:
+                try:
+                    message = client.recv(0.2)
+                except TimeoutError:
+                    continue
+                if message.get("topic") == names.CAMERA_TOPIC:
+                    return False
+            return True
+
+        assert wait_for(camera_stopped, 60), "camera frames went on after the render process died"
+        client.send({"op": "unsubscribe", "topic": names.CAMERA_TOPIC})
+        client.alive()  # the server still serves this connection
+        client.send({"op": "subscribe", "topic": names.JOINT_STATE_TOPIC, "type": "sensor_msgs/JointState"})
+        client.send({"op": "publish", "topic": names.HEAD_COMMAND_TOPIC, "msg": {"data": [25.0, 0.0]}})
+
+        def head_yaw() -> float:
+            while True:
+                message = client.recv(5)
+                if message.get("topic") == names.JOINT_STATE_TOPIC:
+                    state = message["msg"]
+                    return state["position"][state["name"].index("HeadYaw")]
+
+        assert wait_for(lambda: abs(head_yaw() - 25.0) < 1.0, 30), "the robot stopped following commands"
+        client.close()
+    finally:
+        server.terminate()
+        _, err = server.communicate(timeout=30)
+    assert "render process" in err and "camera is closed" in err, err

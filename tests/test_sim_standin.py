@@ -6,10 +6,12 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import threading
 import time
 
 import cv2
 import numpy as np
+import psutil
 import pytest
 
 from robot_models import forward_kinematics, load_qtrobot
@@ -245,14 +247,41 @@ def test_physics_never_runs_ahead_of_real_time_and_drops_a_backlog(standin):
     assert stats.sim_time - before.sim_time <= wall - wall0 - standin.MAX_LAG_S, (stats, before, wall - wall0)
 
 
-def test_close_stops_threads_promptly():
+def test_close_stops_threads_and_the_render_process_promptly():
     s = StandIn(ROBOT)
     s.start_camera()
     assert s.wait_frame(0, 30.0) is not None
+    worker = psutil.Process(s.render_pid)
+    assert worker.nice() > psutil.Process().nice(), "the render process runs at a lower CPU priority"
     s.close()  # joins each thread for up to 5 s (logging an error past that), so a thread alive now did not stop
     assert not s._physics_thread.is_alive() and not s._render_thread.is_alive()
+    assert not worker.is_running(), "the render process outlived the stand-in"
     with pytest.raises(RuntimeError, match="closed"):
         s.snapshot()
+
+
+def test_a_dead_render_process_closes_the_camera_and_the_robot_goes_on():
+    """The render process crashes: waiters hear the camera closed, snapshots name the cause, the physics runs on
+    and the joints still follow their targets."""
+    closed = threading.Event()
+    s = StandIn(ROBOT)
+    try:
+        s.add_camera_closed_listener(closed.set)
+        s.start_camera()
+        first = s.wait_frame(0, 30.0)
+        assert first is not None
+        psutil.Process(s.render_pid).kill()
+        assert closed.wait(30.0), "the camera-closed listeners were not told"
+        assert isinstance(s.render_error, RuntimeError) and "render process" in str(s.render_error)
+        assert s.wait_frame(s.latest_frame().seq, 1.0) is None  # returns at once: no frame will come
+        with pytest.raises(RuntimeError, match="renderer died"):
+            s.snapshot()
+        yaw = s.joint_positions()["HeadYaw"]
+        s.set_targets({"HeadYaw": yaw + 20.0})
+        assert wait_until(lambda: abs(s.joint_positions()["HeadYaw"] - (yaw + 20.0)) < 1.0, 30.0)
+    finally:
+        s.close()
+    assert not s._render_thread.is_alive()
 
 
 def test_every_luxai_emotion_has_a_distinct_face():

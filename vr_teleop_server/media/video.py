@@ -1,7 +1,8 @@
 """The head camera as WebRTC video, encoded once per frame for every peer that negotiated the same codec.
 
 aiortc encodes per sender: five viewers would cost five encoders. Here one `VideoHub` per server runs one encoder
-per codec (VP8, H.264) in its own thread; each peer's `CameraTrack` hands the sender already-encoded packets,
+per codec (VP8, H.264) in its own thread, at a lower CPU priority than the event loop (the encoders release the GIL
+while they work; on 2 cores it is the CPU that the loop would wait for); each peer's `CameraTrack` hands the sender already-encoded packets,
 which aiortc only packetizes (`Encoder.pack`), so the per-peer cost is the RTP packetization alone.
 
 Frames come from `Robot.live_frames()` only while some track is attached, newest first: while one frame is being
@@ -27,6 +28,8 @@ import asyncio
 import contextlib
 import fractions
 import logging
+import os
+import threading
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -55,6 +58,7 @@ START_BITRATE = 800_000  # before the first estimate: what a 1 Mbit/s link carri
 REOPEN_RATIO = 0.15  # the encoder is rebuilt (a keyframe) only when the target moves more than this
 REOPEN_INTERVAL_S = 1.0  # and at most this often
 QUEUE_BOUND = 3  # encoded frames waiting for one sender (100 ms at 30 fps)
+ENCODER_NICE = 10  # the encoding thread's niceness above the server's (see _lower_priority)
 KEYFRAME_INTERVAL_S = 0.5  # keyframes asked for (PLI, joins) are granted at most this often: a PLI storm on a
 # congested link would otherwise make every frame a large keyframe and keep the link congested
 
@@ -68,6 +72,14 @@ class EncodedFrame:
     seq: int
     encode_s: float  # decode (JPEG) plus encode, seconds
     bitrate: int  # the encoder's target when it encoded this frame
+
+
+def _lower_priority() -> None:
+    """Encoding thread: lower this thread's CPU priority (Linux's niceness is per thread), so that the event loop
+    carrying the poses wins a core over the encoder (bench/media.py's control rows)."""
+    with contextlib.suppress(OSError, AttributeError):  # a platform without per-thread priorities: encode anyway
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + ENCODER_NICE)
 
 
 class _Encoder:
@@ -149,7 +161,7 @@ class VideoHub:
         self._keyframe.add(codec)
         if self._task is None or self._task.done():
             if self._executor is None:
-                self._executor = ThreadPoolExecutor(1, thread_name_prefix="media-video")
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="media-video", initializer=_lower_priority)
             self._task = asyncio.ensure_future(self._pump())
 
     def detach(self, track: CameraTrack) -> None:

@@ -1,6 +1,7 @@
 """SimRobot: the Robot interface over the MuJoCo stand-in (sim.StandIn).
 
-The stand-in's threads do the physics and rendering; this class adds the Robot contract on top: clamp
+The stand-in's threads do the physics and drive its render process (sim/render_process.py: rendering and JPEG
+at a lower CPU priority, out of this process's GIL); this class adds the Robot contract on top: clamp
 reports, LuxAI part arrays, motor modes, speech timing, gesture streaming and asyncio-friendly camera waits.
 """
 
@@ -56,6 +57,7 @@ class SimRobot(Robot):
         self._gesture_joints: tuple[str, ...] = ()
         self._closed = False
         self._standin.add_frame_listener(self._on_frame)
+        self._standin.add_camera_closed_listener(self._frames.close)  # its render process died: no more frames
 
     @classmethod
     async def create(cls, model: RobotModel | None = None, **options: Any) -> SimRobot:

@@ -1,0 +1,218 @@
+"""The stand-in's renderer in a process of its own, at a lower CPU priority than the server.
+
+Why a process: on a 2-core machine without a GPU, Mesa's llvmpipe renders the head camera with every core it
+finds, and the JPEG encoding and the face drawing come on top. In the server's process that work competes with
+the asyncio loop that carries the operator's poses; lowering the render thread's priority there would let it be
+preempted while it holds the GIL (the loop then waits on a starved thread). In its own process, at nice
+`RenderProcess.NICE` (its llvmpipe threads inherit it), the kernel gives the server's threads the CPU first and the
+two share no GIL. bench/media.py's control rows measure the effect.
+
+The worker is a plain request/reply server over a socket pair (multiprocessing.connection framing, pickles):
+the stand-in's render thread sends the joint state and asks for a camera frame (JPEG), a snapshot (RGB) or a
+face (drawn and uploaded as the screen's texture); the worker answers each in order. It holds no state the
+server needs: if it dies, the camera closes and the robot goes on (see StandIn). It is started with
+subprocess, not multiprocessing's spawn, which would leave a resource-tracker process behind for the server's
+life, and it exits when its socket closes, so it cannot outlive the server.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent  # the directory that holds the `sim` package
+BOOT = "import sys; sys.path.insert(0, sys.argv[1]); from sim.render_process import serve; serve(int(sys.argv[2]))"
+
+
+class RenderProcessError(RuntimeError):
+    """The render process died, hung or could not start."""
+
+
+class RenderProcess:
+    """Parent side. Not thread-safe: one thread (the stand-in's render thread) makes every call."""
+
+    NICE = 10  # added to the worker's niceness: the server's loop and physics threads win the CPU
+    START_TIMEOUT_S = 60.0  # importing MuJoCo and creating a GL context, on a loaded machine
+    REPLY_TIMEOUT_S = 30.0  # a frame takes milliseconds: a worker silent this long is hung
+
+    def __init__(self, model: Any, width: int, height: int, *, nice: int = NICE) -> None:
+        ours, theirs = socket.socketpair()
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", BOOT, str(ROOT), str(theirs.fileno())], pass_fds=(theirs.fileno(),),
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, close_fds=True)
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        try:
+            self._conn.send((model, int(width), int(height), int(nice)))
+            self._call_reply(self.START_TIMEOUT_S)
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def frame(self, state: tuple, quality: int) -> tuple[bytes, int, int, float, float]:
+        """JPEG of the head camera at the given joint state: (jpeg, width, height, render_ms, encode_ms)."""
+        return self._call(("frame", state, quality))
+
+    def snapshot(self, state: tuple, camera: str, width: int, height: int) -> np.ndarray:
+        return self._call(("snapshot", state, camera, width, height))
+
+    def face(self, emotion: str, talking_phase: float | None, voice_level: float | None) -> np.ndarray:
+        """Draw the face, make it the screen's texture; returns the image drawn (RGB)."""
+        return self._call(("face", emotion, talking_phase, voice_level))
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Ask the worker to exit (closing the socket is enough), then wait; kill it past `timeout`."""
+        try:
+            self._conn.close()
+        except OSError:
+            pass
+        try:
+            self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+    def _call(self, request: tuple) -> Any:
+        try:
+            self._conn.send(request)
+        except (OSError, ValueError) as exc:
+            raise self._died(exc) from exc
+        return self._call_reply(self.REPLY_TIMEOUT_S)
+
+    def _call_reply(self, timeout: float) -> Any:
+        try:
+            if not self._conn.poll(timeout):
+                self.process.kill()
+                raise RenderProcessError(f"the stand-in's render process (pid {self.pid}) did not answer within "
+                                         f"{timeout:g} s and was killed")
+            ok, value = self._conn.recv()
+        except (EOFError, OSError, ValueError) as exc:
+            raise self._died(exc) from exc
+        if not ok:
+            raise RuntimeError(value)  # the request failed; the worker lives on
+        return value
+
+    def _died(self, exc: BaseException) -> RenderProcessError:
+        code = self.process.poll()
+        if code is None:
+            time.sleep(0.1)
+            code = self.process.poll()
+        return RenderProcessError(f"the stand-in's render process (pid {self.pid}) exited (code {code}): {exc!r}")
+
+
+# ---- the worker ----------------------------------------------------------------------------------------------
+def serve(fd: int) -> None:
+    """Worker entry point: answer requests until the socket closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the server stops us
+    conn = Connection(fd)
+    model, width, height, nice = conn.recv()
+    os.nice(nice)  # before the GL context: llvmpipe's threads inherit it
+    try:
+        worker = _Worker(model, width, height)
+    except Exception as exc:
+        conn.send((False, f"the renderer did not start ({exc!r}); MuJoCo needs MUJOCO_GL=egl (or osmesa) and a "
+                          "working libEGL on a headless machine"))
+        return
+    conn.send((True, None))
+    try:
+        while True:
+            try:
+                request = conn.recv()
+            except (EOFError, OSError):
+                return
+            try:
+                reply = (True, worker.handle(*request))
+            except Exception as exc:
+                reply = (False, f"{type(exc).__name__}: {exc}")
+            conn.send(reply)
+    finally:
+        worker.close()
+
+
+class _Worker:
+    def __init__(self, model: Any, width: int, height: int) -> None:
+        import mujoco
+
+        from robot_models.mjcf import FACE_TEXTURE
+
+        self.mujoco = mujoco
+        self.model = m = model
+        self.data = mujoco.MjData(m)
+        self.width, self.height = width, height
+        self.tex_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXTURE, FACE_TEXTURE)
+        self.tex_w, self.tex_h = int(m.tex_width[self.tex_id]), int(m.tex_height[self.tex_id])
+        start = int(m.tex_adr[self.tex_id])
+        self.tex_slice = slice(start, start + self.tex_w * self.tex_h * int(m.tex_nchannel[self.tex_id]))
+        self.renderers: dict[tuple[int, int], Any] = {}
+        self.renderer(width, height)
+
+    def renderer(self, w: int, h: int) -> Any:
+        r = self.renderers.get((w, h))
+        if r is None:
+            r = self.renderers[(w, h)] = self.mujoco.Renderer(self.model, h, w)
+            self.mujoco.mjr_uploadTexture(self.model, r._mjr_context, self.tex_id)
+        return r
+
+    def handle(self, kind: str, *args: Any) -> Any:
+        return getattr(self, f"do_{kind}")(*args)
+
+    def set_state(self, state: tuple) -> None:
+        qpos, qvel, t = state
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        self.data.time = t
+        self.mujoco.mj_forward(self.model, self.data)
+
+    def do_frame(self, state: tuple, quality: int) -> tuple[bytes, int, int, float, float]:
+        import cv2
+
+        from robot_models.mjcf import HEAD_CAMERA
+
+        self.set_state(state)
+        r = self.renderer(self.width, self.height)
+        c0 = time.perf_counter()
+        r.update_scene(self.data, camera=HEAD_CAMERA)
+        rgb = r.render()
+        c1 = time.perf_counter()
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+        c2 = time.perf_counter()
+        if not ok:
+            raise RuntimeError("JPEG encoding of a camera frame failed")
+        return buf.tobytes(), rgb.shape[1], rgb.shape[0], (c1 - c0) * 1e3, (c2 - c1) * 1e3
+
+    def do_snapshot(self, state: tuple, camera: str, width: int, height: int) -> np.ndarray:
+        self.set_state(state)
+        r = self.renderer(width, height)
+        r.update_scene(self.data, camera=camera)
+        return r.render().copy()
+
+    def do_face(self, emotion: str, talking_phase: float | None, voice_level: float | None) -> np.ndarray:
+        from .face import draw_face
+
+        face = draw_face(emotion, self.tex_w, self.tex_h, talking_phase=talking_phase, voice_level=voice_level)
+        self.model.tex_data[self.tex_slice] = face.reshape(-1)
+        for r in self.renderers.values():
+            self.mujoco.mjr_uploadTexture(self.model, r._mjr_context, self.tex_id)
+        return face
+
+    def close(self) -> None:
+        for r in self.renderers.values():
+            r.close()
