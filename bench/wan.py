@@ -45,7 +45,8 @@ from wan_support import Observer, intent_errors, pose_latencies, replay_in, serv
 
 
 def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> dict:
-    road = ChannelRoad(video=True, carry=channel)  # both paths receive the camera: the same load on both
+    # both paths receive the camera and the robot's audio: the same load on both
+    road = ChannelRoad(video=True, carry=channel, audio=True)
     with Emulator(name) as net:
         url = serve(net, "--camera-fps", str(camera_fps))
         observer = Observer(net, url, poses=True)
@@ -66,7 +67,10 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
     def pct(a: np.ndarray, q: float) -> float | None:
         return round(float(np.percentile(a, q)), 2) if a.size else None
 
-    extra = {"video_fps": round(road.video_fps, 1) if road.video_fps is not None else None}
+    glass = glass_to_glass_ms(road, seen.render_times)
+    extra = {"video_fps": round(road.video_fps, 1) if road.video_fps is not None else None,
+             "glass_to_glass_ms": {"p50": pct(glass, 50), "p95": pct(glass, 95), "n": int(glass.size)},
+             "audio": audio_gaps(road)}
     if channel:
         head_sent = sum(1 for t, _i in got.sent_head if t > start)
         head_arrived = sum(1 for t, _s in seen.poses if t > start)
@@ -84,6 +88,27 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
             "link": {d: link["stats"][d] for d in ("up", "down")}}
 
 
+def glass_to_glass_ms(road: ChannelRoad, render_times: dict[int, float]) -> np.ndarray:
+    """Render (the stand-in's, by the telemetry's RTP mapping) to the frame's last packet at the viewer in the
+    client namespace, ms: one machine, one wall clock. The viewer does not decode (a browser adds its jitter
+    buffer and decode, about 10 ms on loopback: bench/media.py)."""
+    arrivals = road.peer.video_arrivals if road.peer is not None else []
+    return np.array([1e3 * (t - render_times[rtp]) for t, rtp in arrivals if rtp in render_times])
+
+
+def audio_gaps(road: ChannelRoad, gap_s: float = 0.1) -> dict:
+    """The robot's audio at the viewer: 20 ms Opus frames received against the time they span, and silences of
+    the stream (no frame for `gap_s` or more) per minute with the longest."""
+    times = np.array([t for t, _samples in road.peer.audio_frames]) if road.peer is not None else np.zeros(0)
+    if times.size < 2:
+        return {"frames": int(times.size), "received": None, "gaps_per_min": None, "longest_gap_ms": None}
+    span = times[-1] - times[0]
+    intervals = np.diff(times)
+    return {"frames": int(times.size), "received": round(float(times.size * 0.02 / span), 3),
+            "gaps_per_min": round(float(np.sum(intervals >= gap_s)) / (span / 60.0), 2),
+            "longest_gap_ms": round(float(intervals.max()) * 1e3, 1)}
+
+
 def _ratio(row: dict | None, base: dict | None, key: str, q: str, digits: int) -> str:
     if not row or not base or not base[key][q] or row[key][q] is None:
         return "-"
@@ -96,8 +121,9 @@ def table(rows: list[dict]) -> str:
     dc = {r["profile"]: r for r in rows if r["path"] == "datachannel"}
     head = ("| profile | holds/min | tracking p50 / p95 (deg) | latency p50 / p99 (ms) | data channel: holds/min, "
             "tracking, latency | head poses arrived (DC) | video fps (WS / DC) | tracking p95 vs lan (WS / DC) | "
-            "latency p50 vs lan (WS / DC) |")
-    lines = [head, "|" + "---|" * 9]
+            "latency p50 vs lan (WS / DC) | glass to glass p50 / p95 (ms, WS / DC) | audio gaps/min, received "
+            "(WS / DC) |")
+    lines = [head, "|" + "---|" * 11]
     for name in dict.fromkeys([*ws, *dc]):
         w, d = ws.get(name), dc.get(name)
         cells = [name]
@@ -116,9 +142,20 @@ def table(rows: list[dict]) -> str:
         cells += [f"{_ratio(w, ws.get('lan'), 'tracking_deg', 'p95', 2)} / "
                   f"{_ratio(d, dc.get('lan'), 'tracking_deg', 'p95', 2)}",
                   f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / "
-                  f"{_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}"]
+                  f"{_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}",
+                  " / ".join(_media(r, "glass") for r in (w, d)), " / ".join(_media(r, "audio") for r in (w, d))]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _media(row: dict | None, what: str) -> str:
+    if not row:
+        return "-"
+    if what == "glass":
+        g = row["glass_to_glass_ms"]
+        return f"{g['p50']}-{g['p95']}" if g["n"] else "-"
+    a = row["audio"]
+    return f"{a['gaps_per_min']}, {a['received']:.0%}" if a["received"] is not None else "-"
 
 
 def main() -> int:

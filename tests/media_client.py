@@ -204,6 +204,7 @@ class MediaPeer:
         self.first_rtp: int | None = None
         self.video_bytes = 0  # RTP received on the video transceiver
         self.light = False  # True: count video frames without decoding them (a viewer on another machine)
+        self.video_arrivals: list[tuple[float, int]] = []  # light: (wall time, RTP timestamp) of each frame's end
         self._tasks: list[asyncio.Task[None]] = []
         if video:
             transceiver = self.pc.addTransceiver("video", direction="recvonly")
@@ -265,6 +266,8 @@ class MediaPeer:
                 self.video_bytes += len(packet.payload) + 12  # with the RTP header
                 if self.light:  # count frames by their last packet; no jitter buffer, no decoding
                     self.video_count += packet.marker
+                    if packet.marker:
+                        self.video_arrivals.append((time.time(), packet.timestamp))
                     return
                 await original(packet, arrival_time_ms)
 
@@ -340,14 +343,15 @@ class ChannelRoad:
     decoded: a viewer whose decoding is not this machine's business). With `carry` False the channel is opened but
     nothing is sent on it: the poses stay on the WebSocket beside the same media (a baseline with the same load)."""
 
-    def __init__(self, video: bool = False, carry: bool = True) -> None:
+    def __init__(self, video: bool = False, carry: bool = True, audio: bool = False) -> None:
         self.video = video
         self.carry = carry
+        self.audio = audio  # also receive the robot's audio (decoded: the bench counts its gaps)
         self.peer: MediaPeer | None = None  # made in open(), on the replay's loop and in its thread's namespace
         self.video_frames: list[tuple[float, int]] = []  # (monotonic time, frames so far) at open and close
 
     async def open(self, call: Any) -> None:
-        self.peer = MediaPeer(video=self.video, audio=False, poses=True)
+        self.peer = MediaPeer(video=self.video, audio=self.audio, poses=True)
         self.peer.light = True
         pc = self.peer.pc
         await pc.setLocalDescription(await pc.createOffer())

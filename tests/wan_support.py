@@ -32,6 +32,7 @@ PORT = 9090  # the namespace is ours alone: a fixed port is free
 HEAD_COMMAND = "/qt_robot/head_position/command"
 HEAD_POSE = "/vr/head/pose"
 EVENTS = "/vr_teleop/events"
+TELEMETRY = "/vr_teleop/telemetry"
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -65,6 +66,7 @@ class Observed:
     head: list[tuple[float, list[float]]] = field(default_factory=list)  # receive time (monotonic), [yaw, pitch]
     events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)  # receive time, event (detail parsed)
     poses: list[tuple[float, float]] = field(default_factory=list)  # receive time, header stamp (s) of head poses
+    render_times: dict[int, float] = field(default_factory=dict)  # video RTP timestamp -> render time (telemetry)
 
     def kinds(self) -> list[str]:
         return [e["kind"] for _t, e in self.events]
@@ -103,6 +105,8 @@ class Observer:
                 self.got.head.append((t, value))
             elif kind == "pose":
                 self.got.poses.append((t, value))
+            elif kind == "frames":
+                self.got.render_times.update((rtp, render) for rtp, render in value)
             else:
                 self.got.events.append((t, value))
         self._out.close()
@@ -111,7 +115,8 @@ class Observer:
 
 
 async def _observe(url: str, poses: bool) -> None:
-    """Prints "ready", then one JSON line per head command, event or head pose: [kind, receive time, value]."""
+    """Prints "ready", then one JSON line per head command, event, head pose or telemetry report's video frames
+    ([RTP timestamp, render time] pairs): [kind, receive time, value]."""
     from websockets.asyncio.client import connect
 
     loop = asyncio.get_running_loop()
@@ -120,6 +125,7 @@ async def _observe(url: str, poses: bool) -> None:
     async with connect(url, max_size=None, compression=None) as ws:
         await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
         await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
+        await ws.send(json.dumps({"op": "subscribe", "topic": TELEMETRY, "queue_length": 1_000}))
         if poses:
             await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
         await asyncio.sleep(0.2)
@@ -139,6 +145,9 @@ async def _observe(url: str, poses: bool) -> None:
                 stamp = msg["msg"]["header"]["stamp"]
                 line = ["pose", now, stamp.get("secs", stamp.get("sec", 0))
                         + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9]
+            elif msg["topic"] == TELEMETRY:
+                line = ["frames", now, [[rtp, render] for c in msg["msg"]["clients"]
+                                        for rtp, render in zip(c["frame_rtp_timestamps"], c["frame_render_times"])]]
             elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
                 event = dict(msg["msg"])
                 try:
