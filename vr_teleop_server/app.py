@@ -97,8 +97,7 @@ class TeleopServer:
 
     def _holds_control(self, owner: str) -> bool:
         """Whether this connection's operator holds explicit control (the poses data channel's rule)."""
-        return self.control is not None and self.control.holder is not None \
-            and self.control.holder == self._operator(owner)
+        return self.control is not None and self.control.holds(owner)
 
     def _operator_online(self, operator: str, gone: str) -> bool:
         return any(name != gone and not session.closed and session.operator == operator

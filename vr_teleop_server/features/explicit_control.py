@@ -288,10 +288,14 @@ class ExplicitControl:
         self._publish_state()
 
     # ---- telemetry ----------------------------------------------------------------------------------------------
+    def holds(self, connection: str) -> bool:
+        """Whether the connection's operator holds control (one of its connections engaged)."""
+        return self.holder is not None and self.operator_of(connection) == self.holder
+
     def link_view(self, connection: str) -> ControlLink | None:
         """The watchdog as the connection's operator meets it, while that operator holds control (its holds since
         it engaged, over the last minute); else None."""
-        if self.holder is None or self.operator_of(connection) != self.holder:
+        if not self.holds(connection):
             return None
         now = self.clock()
         while self._holds and now - self._holds[0] > HOLDS_WINDOW_S:
