@@ -37,7 +37,7 @@ from aiortc.mediastreams import MediaStreamError
 from client_protocol import names
 
 from ..core.bus import Bus, BusError, Published
-from ..robot.interface import Robot
+from ..robot.interface import Robot, held_level
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,6 @@ BYSTANDER_LINES = (
 HEARD_START_S = 0.06  # a real robot's microphone starts playing once this much is buffered...
 HEARD_MAX_S = 0.5     # ...and is cut back to HEARD_START_S when more than this waits (bounded latency)
 OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
-LEVEL_HOLD_S = 0.25  # as long as the stand-in's mouth stays open after the last piece of voice
 
 # (pcm s16 bytes, sample rate, channels) of a rendered line
 Rendered = tuple[bytes, int, int]
@@ -317,10 +316,9 @@ class OperatorVoice:
 
     @property
     def level(self) -> float:
-        """The voice's level now: 0 once no frame came for LEVEL_HOLD_S (a browser's push-to-talk released sends
-        nothing at all)."""
-        level, at = self._level
-        return level if time.monotonic() - at < LEVEL_HOLD_S else 0.0
+        """The voice's level now: 0 once no frame came for a while (a browser's push-to-talk released sends nothing
+        at all): robot.interface.held_level."""
+        return held_level(self._level, time.monotonic())
 
     def _take(self, samples: np.ndarray) -> None:
         self.frames += 1

@@ -97,6 +97,15 @@ def pcm_level(pcm: bytes) -> float:
     return min(1.0, max(0.0, (20 * math.log10(max(rms, 1e-9)) + 50.0) / 40.0))
 
 
+VOICE_HOLD_S = 0.25  # a voice level reads 0 this long after its last piece (as the stand-in's mouth closes)
+
+
+def held_level(level_at: tuple[float, float], now: float) -> float:
+    """A voice level (level, monotonic time it was taken) as it reads at `now`: 0 once VOICE_HOLD_S has passed."""
+    level, at = level_at
+    return level if now - at < VOICE_HOLD_S else 0.0
+
+
 @dataclass(frozen=True)
 class JointState:
     """Joint state in the model's canonical order (degrees, deg/s, N m)."""

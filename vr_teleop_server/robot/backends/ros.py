@@ -49,6 +49,7 @@ from ..interface import (
     Robot,
     SpeechResult,
     clamp_command,
+    held_level,
     pcm_level,
 )
 
@@ -59,7 +60,6 @@ CALL_TIMEOUT_S = 10.0
 MICROPHONE_RATE = 16000  # qt_respeaker_app's channels: the ReSpeaker array's rate, mono S16LE
 SPEAKER_RATE = 16000  # the operator's voice for the robot's speaker: speech, at the rate audio_play defaults to
 SPEAKER_CHUNK_S = 0.04
-VOICE_HOLD_S = 0.25  # the voice level reads 0 this long after the last piece (as the stand-in's mouth closes)
 
 
 class RobotUnreachable(RuntimeError):
@@ -404,8 +404,7 @@ class RosRobot(Robot):
 
     @property
     def voice_level(self) -> float:
-        level, at = self._voice
-        return level if time.monotonic() - at < VOICE_HOLD_S else 0.0
+        return held_level(self._voice, time.monotonic())
 
     def _stop_reconnecting(self) -> None:
         from twisted.internet import reactor
