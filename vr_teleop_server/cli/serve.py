@@ -18,6 +18,7 @@ from client_protocol.registry import describe_validation_error
 from ..app import TeleopServer
 from ..settings import ServerSettings
 from ..core.access import ROLES, generate_tokens
+from ..core.scheduling import short_slice
 from ..teleop import TeleopSettings
 
 
@@ -115,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     except ValidationError as exc:
         print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)
         return 2
+    short_slice()  # the loop's wake-ups preempt media work (core/scheduling.py)
     return asyncio.run(_serve(settings))
 
 
