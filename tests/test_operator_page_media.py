@@ -364,7 +364,8 @@ import {{PoseChannel, STALL_MS, BUFFER_BUDGET}} from {json.dumps(str(module))};
 let t = 0;
 const sent = [];
 const channel = {{readyState: "open", bufferedAmount: 0, bufferedAmountLowThreshold: 0, addEventListener() {{}},
-                  send(frame) {{ sent.push(JSON.parse(frame).topic); this.bufferedAmount += frame.length; }}}};
+                  send(frame) {{ sent.push(JSON.parse(frame).topic); this.bufferedAmount += frame.length;
+                                 this.last = frame; }}}};
 const pc = {{createDataChannel: () => channel}};
 const poses = new PoseChannel({{now: () => t}});
 poses.attach(pc);
@@ -381,7 +382,8 @@ out.stalledAgain = poses.send(head, {{n: 4}});
 out.others = poses.send(left, {{n: 5}});                  // the other streams wait for the channel
 channel.bufferedAmount = 0;                              // it drains
 poses.pump();
-out.drained = poses.send(head, {{n: 6}});
+out.drained = poses.send(head, {{n: 6, x: 0.123456789, y: -2.000004, stamp: 1700000000}});
+out.last = channel.last;
 out.sent = sent;
 out.stats = poses.stats();
 console.log(JSON.stringify(out));
@@ -394,6 +396,8 @@ console.log(JSON.stringify(out));
     # the head before the stall, then (drained) the waiting controller, then the head again; never the stale heads
     assert out["sent"] == ["/vr/head/pose", "/vr/left_controller/pose", "/vr/head/pose"]
     assert out["stats"]["failovers"] == 2
+    # floats go to 5 places on the channel (fewer bytes for its congestion window); integers stay whole
+    assert json.loads(out["last"])["msg"] == {"n": 6, "x": 0.12346, "y": -2.0, "stamp": 1700000000}
 
 
 def _counts(server: RunningServer) -> tuple[int, int, int]:
