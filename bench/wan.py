@@ -12,6 +12,11 @@ watchdog's events. Reported per profile and path:
 - head tracking error against the operator's intent, p50/p95 (degrees; the intent is the same mapping computed
   offline at the moments the poses were sent, so filter and caps are in it and the network is what shows), and
   `vr-teleop replay`'s own tracking_error_deg (p99; it pairs commands with poses, which a WAN's holds upset);
+- the same error less the link's delay, p50/p95: the command at t against the intent at t - T, T the profile's
+  fixed one-way delay (client to server; 0.5 ms on lan, 75 ms on continent), the measure of time-delayed
+  teleoperation (x_robot(t) - x_operator(t - T)): no transport removes T, and what is left is what the transport
+  adds (jitter, queueing, losses, holds, bursts); `bench/wan_floor.py` gives the least each measure can be on each
+  profile with a perfect transport;
 - pose-to-command latency p50/p99 (ms: the operator sending a head pose to the server stepping on it);
 - on the data channel: the share of head poses sent after engaging that reached the bus (the sender keeps only the
   newest pose per topic while the channel is busy, so a congested channel sends fewer, fresher poses), and the
@@ -60,6 +65,8 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
     thresholds = [e["detail"]["threshold_s"] for _t, e in seen.events
                   if isinstance(e["detail"], dict) and e["detail"].get("threshold_s") is not None]
     errors = intent_errors(steps, got, seen)
+    delay_s = load_profiles()[name].up.delay_ms / 1e3  # the link's fixed one-way delay, client to server
+    errors_less_delay = intent_errors(steps, got, seen, delay_s=delay_s)
     latency = pose_latencies(steps, got, seen) * 1e3
     minutes = max(last_sent - start, 1e-9) / 60.0
     r = report(steps, got, elapsed, 1.0)
@@ -82,6 +89,8 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
             "holds_per_min": round(len(holds) / minutes, 2),
             "threshold_s": [min(thresholds), max(thresholds)] if thresholds else None,
             "tracking_deg": {"p50": pct(errors, 50), "p95": pct(errors, 95), "n": int(errors.size)},
+            "tracking_less_delay_deg": {"p50": pct(errors_less_delay, 50), "p95": pct(errors_less_delay, 95),
+                                        "delay_ms": delay_s * 1e3, "n": int(errors_less_delay.size)},
             "replay_tracking_error_deg_p99": r["tracking_error_deg"]["p99"],
             "latency_ms": {"p50": pct(latency, 50), "p99": pct(latency, 99), "n": int(latency.size)},
             "forwarder_late_ms": link.get("late_ms"),
@@ -122,8 +131,8 @@ def table(rows: list[dict]) -> str:
     head = ("| profile | holds/min | tracking p50 / p95 (deg) | latency p50 / p99 (ms) | data channel: holds/min, "
             "tracking, latency | head poses arrived (DC) | video fps (WS / DC) | tracking p95 vs lan (WS / DC) | "
             "latency p50 vs lan (WS / DC) | glass to glass p50 / p95 (ms, WS / DC) | audio gaps/min, received "
-            "(WS / DC) |")
-    lines = [head, "|" + "---|" * 11]
+            "(WS / DC) | tracking less the link's delay p50 / p95 (deg, WS / DC) | the same p95 vs lan (WS / DC) |")
+    lines = [head, "|" + "---|" * 13]
     for name in dict.fromkeys([*ws, *dc]):
         w, d = ws.get(name), dc.get(name)
         cells = [name]
@@ -143,7 +152,11 @@ def table(rows: list[dict]) -> str:
                   f"{_ratio(d, dc.get('lan'), 'tracking_deg', 'p95', 2)}",
                   f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / "
                   f"{_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}",
-                  " / ".join(_media(r, "glass") for r in (w, d)), " / ".join(_media(r, "audio") for r in (w, d))]
+                  " / ".join(_media(r, "glass") for r in (w, d)), " / ".join(_media(r, "audio") for r in (w, d)),
+                  " / ".join(f"{r['tracking_less_delay_deg']['p50']}-{r['tracking_less_delay_deg']['p95']}"
+                             if r else "-" for r in (w, d)),
+                  f"{_ratio(w, ws.get('lan'), 'tracking_less_delay_deg', 'p95', 2)} / "
+                  f"{_ratio(d, dc.get('lan'), 'tracking_less_delay_deg', 'p95', 2)}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

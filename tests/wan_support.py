@@ -170,12 +170,16 @@ def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0,
                                                                road=road)))
 
 
-def intent_errors(steps: list[Step], got: Collected, seen: Observed, rate_hz: float = 30.0) -> np.ndarray:
+def intent_errors(steps: list[Step], got: Collected, seen: Observed, rate_hz: float = 30.0,
+                  delay_s: float = 0.0) -> np.ndarray:
     """How far the robot's head was told to be from where the operator meant it, sampled `rate_hz` times a second
     from the first head command to the last head pose sent: degrees, the larger of yaw and pitch. The command at a
     moment is the newest the server had sent (while it holds, the one it holds at); the intent is what the same
     mapping computes offline from the poses at the moments the operator sent them (so filter and velocity caps are
-    in the intent, and the network's delay, holds and bursts are what the error shows)."""
+    in the intent, and the network's delay, holds and bursts are what the error shows). With `delay_s`, the command
+    at t is held against the intent at t - delay_s: the measure of time-delayed teleoperation, x_robot(t) against
+    x_operator(t - T), which leaves out the link's fixed one-way delay T (no transport removes it) and keeps its
+    jitter, queueing, losses and holds."""
     expected = expected_commands(steps, got)
     sent = sorted((t, i) for t, i in got.sent_head if "head" in expected.get(i, {}))
     if not sent or not seen.head:
@@ -184,8 +188,8 @@ def intent_errors(steps: list[Step], got: Collected, seen: Observed, rate_hz: fl
     intent = np.array([expected[i]["head"] for _t, i in sent])
     command_t = np.array([t for t, _c in seen.head])
     commands = np.array([c for _t, c in seen.head])
-    grid = np.arange(command_t[0], sent_t[-1], 1.0 / rate_hz)
-    k_intent = np.searchsorted(sent_t, grid, side="right") - 1
+    grid = np.arange(max(command_t[0], sent_t[0] + delay_s), sent_t[-1] + delay_s, 1.0 / rate_hz)
+    k_intent = np.searchsorted(sent_t, grid - delay_s, side="right") - 1
     k_command = np.searchsorted(command_t, grid, side="right") - 1
     return np.abs(commands[k_command] - intent[k_intent]).max(axis=1)
 
