@@ -8,6 +8,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -253,6 +254,8 @@ def test_close_stops_threads_and_the_render_process_promptly():
     assert s.wait_frame(0, 30.0) is not None
     worker = psutil.Process(s.render_pid)
     assert worker.nice() > psutil.Process().nice(), "the render process runs at a lower CPU priority"
+    threads = [(task / "comm").read_text().strip() for task in Path(f"/proc/{s.render_pid}/task").iterdir()]
+    assert not any(t.startswith("llvmpipe") for t in threads), threads  # one thread renders: a core left free
     s.close()  # joins each thread for up to 5 s (logging an error past that), so a thread alive now did not stop
     assert not s._physics_thread.is_alive() and not s._render_thread.is_alive()
     assert not worker.is_running(), "the render process outlived the stand-in"
