@@ -1,11 +1,11 @@
 """The stand-in's renderer in a process of its own, at a lower CPU priority than the server.
 
 Why a process: on a 2-core machine without a GPU, Mesa's llvmpipe renders the head camera (by default with every
-core it finds; the worker asks it for one, see `serve`), and the JPEG encoding and the face drawing come on top. In the server's process that work competes with
-the asyncio loop that carries the operator's poses; lowering the render thread's priority there would let it be
-preempted while it holds the GIL (the loop then waits on a starved thread). In its own process, at nice
-`RenderProcess.NICE` (its llvmpipe threads inherit it), the kernel gives the server's threads the CPU first and the
-two share no GIL. bench/media.py's control rows measure the effect.
+core it finds; the worker asks it for one, see `serve`), and the JPEG encoding and the face drawing come on top.
+In the server's process that work competes with the asyncio loop that carries the operator's poses; lowering the
+render thread's priority there would let it be preempted while it holds the GIL (the loop then waits on a starved
+thread). In its own process, at nice `RenderProcess.NICE` (its llvmpipe threads inherit it), the kernel gives the
+server's threads the CPU first and the two share no GIL. bench/media.py's control rows measure the effect.
 
 The worker is a plain request/reply server over a socket pair (multiprocessing.connection framing, pickles):
 the stand-in's render thread sends the joint state and asks for a camera frame (JPEG), a snapshot (RGB) or a
@@ -127,7 +127,8 @@ def serve(fd: int) -> None:
     os.nice(nice)  # before the GL context: llvmpipe's threads inherit it
     # Mesa's llvmpipe renders with a thread per core by default, and its threads wait for each other: on 2 cores
     # that takes both at every frame, and the loop's poses wait whatever their priority. In this one thread the
-    # render leaves a core free (bench/media.py's control rows: p99 with 5 viewers 0.97x of none, against 1.42x).
+    # render leaves a core free (bench/media.py's control rows, 6 rounds pooled: pose round trip p99 with 5
+    # viewers 1.22x of none, against 1.77x with a thread per core).
     # A GPU driver ignores it; a value set by the user is kept.
     os.environ.setdefault("LP_NUM_THREADS", "0")
     try:
