@@ -5,7 +5,8 @@ Figures:
   panel, WebRTC (requestVideoFrameCallback's expected display time, render time from the telemetry's RTP mapping)
   against the JPEG topic (the image decoded), p50/p95, at 640x480 and 1280x720;
 - bandwidth per path at 30 fps (WebRTC: the server's bytes sent to one peer; JSON: bytes on the WebSocket);
-- server CPU per delivered frame per path (the server process's CPU time over frames delivered);
+- server CPU per delivered frame per path (the CPU time of the server process and its video encoder process
+  over frames delivered);
 - frames per second with 1 and 5 WebRTC viewers (aiortc peers in another process);
 - on a 1 Mbit/s bottleneck (LinkShaper, a drop-tail queue on the server's side) with the head sweeping: fps and
   the encoder's bitrate;
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import shutil
@@ -134,17 +136,28 @@ async def webrtc_path(url: str, seconds: float) -> tuple[int, int]:
     return frames, size
 
 
+def server_cpu(proc: psutil.Process) -> float:
+    """CPU seconds of the server process and of its video encoder process (media/encoder_process.py), not of the
+    stand-in's render process (the same work for both paths)."""
+    total = sum(proc.cpu_times()[:2])
+    for child in proc.children():
+        with contextlib.suppress(psutil.Error):
+            if "encoder_process" in " ".join(child.cmdline()):
+                total += sum(child.cpu_times()[:2])
+    return total
+
+
 def bandwidth_rows(seconds: float) -> list[Row]:
     server = serve("--backend", "sim", "--bystander-interval", "0")
     proc = psutil.Process(server.pid)
     out = {}
     try:
         for name, fn in (("webrtc", webrtc_path), ("json", json_path)):
-            cpu0 = sum(proc.cpu_times()[:2])
+            cpu0 = server_cpu(proc)
             t0 = time.monotonic()
             frames, size = asyncio.run(fn(server.url, seconds))
             elapsed = time.monotonic() - t0
-            cpu = sum(proc.cpu_times()[:2]) - cpu0
+            cpu = server_cpu(proc) - cpu0
             out[name] = (frames, size, cpu, elapsed)
     finally:
         stop(server)

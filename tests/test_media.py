@@ -430,6 +430,31 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
     assert after["fds"] <= baseline["fds"] + 4, (baseline, after)
 
 
+async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_it_dies(tmp_path: Path) -> None:
+    """Encoding shares no GIL with the loop: it is a child process, at a lower priority than the server. Killed, it
+    is replaced and the peer's video resumes (the new encoder starts with a keyframe); the server's stop ends it."""
+    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+    try:
+        ros, peer = await connected(server.url, audio=False)
+        await peer.wait_video(3)
+        hub = server.server.media.video
+        pid = server.call(lambda: hub.encoder_pid)
+        encoder = psutil.Process(pid)
+        assert encoder.ppid() == os.getpid() and encoder.nice() > psutil.Process().nice()
+        assert "encoder_process" in " ".join(encoder.cmdline())
+        encoder.kill()
+        assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 20)
+        count = peer.video_count
+        await peer.wait_video(10)
+        assert peer.video_count >= count + 10
+        replacement = psutil.Process(server.call(lambda: hub.encoder_pid))
+        await peer.close()
+        await ros.close()
+    finally:
+        server.stop()
+    assert not replacement.is_running(), "the server's stop left its encoder process running"
+
+
 async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: RunningServer) -> None:
     """REMB in, a lower target out: the shared encoder is rebuilt at the estimate and frames keep flowing."""
     from aiortc.rtp import RTCP_PSFB_APP, RtcpPsfbPacket, pack_remb_fci
@@ -445,8 +470,8 @@ async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: Ru
         await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
                                                  fci=pack_remb_fci(300_000, [ssrc])))
         low = await telemetry_of(ros, lambda c: c["client"] == entry["client"] and c["rtc_target_bitrate"] == 300_000)
-        await until(lambda: media_server.call(lambda: media.video._encoders["VP8"].bitrate) == 300_000, 10)
-        assert media_server.call(lambda: media.video._encoders["VP8"].bitrate) == 300_000
+        await until(lambda: media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000, 10)
+        assert media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000
         count = peer.video_count
         await peer.wait_video(10)  # still decodable after the rebuild (it starts with a keyframe)
         assert peer.video_count >= count + 10

@@ -1,9 +1,10 @@
 """The head camera as WebRTC video, encoded once per frame for every peer that negotiated the same codec.
 
 aiortc encodes per sender: five viewers would cost five encoders. Here one `VideoHub` per server runs one encoder
-per codec (VP8, H.264) in its own thread, at a lower CPU priority than the event loop (the encoders release the GIL
-while they work; on 2 cores it is the CPU that the loop would wait for); each peer's `CameraTrack` hands the sender already-encoded packets,
-which aiortc only packetizes (`Encoder.pack`), so the per-peer cost is the RTP packetization alone.
+per codec (VP8, H.264) in an encoder process (encoder_process.py: no GIL shared with the event loop, a lower CPU
+priority), fed by one thread that hands it each camera frame's JPEG and waits for the bitstreams; each peer's
+`CameraTrack` hands the sender already-encoded packets, which aiortc only packetizes (`Encoder.pack`), so the
+per-peer cost is the RTP packetization alone. If the encoder process dies, the next frame starts another.
 
 Frames come from `Robot.live_frames()` only while some track is attached, newest first: while one frame is being
 encoded, the camera's mailbox keeps only the newest one, so the encoder never works through a backlog. An
@@ -28,8 +29,6 @@ import asyncio
 import contextlib
 import fractions
 import logging
-import os
-import threading
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -37,8 +36,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import av
-import cv2
-import numpy as np
 from aiortc import MediaStreamTrack, RTCRtpSender
 from aiortc.mediastreams import MediaStreamError
 from aiortc.rtp import RTCP_PSFB_APP, RTCP_PSFB_FIR, RTCP_PSFB_PLI, RtcpPsfbPacket, unpack_remb_fci
@@ -46,19 +43,17 @@ from aiortc.rtp import RTCP_PSFB_APP, RTCP_PSFB_FIR, RTCP_PSFB_PLI, RtcpPsfbPack
 from robot_models.types import CameraFrame
 
 from ..robot.interface import Robot
+from .encoder_process import VIDEO_CLOCK_RATE, EncoderProcess, EncoderProcessError
 
 log = logging.getLogger(__name__)
 
-VIDEO_CLOCK_RATE = 90000
 VIDEO_TIME_BASE = fractions.Fraction(1, VIDEO_CLOCK_RATE)
 CODECS = ("VP8", "H264")
 MIN_BITRATE = 150_000
 MAX_BITRATE = 4_000_000
 START_BITRATE = 800_000  # before the first estimate: what a 1 Mbit/s link carries
-REOPEN_RATIO = 0.15  # the encoder is rebuilt (a keyframe) only when the target moves more than this
-REOPEN_INTERVAL_S = 1.0  # and at most this often
+RESTART_DELAY_S = 1.0  # after the encoder process failed, the pump waits this long before it starts another
 QUEUE_BOUND = 3  # encoded frames waiting for one sender (100 ms at 30 fps)
-ENCODER_NICE = 10  # the encoding thread's niceness above the server's (see _lower_priority)
 KEYFRAME_INTERVAL_S = 0.5  # keyframes asked for (PLI, joins) are granted at most this often: a PLI storm on a
 # congested link would otherwise make every frame a large keyframe and keep the link congested
 
@@ -70,67 +65,7 @@ class EncodedFrame:
     keyframe: bool
     render_wall: float  # the camera frame's wall-clock stamp (its render time)
     seq: int
-    encode_s: float  # decode (JPEG) plus encode, seconds
     bitrate: int  # the encoder's target when it encoded this frame
-
-
-def _lower_priority() -> None:
-    """Encoding thread: lower this thread's CPU priority (Linux's niceness is per thread), so that the event loop
-    carrying the poses wins a core over the encoder (bench/media.py's control rows)."""
-    with contextlib.suppress(OSError, AttributeError):  # a platform without per-thread priorities: encode anyway
-        tid = threading.get_native_id()
-        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + ENCODER_NICE)
-
-
-class _Encoder:
-    """One codec's encoder; used only in the hub's encoding thread."""
-
-    def __init__(self, codec: str, fps: float) -> None:
-        self.codec = codec
-        self.fps = fps
-        self.context: Any = None
-        self.bitrate = START_BITRATE
-        self.opened_at = -1e9
-
-    def encode(self, image: av.VideoFrame, keyframe: bool, bitrate: int) -> tuple[bytes, bool]:
-        now = time.monotonic()
-        if self.context is not None and (image.width != self.context.width or image.height != self.context.height
-                                         or (abs(bitrate - self.bitrate) > REOPEN_RATIO * self.bitrate
-                                             and now - self.opened_at >= REOPEN_INTERVAL_S)):
-            self.context = None
-        if self.context is None:
-            self.bitrate = bitrate
-            self.opened_at = now
-            self.context = self._open(image.width, image.height, bitrate)
-            keyframe = True
-        image.pict_type = av.video.frame.PictureType.I if keyframe else av.video.frame.PictureType.NONE
-        data = b"".join(bytes(p) for p in self.context.encode(image))
-        return data, keyframe
-
-    def _open(self, width: int, height: int, bitrate: int) -> Any:
-        rate = max(1, round(self.fps))
-        if self.codec == "VP8":
-            ctx = av.CodecContext.create("libvpx", "w")
-            ctx.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
-                           "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
-                           "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
-                           "noise-sensitivity": "0", "error-resilient": "1"}
-            ctx.qmin, ctx.qmax = 4, 56
-        else:
-            ctx = av.CodecContext.create("libx264", "w")
-            ctx.options = {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
-                           "maxrate": str(bitrate), "bufsize": str(bitrate)}
-            ctx.profile = "Baseline"
-        ctx.width, ctx.height = width, height
-        ctx.pix_fmt = "yuv420p"
-        ctx.bit_rate = bitrate
-        ctx.framerate = fractions.Fraction(rate, 1)
-        ctx.time_base = fractions.Fraction(1, rate)
-        ctx.gop_size = 10 * rate  # a keyframe every 10 s at least; PLI and joining peers ask for more
-        # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
-        # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
-        ctx.thread_count = 1
-        return ctx
 
 
 class VideoHub:
@@ -142,13 +77,18 @@ class VideoHub:
         self._tracks: dict[str, set[CameraTrack]] = {codec: set() for codec in CODECS}
         self._keyframe: set[str] = set()
         self._keyframe_at: dict[str, float] = {}
-        self._encoders = {codec: _Encoder(codec, fps) for codec in CODECS}
+        self._encoder: EncoderProcess | None = None  # used only in the executor's thread
         self._executor: ThreadPoolExecutor | None = None
         self._task: asyncio.Task[None] | None = None
         self.epoch = time.time()
-        self.frames_encoded = 0
         self.encoded = {codec: 0 for codec in CODECS}  # frames each codec's encoder produced
-        self.encode_seconds = 0.0  # thread time spent decoding and encoding, for the bench's CPU per frame
+        self.encoder_bitrate = {codec: 0 for codec in CODECS}  # each encoder's target at its latest frame
+
+    @property
+    def encoder_pid(self) -> int | None:
+        """The encoder process's pid while one runs (it starts with the first frame a peer watches)."""
+        encoder = self._encoder
+        return None if encoder is None else encoder.pid
 
     @property
     def watching(self) -> int:
@@ -161,7 +101,7 @@ class VideoHub:
         self._keyframe.add(codec)
         if self._task is None or self._task.done():
             if self._executor is None:
-                self._executor = ThreadPoolExecutor(1, thread_name_prefix="media-video", initializer=_lower_priority)
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="media-video")
             self._task = asyncio.ensure_future(self._pump())
 
     def detach(self, track: CameraTrack) -> None:
@@ -201,7 +141,13 @@ class VideoHub:
                             jobs[codec] = (self._take_keyframe(codec), self.bitrate(codec))
                     if not jobs:
                         return
-                    encoded = await loop.run_in_executor(self._executor, self._encode, frame, jobs)
+                    try:
+                        encoded = await loop.run_in_executor(self._executor, self._encode, frame, jobs)
+                    except EncoderProcessError as exc:
+                        log.warning("%s; another starts in %g s", exc, RESTART_DELAY_S)
+                        self._keyframe.update(jobs)  # a new encoder starts with one anyway; the peers need it
+                        await asyncio.sleep(RESTART_DELAY_S)
+                        continue
                     for codec, item in encoded.items():
                         for track in list(self._tracks[codec]):
                             track.offer(item)
@@ -214,32 +160,31 @@ class VideoHub:
             log.exception("the WebRTC camera pump failed; peers get no more video")
 
     def _encode(self, frame: CameraFrame, jobs: dict[str, tuple[bool, int]]) -> dict[str, EncodedFrame]:
-        """Encoding thread: JPEG to I420 once, then each codec's encoder once."""
-        c0 = time.thread_time()
-        bgr = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
-        h, w = bgr.shape[:2]
-        w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
-        yuv = cv2.cvtColor(np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
+        """Executor thread: the frame through the encoder process (started on first use, or again after it
+        failed); blocks in a socket read, without the GIL, while the process encodes."""
+        if self._encoder is None:
+            self._encoder = EncoderProcess(self.fps)
         pts = round((frame.stamp_wall - self.epoch) * VIDEO_CLOCK_RATE)
+        try:
+            results = self._encoder.encode(frame.jpeg, pts, jobs)
+        except EncoderProcessError:
+            self._close_encoder()
+            raise
         out = {}
-        decode_s = time.thread_time() - c0
-        for codec, (keyframe, bitrate) in jobs.items():
-            e0 = time.thread_time()
-            image = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
-            image.pts, image.time_base = pts, VIDEO_TIME_BASE
-            try:
-                data, key = self._encoders[codec].encode(image, keyframe, bitrate)
-            except Exception:
-                log.exception("%s encoding failed; the encoder is rebuilt", codec)
-                self._encoders[codec].context = None
+        for codec, result in results.items():
+            if isinstance(result, str):
+                log.error("%s", result)
                 continue
-            if data:
-                self.encoded[codec] += 1
-                out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq,
-                                          decode_s + time.thread_time() - e0, self._encoders[codec].bitrate)
-        self.frames_encoded += 1
-        self.encode_seconds += time.thread_time() - c0
+            data, key, bitrate = result
+            self.encoded[codec] += 1
+            self.encoder_bitrate[codec] = bitrate
+            out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq, bitrate)
         return out
+
+    def _close_encoder(self) -> None:
+        if self._encoder is not None:
+            self._encoder.close()
+            self._encoder = None
 
     async def close(self) -> None:
         for tracks in self._tracks.values():
@@ -251,6 +196,8 @@ class VideoHub:
                 await self._task
             self._task = None
         if self._executor is not None:
+            # In the executor's thread, after the frame it may still be encoding: the process is used only there.
+            await asyncio.get_running_loop().run_in_executor(self._executor, self._close_encoder)
             self._executor.shutdown(wait=False, cancel_futures=True)
             self._executor = None
 

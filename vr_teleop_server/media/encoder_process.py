@@ -1,0 +1,228 @@
+"""The shared video encoders in a process of their own, at a lower CPU priority than the server.
+
+Why a process: in the server's process the encoding thread shares the GIL with the asyncio loop that carries the
+operator's poses. At a lower priority it is preempted (by the render process, by other work) while it holds the
+GIL between two C calls, and the loop then waits on a starved thread; at the same priority it competes with the
+loop for the CPU. In its own process, at nice `NICE`, it shares no GIL with the loop and the kernel gives the loop
+the CPU first. The server's side of a frame is a JPEG sent and a few kilobytes of VP8 or H.264 read back, in the
+hub's thread (blocked in a socket read, GIL released, while the worker encodes).
+
+The worker answers requests over a socket pair (multiprocessing.connection framing, pickles), one at a time: the
+JPEG, its presentation time and, per codec, whether to make a keyframe and the target bitrate; the answer is, per
+codec, the encoded frame or why it failed (that codec's encoder is then rebuilt). It is started with subprocess
+(multiprocessing's spawn would leave a resource-tracker process behind), loads this file alone (not the
+`vr_teleop_server` package: it needs only PyAV, OpenCV and NumPy, and starts in a fraction of a second), and exits
+when its socket closes, so it cannot outlive the server.
+"""
+
+from __future__ import annotations
+
+import fractions
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from multiprocessing.connection import Connection
+from typing import Any
+
+NICE = 10  # added to the worker's niceness: the server's loop wins a core over the encoder
+START_TIMEOUT_S = 30.0  # importing PyAV and OpenCV on a loaded machine
+REPLY_TIMEOUT_S = 10.0  # a frame takes milliseconds: a worker silent this long is hung
+VIDEO_CLOCK_RATE = 90000
+BOOT = ("import importlib.util, sys; "
+        "spec = importlib.util.spec_from_file_location('vr_teleop_encoder', sys.argv[1]); "
+        "module = importlib.util.module_from_spec(spec); spec.loader.exec_module(module); "
+        "module.serve(int(sys.argv[2]))")
+
+# One codec's answer: (bitstream, keyframe, bitrate) when it encoded, the error's text when it failed.
+Encoded = tuple[bytes, bool, int] | str
+
+
+class EncoderProcessError(RuntimeError):
+    """The encoder process died, hung or could not start."""
+
+
+class EncoderProcess:
+    """Parent side. Not thread-safe: the hub's encoding thread makes every call."""
+
+    def __init__(self, fps: float, *, nice: int = NICE) -> None:
+        ours, theirs = socket.socketpair()
+        try:
+            self.process = subprocess.Popen([sys.executable, "-c", BOOT, __file__, str(theirs.fileno())],
+                                            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                                            stdout=subprocess.DEVNULL, close_fds=True)
+        except BaseException:
+            ours.close()
+            raise
+        finally:
+            theirs.close()
+        self._conn = Connection(ours.detach())
+        try:
+            self._conn.send((float(fps), int(nice)))
+            self._reply(START_TIMEOUT_S)
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def encode(self, jpeg: bytes, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
+        """Decode the JPEG once and encode it with each codec in `jobs` ({codec: (keyframe, bitrate)}): per codec
+        the encoded frame (none when the encoder held it back) or the error's text."""
+        try:
+            self._conn.send((jpeg, pts, jobs))
+        except (OSError, ValueError) as exc:
+            raise self._died(exc) from exc
+        return self._reply(REPLY_TIMEOUT_S)
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Close the socket (the worker exits on it), then wait; kill the worker past `timeout`."""
+        try:
+            self._conn.close()
+        except OSError:
+            pass
+        try:
+            self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+    def _reply(self, timeout: float) -> Any:
+        try:
+            if not self._conn.poll(timeout):
+                self.process.kill()
+                raise EncoderProcessError(f"the video encoder process (pid {self.pid}) did not answer within "
+                                          f"{timeout:g} s and was killed")
+            ok, value = self._conn.recv()
+        except (EOFError, OSError, ValueError) as exc:
+            raise self._died(exc) from exc
+        if not ok:
+            raise EncoderProcessError(f"the video encoder process (pid {self.pid}) failed: {value}")
+        return value
+
+    def _died(self, exc: BaseException) -> EncoderProcessError:
+        try:
+            code = self.process.wait(0.1)
+        except subprocess.TimeoutExpired:
+            code = None
+        return EncoderProcessError(f"the video encoder process (pid {self.pid}) exited (code {code}): {exc!r}")
+
+
+# ---- the worker ----------------------------------------------------------------------------------------------
+def serve(fd: int) -> None:
+    """Worker entry point: answer requests until the socket closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the server stops us
+    conn = Connection(fd)
+    fps, nice = conn.recv()
+    os.nice(nice)
+    try:
+        worker = _Worker(fps)
+    except Exception as exc:
+        conn.send((False, f"the encoders did not load ({type(exc).__name__}: {exc})"))
+        return
+    conn.send((True, None))
+    while True:
+        try:
+            jpeg, pts, jobs = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            reply = (True, worker.encode(jpeg, pts, jobs))
+        except Exception as exc:
+            reply = (False, f"{type(exc).__name__}: {exc}")
+        conn.send(reply)
+
+
+class _Worker:
+    def __init__(self, fps: float) -> None:
+        import av
+        import cv2
+        import numpy as np
+
+        self.av, self.cv2, self.np = av, cv2, np
+        self.time_base = fractions.Fraction(1, VIDEO_CLOCK_RATE)
+        self.encoders = {codec: _Encoder(av, codec, fps) for codec in ("VP8", "H264")}
+
+    def encode(self, jpeg: bytes, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
+        """JPEG to I420 once, then each codec's encoder once."""
+        cv2 = self.cv2
+        bgr = cv2.imdecode(self.np.frombuffer(jpeg, self.np.uint8), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"a camera frame of {len(jpeg)} bytes is not a JPEG")
+        h, w = bgr.shape[:2]
+        w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
+        yuv = cv2.cvtColor(self.np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
+        out: dict[str, Encoded] = {}
+        for codec, (keyframe, bitrate) in jobs.items():
+            encoder = self.encoders[codec]
+            image = self.av.VideoFrame.from_ndarray(yuv, format="yuv420p")
+            image.pts, image.time_base = pts, self.time_base
+            try:
+                data, key = encoder.encode(image, keyframe, bitrate)
+            except Exception as exc:
+                encoder.context = None  # rebuilt (a keyframe) on the next frame
+                out[codec] = f"{codec} encoding failed ({type(exc).__name__}: {exc}); the encoder is rebuilt"
+                continue
+            if data:
+                out[codec] = (data, key, encoder.bitrate)
+        return out
+
+
+class _Encoder:
+    """One codec's encoder, rebuilt when the frame size changes or the target bitrate moves enough."""
+
+    REOPEN_RATIO = 0.15  # the encoder is rebuilt (a keyframe) only when the target moves more than this
+    REOPEN_INTERVAL_S = 1.0  # and at most this often
+
+    def __init__(self, av: Any, codec: str, fps: float) -> None:
+        self.av = av
+        self.codec = codec
+        self.fps = fps
+        self.context: Any = None
+        self.bitrate = 0
+        self.opened_at = -1e9
+
+    def encode(self, image: Any, keyframe: bool, bitrate: int) -> tuple[bytes, bool]:
+        now = time.monotonic()
+        if self.context is not None and (image.width != self.context.width or image.height != self.context.height
+                                         or (abs(bitrate - self.bitrate) > self.REOPEN_RATIO * self.bitrate
+                                             and now - self.opened_at >= self.REOPEN_INTERVAL_S)):
+            self.context = None
+        if self.context is None:
+            self.bitrate = bitrate
+            self.opened_at = now
+            self.context = self._open(image.width, image.height, bitrate)
+            keyframe = True
+        picture = self.av.video.frame.PictureType
+        image.pict_type = picture.I if keyframe else picture.NONE
+        data = b"".join(bytes(p) for p in self.context.encode(image))
+        return data, keyframe
+
+    def _open(self, width: int, height: int, bitrate: int) -> Any:
+        rate = max(1, round(self.fps))
+        if self.codec == "VP8":
+            ctx = self.av.CodecContext.create("libvpx", "w")
+            ctx.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
+                           "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
+                           "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
+                           "noise-sensitivity": "0", "error-resilient": "1"}
+            ctx.qmin, ctx.qmax = 4, 56
+        else:
+            ctx = self.av.CodecContext.create("libx264", "w")
+            ctx.options = {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
+                           "maxrate": str(bitrate), "bufsize": str(bitrate)}
+            ctx.profile = "Baseline"
+        ctx.width, ctx.height = width, height
+        ctx.pix_fmt = "yuv420p"
+        ctx.bit_rate = bitrate
+        ctx.framerate = fractions.Fraction(rate, 1)
+        ctx.time_base = fractions.Fraction(1, rate)
+        ctx.gop_size = 10 * rate  # a keyframe every 10 s at least; PLI and joining peers ask for more
+        # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
+        # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
+        ctx.thread_count = 1
+        return ctx
