@@ -31,6 +31,8 @@ NICE = 10  # added to the worker's niceness: the server's loop wins a core over 
 START_TIMEOUT_S = 30.0  # importing PyAV and OpenCV on a loaded machine
 REPLY_TIMEOUT_S = 10.0  # a frame takes milliseconds: a worker silent this long is hung
 VIDEO_CLOCK_RATE = 90000
+REOPEN_RATIO = 0.15  # an encoder is rebuilt at a new target bitrate (a keyframe) only when it moves more than this
+REOPEN_INTERVAL_S = 1.0  # and at most this often
 BOOT = ("import importlib.util, sys; "
         "spec = importlib.util.spec_from_file_location('vr_teleop_encoder', sys.argv[1]); "
         "module = importlib.util.module_from_spec(spec); spec.loader.exec_module(module); "
@@ -151,8 +153,8 @@ class _Worker:
         """JPEG to I420 once, then each codec's encoder once."""
         cv2 = self.cv2
         bgr = cv2.imdecode(self.np.frombuffer(jpeg, self.np.uint8), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise ValueError(f"a camera frame of {len(jpeg)} bytes is not a JPEG")
+        if bgr is None:  # this frame is lost; the encoders and the next frames are not
+            return {codec: f"a camera frame of {len(jpeg)} bytes is not a JPEG; not encoded" for codec in jobs}
         h, w = bgr.shape[:2]
         w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
         yuv = cv2.cvtColor(self.np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
@@ -175,9 +177,6 @@ class _Worker:
 class _Encoder:
     """One codec's encoder, rebuilt when the frame size changes or the target bitrate moves enough."""
 
-    REOPEN_RATIO = 0.15  # the encoder is rebuilt (a keyframe) only when the target moves more than this
-    REOPEN_INTERVAL_S = 1.0  # and at most this often
-
     def __init__(self, av: Any, codec: str, fps: float) -> None:
         self.av = av
         self.codec = codec
@@ -189,8 +188,8 @@ class _Encoder:
     def encode(self, image: Any, keyframe: bool, bitrate: int) -> tuple[bytes, bool]:
         now = time.monotonic()
         if self.context is not None and (image.width != self.context.width or image.height != self.context.height
-                                         or (abs(bitrate - self.bitrate) > self.REOPEN_RATIO * self.bitrate
-                                             and now - self.opened_at >= self.REOPEN_INTERVAL_S)):
+                                         or (abs(bitrate - self.bitrate) > REOPEN_RATIO * self.bitrate
+                                             and now - self.opened_at >= REOPEN_INTERVAL_S)):
             self.context = None
         if self.context is None:
             self.bitrate = bitrate

@@ -1,0 +1,88 @@
+"""The video encoder process on its own (media/encoder_process.py): JPEGs in, VP8 and H.264 out, over its socket."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+
+import av
+import cv2
+import numpy as np
+import psutil
+import pytest
+
+from vr_teleop_server.media.encoder_process import REOPEN_INTERVAL_S, EncoderProcess, EncoderProcessError
+
+BITRATE = 800_000
+
+
+@pytest.fixture
+def encoder() -> Iterator[EncoderProcess]:
+    process = EncoderProcess(30.0)
+    yield process
+    process.close()
+
+
+def jpeg(shift: int) -> bytes:
+    """A 640x480 picture whose content moves with `shift`."""
+    x = (np.arange(640)[None, :] + shift) % 256
+    image = np.broadcast_to(x, (480, 640)).astype(np.uint8)
+    ok, data = cv2.imencode(".jpg", cv2.merge([image, image[::-1], 255 - image]))
+    assert ok
+    return data.tobytes()
+
+
+def decode(codec: str, chunks: list[bytes]) -> list[np.ndarray]:
+    context = av.CodecContext.create({"VP8": "vp8", "H264": "h264"}[codec], "r")
+    frames = []
+    for chunk in chunks:
+        frames += [f.to_ndarray(format="gray") for f in context.decode(av.Packet(chunk))]
+    return frames
+
+
+def test_each_codec_encodes_decodable_frames_starting_with_a_keyframe(encoder: EncoderProcess) -> None:
+    chunks: dict[str, list[bytes]] = {"VP8": [], "H264": []}
+    keys = []
+    for i in range(5):
+        result = encoder.encode(jpeg(8 * i), i * 3000, {"VP8": (False, BITRATE), "H264": (False, BITRATE)})
+        for codec, (data, key, bitrate) in result.items():
+            assert bitrate == BITRATE
+            chunks[codec].append(data)
+            keys.append((codec, i, key))
+    assert ("VP8", 0, True) in keys and ("H264", 0, True) in keys  # a new encoder starts with a keyframe
+    assert ("VP8", 1, False) in keys
+    for codec, data in chunks.items():
+        frames = decode(codec, data)
+        assert len(frames) >= 4 and frames[0].shape == (480, 640), codec
+        assert np.abs(frames[-1].astype(int) - frames[0].astype(int)).mean() > 5, f"{codec}: the picture did not move"
+
+
+def test_a_frame_that_is_not_a_jpeg_is_lost_alone(encoder: EncoderProcess) -> None:
+    assert encoder.encode(b"not a jpeg", 0, {"VP8": (False, BITRATE)}) == {
+        "VP8": "a camera frame of 10 bytes is not a JPEG; not encoded"}
+    data, key, _ = encoder.encode(jpeg(0), 3000, {"VP8": (False, BITRATE)})["VP8"]
+    assert key and decode("VP8", [data])
+
+
+def test_a_keyframe_is_made_when_asked_and_the_bitrate_followed(encoder: EncoderProcess) -> None:
+    encoder.encode(jpeg(0), 0, {"VP8": (False, BITRATE)})
+    _, key, _ = encoder.encode(jpeg(1), 3000, {"VP8": (False, BITRATE)})["VP8"]
+    assert not key
+    _, key, _ = encoder.encode(jpeg(2), 6000, {"VP8": (True, BITRATE)})["VP8"]
+    assert key
+    # A target far from the current one rebuilds the encoder at it (starting with a keyframe), at most once a
+    # second: past that second, the next frame is encoded at the new target.
+    time.sleep(REOPEN_INTERVAL_S)
+    _, key, bitrate = encoder.encode(jpeg(3), 9000, {"VP8": (False, 200_000)})["VP8"]
+    assert key and bitrate == 200_000
+
+
+def test_a_dead_encoder_is_an_error_and_it_never_outlives_its_socket(encoder: EncoderProcess) -> None:
+    worker = psutil.Process(encoder.pid)
+    assert worker.nice() > psutil.Process().nice()
+    worker.kill()
+    with pytest.raises(EncoderProcessError, match="exited"):
+        encoder.encode(jpeg(0), 0, {"VP8": (False, BITRATE)})
+    other = EncoderProcess(30.0)
+    other._conn.close()  # what the server's exit does: the worker reads the end of its socket and leaves
+    assert other.process.wait(10) == 0
