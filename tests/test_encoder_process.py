@@ -57,9 +57,10 @@ def test_each_codec_encodes_decodable_frames_starting_with_a_keyframe(encoder: E
         assert np.abs(frames[-1].astype(int) - frames[0].astype(int)).mean() > 5, f"{codec}: the picture did not move"
 
 
-def test_a_frame_that_is_not_a_jpeg_is_lost_alone(encoder: EncoderProcess) -> None:
+def test_a_frame_that_is_not_a_jpeg_or_a_codec_it_lacks_is_lost_alone(encoder: EncoderProcess) -> None:
     assert encoder.encode(b"not a jpeg", 0, {"VP8": (False, BITRATE)}) == {
         "VP8": "a camera frame of 10 bytes is not a JPEG; not encoded"}
+    assert "no encoder for AV1" in encoder.encode(jpeg(0), 0, {"AV1": (False, BITRATE)})["AV1"]
     data, key, _ = encoder.encode(jpeg(0), 3000, {"VP8": (False, BITRATE)})["VP8"]
     assert key and decode("VP8", [data])
 

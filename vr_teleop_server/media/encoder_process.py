@@ -147,7 +147,8 @@ class _Worker:
 
         self.av, self.cv2, self.np = av, cv2, np
         self.time_base = fractions.Fraction(1, VIDEO_CLOCK_RATE)
-        self.encoders = {codec: _Encoder(av, codec, fps) for codec in ("VP8", "H264")}
+        self.fps = fps
+        self.encoders: dict[str, _Encoder] = {}
 
     def encode(self, jpeg: bytes, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
         """JPEG to I420 once, then each codec's encoder once."""
@@ -160,7 +161,9 @@ class _Worker:
         yuv = cv2.cvtColor(self.np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
         out: dict[str, Encoded] = {}
         for codec, (keyframe, bitrate) in jobs.items():
-            encoder = self.encoders[codec]
+            encoder = self.encoders.get(codec)
+            if encoder is None:
+                encoder = self.encoders[codec] = _Encoder(self.av, codec, self.fps)
             image = self.av.VideoFrame.from_ndarray(yuv, format="yuv420p")
             image.pts, image.time_base = pts, self.time_base
             try:
@@ -210,11 +213,13 @@ class _Encoder:
                            "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
                            "noise-sensitivity": "0", "error-resilient": "1"}
             ctx.qmin, ctx.qmax = 4, 56
-        else:
+        elif self.codec == "H264":
             ctx = self.av.CodecContext.create("libx264", "w")
             ctx.options = {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
                            "maxrate": str(bitrate), "bufsize": str(bitrate)}
             ctx.profile = "Baseline"
+        else:
+            raise ValueError(f"no encoder for {self.codec}")
         ctx.width, ctx.height = width, height
         ctx.pix_fmt = "yuv420p"
         ctx.bit_rate = bitrate
