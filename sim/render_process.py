@@ -7,124 +7,60 @@ render thread's priority there would let it be preempted while it holds the GIL 
 thread). In its own process, at nice `RenderProcess.NICE` (its llvmpipe threads inherit it), the kernel gives the
 server's threads the CPU first and the two share no GIL. bench/media.py's control rows measure the effect.
 
-The worker is a plain request/reply server over a socket pair (multiprocessing.connection framing, pickles):
-the stand-in's render thread sends the joint state and asks for a camera frame (JPEG), a snapshot (RGB) or a
-face (drawn and uploaded as the screen's texture); the worker answers each in order. It holds no state the
-server needs: if it dies, the camera closes and the robot goes on (see StandIn). It is started with
-subprocess, not multiprocessing's spawn, which would leave a resource-tracker process behind for the server's
-life, and it exits when its socket closes, so it cannot outlive the server.
+The worker is a request/reply server over a socket pair (the `worker_process` package: started with
+subprocess, it exits when its socket closes, so it cannot outlive the server): the stand-in's render thread sends
+the joint state and asks for a camera frame (JPEG), a snapshot (RGB) or a face (drawn and uploaded as the screen's
+texture); the worker answers each in order. It holds no state the server needs: if it dies, the camera closes and
+the robot goes on (see StandIn).
 """
 
 from __future__ import annotations
 
 import os
-import signal
-import socket
-import subprocess
-import sys
 import time
-from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from worker_process import WorkerDied, WorkerProcess, accept, answer
+
 ROOT = Path(__file__).resolve().parent.parent  # the directory that holds the `sim` package
 BOOT = "import sys; sys.path.insert(0, sys.argv[1]); from sim.render_process import serve; serve(int(sys.argv[2]))"
 
 
-class RenderProcessError(RuntimeError):
+class RenderProcessError(WorkerDied):
     """The render process died, hung or could not start."""
 
 
-class RenderProcess:
+class RenderProcess(WorkerProcess):
     """Parent side. Not thread-safe: one thread (the stand-in's render thread) makes every call."""
 
+    NAME = "the stand-in's render process"
     NICE = 10  # added to the worker's niceness: the server's loop and physics threads win the CPU
     START_TIMEOUT_S = 60.0  # importing MuJoCo and creating a GL context, on a loaded machine
     REPLY_TIMEOUT_S = 30.0  # a frame takes milliseconds: a worker silent this long is hung
+    Died = RenderProcessError
 
     def __init__(self, model: Any, width: int, height: int, *, nice: int = NICE) -> None:
-        ours, theirs = socket.socketpair()
-        try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-c", BOOT, str(ROOT), str(theirs.fileno())], pass_fds=(theirs.fileno(),),
-                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, close_fds=True)
-        except BaseException:
-            ours.close()
-            raise
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
-        try:
-            self._conn.send((model, int(width), int(height), int(nice)))
-            self._call_reply(self.START_TIMEOUT_S)
-        except BaseException:
-            self.close()
-            raise
-
-    @property
-    def pid(self) -> int:
-        return self.process.pid
+        super().__init__(BOOT, [str(ROOT)], nice, (model, int(width), int(height)))
 
     def frame(self, state: tuple, quality: int) -> tuple[bytes, int, int, float, float]:
         """JPEG of the head camera at the given joint state: (jpeg, width, height, render_ms, encode_ms)."""
-        return self._call(("frame", state, quality))
+        return self.call(("frame", state, quality))
 
     def snapshot(self, state: tuple, camera: str, width: int, height: int) -> np.ndarray:
-        return self._call(("snapshot", state, camera, width, height))
+        return self.call(("snapshot", state, camera, width, height))
 
     def face(self, emotion: str, talking_phase: float | None, voice_level: float | None) -> np.ndarray:
         """Draw the face, make it the screen's texture; returns the image drawn (RGB)."""
-        return self._call(("face", emotion, talking_phase, voice_level))
-
-    def close(self, timeout: float = 5.0) -> None:
-        """Ask the worker to exit (closing the socket is enough), then wait; kill it past `timeout`."""
-        try:
-            self._conn.close()
-        except OSError:
-            pass
-        try:
-            self.process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-
-    def _call(self, request: tuple) -> Any:
-        try:
-            self._conn.send(request)
-        except (OSError, ValueError) as exc:
-            raise self._died(exc) from exc
-        return self._call_reply(self.REPLY_TIMEOUT_S)
-
-    def _call_reply(self, timeout: float) -> Any:
-        try:
-            if not self._conn.poll(timeout):
-                self.process.kill()
-                raise RenderProcessError(f"the stand-in's render process (pid {self.pid}) did not answer within "
-                                         f"{timeout:g} s and was killed")
-            ok, value = self._conn.recv()
-        except (EOFError, OSError, ValueError) as exc:
-            raise self._died(exc) from exc
-        if not ok:
-            raise RuntimeError(value)  # the request failed; the worker lives on
-        return value
-
-    def _died(self, exc: BaseException) -> RenderProcessError:
-        code = self.process.poll()
-        if code is None:
-            time.sleep(0.1)
-            code = self.process.poll()
-        return RenderProcessError(f"the stand-in's render process (pid {self.pid}) exited (code {code}): {exc!r}")
+        return self.call(("face", emotion, talking_phase, voice_level))
 
 
 # ---- the worker ----------------------------------------------------------------------------------------------
 def serve(fd: int) -> None:
     """Worker entry point: answer requests until the socket closes."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the server stops us
-    conn = Connection(fd)
-    model, width, height, nice = conn.recv()
-    os.nice(nice)  # before the GL context: llvmpipe's threads inherit it
+    conn, (model, width, height) = accept(fd)  # the niceness first: llvmpipe's threads inherit it
     # Mesa's llvmpipe renders with a thread per core by default, and its threads wait for each other: on 2 cores
     # that takes both at every frame, and the loop's poses wait whatever their priority. In this one thread the
     # render leaves a core free (bench/media.py's control rows, 6 rounds pooled: pose round trip p99 with 5
@@ -137,18 +73,8 @@ def serve(fd: int) -> None:
         conn.send((False, f"the renderer did not start ({exc!r}); MuJoCo needs MUJOCO_GL=egl (or osmesa) and a "
                           "working libEGL on a headless machine"))
         return
-    conn.send((True, None))
     try:
-        while True:
-            try:
-                request = conn.recv()
-            except (EOFError, OSError):
-                return
-            try:
-                reply = (True, worker.handle(*request))
-            except Exception as exc:
-                reply = (False, f"{type(exc).__name__}: {exc}")
-            conn.send(reply)
+        answer(conn, lambda request: worker.handle(*request))
     finally:
         worker.close()
 

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SERVER = "vr_teleop_server"
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("leaves", ("client_protocol", "robot_models", "menus", "sim", "netem")),
+    ("leaves", ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process")),
     ("core, robot, recording, teleop, media", (
         f"{SERVER}.core", f"{SERVER}.robot", f"{SERVER}.recording", f"{SERVER}.teleop", f"{SERVER}.media",
         f"{SERVER}.questionnaires", SERVER)),  # SERVER: the package's own __init__ (a docstring)
@@ -32,8 +32,9 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     "client_protocol": (),
     "robot_models": ("client_protocol",),
     "menus": ("client_protocol",),
-    "sim": ("client_protocol", "robot_models"),
+    "sim": ("client_protocol", "robot_models", "worker_process"),
     "netem": (),
+    "worker_process": (),
     f"{SERVER}.core": ("client_protocol",),
     f"{SERVER}.robot": LEAVES,  # knows nothing of the bus
     f"{SERVER}.teleop": LEAVES,  # pure mapping maths
@@ -41,7 +42,7 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     f"{SERVER}.questionnaires": ("client_protocol",),
     f"{SERVER}.media": LEAVES + (f"{SERVER}.core", f"{SERVER}.robot"),  # never features or the app
 }
-PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", SERVER)
+PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", SERVER)
 
 
 @dataclass(frozen=True)

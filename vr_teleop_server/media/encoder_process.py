@@ -4,139 +4,75 @@ Why a process: in the server's process the encoding thread shares the GIL with t
 operator's poses. At a lower priority it is preempted (by the render process, by other work) while it holds the
 GIL between two C calls, and the loop then waits on a starved thread; at the same priority it competes with the
 loop for the CPU. In its own process, at nice `NICE`, it shares no GIL with the loop and the kernel gives the loop
-the CPU first. The server's side of a frame is a JPEG sent and a few kilobytes of VP8 or H.264 read back, in the
-hub's thread (blocked in a socket read, GIL released, while the worker encodes).
+the CPU first; a crash in libvpx or x264 ends the process, not the server. The server's side of a frame is a JPEG
+sent and a few kilobytes of VP8 or H.264 read back, in the hub's thread (blocked in a socket read, GIL released,
+while the worker encodes).
 
-The worker answers requests over a socket pair (multiprocessing.connection framing, pickles), one at a time: the
-JPEG, its presentation time and, per codec, whether to make a keyframe and the target bitrate; the answer is, per
-codec, the encoded frame or why it failed (that codec's encoder is then rebuilt). It is started with subprocess
-(multiprocessing's spawn would leave a resource-tracker process behind), loads this file alone (not the
-`vr_teleop_server` package: it needs only PyAV, OpenCV and NumPy, and starts in a fraction of a second), and exits
-when its socket closes, so it cannot outlive the server.
+The worker answers requests over a socket pair (the `worker_process` package: started with subprocess, it exits
+when its socket closes, so it cannot outlive the server), one at a time: the JPEG, its presentation time and, per
+codec, whether to make a keyframe and the target bitrate; the answer is, per codec, the encoded frame or why it
+failed (that codec's encoder is then rebuilt). It loads this file alone, not the `vr_teleop_server` package: it
+needs only PyAV, OpenCV and NumPy, and starts in a fraction of a second.
 """
 
 from __future__ import annotations
 
 import fractions
-import os
-import signal
-import socket
-import subprocess
-import sys
 import time
-from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
+from worker_process import WorkerDied, WorkerProcess, accept, answer
+
 NICE = 10  # added to the worker's niceness: the server's loop wins a core over the encoder
-START_TIMEOUT_S = 30.0  # importing PyAV and OpenCV on a loaded machine
-REPLY_TIMEOUT_S = 10.0  # a frame takes milliseconds: a worker silent this long is hung
 VIDEO_CLOCK_RATE = 90000
 REOPEN_RATIO = 0.15  # an encoder is rebuilt at a new target bitrate (a keyframe) only when it moves more than this
 REOPEN_INTERVAL_S = 1.0  # and at most this often
-BOOT = ("import importlib.util, sys; "
-        "spec = importlib.util.spec_from_file_location('vr_teleop_encoder', sys.argv[1]); "
+ROOT = Path(__file__).resolve().parents[2]  # the directory that holds `worker_process`
+BOOT = ("import importlib.util, sys; sys.path.insert(0, sys.argv[1]); "
+        "spec = importlib.util.spec_from_file_location('vr_teleop_encoder', sys.argv[2]); "
         "module = importlib.util.module_from_spec(spec); spec.loader.exec_module(module); "
-        "module.serve(int(sys.argv[2]))")
+        "module.serve(int(sys.argv[3]))")
 
 # One codec's answer: (bitstream, keyframe, bitrate) when it encoded, the error's text when it failed.
 Encoded = tuple[bytes, bool, int] | str
 
 
-class EncoderProcessError(RuntimeError):
-    """The encoder process died, hung or could not start."""
+class EncoderProcessError(WorkerDied):
+    """The encoder process died, hung, could not start, or failed a frame as a whole."""
 
 
-class EncoderProcess:
+class EncoderProcess(WorkerProcess):
     """Parent side. Not thread-safe: the hub's encoding thread makes every call."""
 
-    def __init__(self, fps: float, *, nice: int = NICE) -> None:
-        ours, theirs = socket.socketpair()
-        try:
-            self.process = subprocess.Popen([sys.executable, "-c", BOOT, __file__, str(theirs.fileno())],
-                                            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
-                                            stdout=subprocess.DEVNULL, close_fds=True)
-        except BaseException:
-            ours.close()
-            raise
-        finally:
-            theirs.close()
-        self._conn = Connection(ours.detach())
-        try:
-            self._conn.send((float(fps), int(nice)))
-            self._reply(START_TIMEOUT_S)
-        except BaseException:
-            self.close()
-            raise
+    NAME = "the video encoder process"
+    START_TIMEOUT_S = 30.0  # importing PyAV and OpenCV on a loaded machine
+    REPLY_TIMEOUT_S = 10.0  # a frame takes milliseconds: a worker silent this long is hung
+    Died = EncoderProcessError
 
-    @property
-    def pid(self) -> int:
-        return self.process.pid
+    def __init__(self, fps: float, *, nice: int = NICE) -> None:
+        super().__init__(BOOT, [str(ROOT), __file__], nice, (float(fps),))
 
     def encode(self, jpeg: bytes, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
         """Decode the JPEG once and encode it with each codec in `jobs` ({codec: (keyframe, bitrate)}): per codec
         the encoded frame (none when the encoder held it back) or the error's text."""
-        try:
-            self._conn.send((jpeg, pts, jobs))
-        except (OSError, ValueError) as exc:
-            raise self._died(exc) from exc
-        return self._reply(REPLY_TIMEOUT_S)
+        return self.call((jpeg, pts, jobs))
 
-    def close(self, timeout: float = 5.0) -> None:
-        """Close the socket (the worker exits on it), then wait; kill the worker past `timeout`."""
-        try:
-            self._conn.close()
-        except OSError:
-            pass
-        try:
-            self.process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-
-    def _reply(self, timeout: float) -> Any:
-        try:
-            if not self._conn.poll(timeout):
-                self.process.kill()
-                raise EncoderProcessError(f"the video encoder process (pid {self.pid}) did not answer within "
-                                          f"{timeout:g} s and was killed")
-            ok, value = self._conn.recv()
-        except (EOFError, OSError, ValueError) as exc:
-            raise self._died(exc) from exc
-        if not ok:
-            raise EncoderProcessError(f"the video encoder process (pid {self.pid}) failed: {value}")
-        return value
-
-    def _died(self, exc: BaseException) -> EncoderProcessError:
-        try:
-            code = self.process.wait(0.1)
-        except subprocess.TimeoutExpired:
-            code = None
-        return EncoderProcessError(f"the video encoder process (pid {self.pid}) exited (code {code}): {exc!r}")
+    def failed(self, why: str) -> Exception:
+        """A frame the worker could not handle at all: the hub starts another worker (as when one dies)."""
+        return EncoderProcessError(f"{self.NAME} (pid {self.pid}) failed: {why}")
 
 
 # ---- the worker ----------------------------------------------------------------------------------------------
 def serve(fd: int) -> None:
     """Worker entry point: answer requests until the socket closes."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the server stops us
-    conn = Connection(fd)
-    fps, nice = conn.recv()
-    os.nice(nice)
+    conn, (fps,) = accept(fd)
     try:
         worker = _Worker(fps)
     except Exception as exc:
         conn.send((False, f"the encoders did not load ({type(exc).__name__}: {exc})"))
         return
-    conn.send((True, None))
-    while True:
-        try:
-            jpeg, pts, jobs = conn.recv()
-        except (EOFError, OSError):
-            return
-        try:
-            reply = (True, worker.encode(jpeg, pts, jobs))
-        except Exception as exc:
-            reply = (False, f"{type(exc).__name__}: {exc}")
-        conn.send(reply)
+    answer(conn, lambda request: worker.encode(*request))
 
 
 class _Worker:
