@@ -11,7 +11,6 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -258,9 +257,10 @@ class LuxaiApi:
 
     async def _sample(self, wait_s: float, timeout_s: float) -> None:
         await asyncio.sleep(wait_s)
-        end = time.monotonic() + timeout_s if timeout_s else None
-        while self.recorder.recording and (end is None or time.monotonic() < end):
-            self.recorder.sample(self.robot.joint_state(), time.monotonic())
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout_s if timeout_s else None
+        while self.recorder.recording and (end is None or loop.time() < end):
+            self.recorder.sample(self.robot.joint_state(), loop.time())
             await asyncio.sleep(self.recorder.period_s)
         if self.recorder.recording:  # the timeout ended it
             self.stop_recording()
@@ -270,7 +270,7 @@ class LuxaiApi:
         if not self.recorder.recording:
             raise BusError("not recording; start with /qt_robot/gesture/record")
         parts = self.recorder.parts
-        self.recorder.sample(self.robot.joint_state(), time.monotonic())
+        self.recorder.sample(self.robot.joint_state(), self.robot.joint_state().stamp_monotonic)
         try:
             self._recorded = (self.recorder.stop(), parts)
         except ValueError as exc:

@@ -9,7 +9,6 @@ the decision module reports the trial completed, preempted or failed (T1), with 
 from __future__ import annotations
 
 import asyncio
-import time
 from dataclasses import dataclass
 
 from ..core.bus import Bus
@@ -66,9 +65,10 @@ class TrialRuntime:
         aruco = self.perception.trackers.get("aruco")
         if aruco is not None:
             marked = [n for n, o in self.study.objects.items() if o.marker is not None]
-            deadline = time.monotonic() + sight_timeout
+            loop = asyncio.get_running_loop()
+            deadline = loop.time() + sight_timeout
             while any(aruco.object_pose(n) is None for n in marked):
-                if time.monotonic() > deadline:
+                if loop.time() > deadline:
                     unseen = [n for n in marked if aruco.object_pose(n) is None]
                     raise RuntimeError(f"ArUco perception did not see {', '.join(unseen)} within {sight_timeout:g} s "
                                        "of setup: check the setup's head pose and the markers' ids")
