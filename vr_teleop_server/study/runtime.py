@@ -11,6 +11,8 @@ from __future__ import annotations
 import asyncio
 from dataclasses import dataclass
 
+from simclock import WALL, Clock
+
 from ..core.bus import Bus
 from ..robot.gestures import GestureLibrary
 from ..robot.interface import Robot
@@ -32,7 +34,7 @@ class TrialResult:
 
 class TrialRuntime:
     def __init__(self, bus: Bus, robot: Robot, study: Study, trial: str,
-                 gestures: GestureLibrary | None = None) -> None:
+                 gestures: GestureLibrary | None = None, clock: Clock = WALL) -> None:
         if trial not in study.trials:
             raise ValueError(f"study {study.study!r} has no trial {trial!r}; trials: {', '.join(study.trials)}")
         self.bus = bus
@@ -42,13 +44,13 @@ class TrialRuntime:
         spec = study.trials[trial]
         self.spec = spec
         self.log = TrialLog(bus, study.study, trial, (spec.perception, spec.decision, spec.motion),
-                            len(study.planned_robot_subtasks()))
-        static = StaticTracker(study.objects)
+                            len(study.planned_robot_subtasks()), clock=clock)
+        static = StaticTracker(study.objects, clock)
         trackers: dict[str, Tracker] = {"static": static}
         if spec.perception == "aruco":
             trackers["aruco"] = ArucoTracker(robot, study.objects)
-        self.perception = Perception(bus, study.objects, trackers, spec.perception)
-        self.static_perception = Perception(bus, study.objects, {"static": static}, "static")
+        self.perception = Perception(bus, study.objects, trackers, spec.perception, clock)
+        self.static_perception = Perception(bus, study.objects, {"static": static}, "static", clock)
         self.actions = ActionModule(robot, self.perception, self.log, study, spec.motion, gestures,
                                     static=self.static_perception)
         self.ctx = DecisionContext(study, self.log, self.actions, frozenset(spec.stalls))
