@@ -398,7 +398,7 @@ def _tracking(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tu
     return errors, caused, pairing
 
 
-def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
+def _engage_lag(steps: list[Step], got: Collected, poses: int = 180, settings: TeleopSettings | None = None) -> int:
     """How many head poses after the engage call the server engaged (not on the wire: the server runs calls as
     tasks). The lag whose first offline head commands match the first ones received, in order, wins."""
     received = [c[1] for c in got.commands.get("head", [])]
@@ -410,7 +410,7 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
     head = steps[:after[min(poses, len(after)) - 1] + 1] if after else steps
 
     def miss(lag: int) -> float:
-        expected = expected_commands(head, got, engage_lag=lag)
+        expected = expected_commands(head, got, settings, engage_lag=lag)
         firsts = [e["head"] for _i, e in sorted(expected.items()) if "head" in e][: len(received)]
         if not firsts:
             return np.inf
@@ -424,10 +424,12 @@ def _reason(values: Any) -> Any:
     return values.get("message", values) if isinstance(values, dict) else values
 
 
-def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
+def report(steps: list[Step], got: Collected, elapsed: float, speed: float,
+           settings: TeleopSettings | None = None) -> dict[str, Any]:
+    """`settings`: the server's teleop settings, for the offline mapping (default: the defaults)."""
     duration = steps[-1].t if steps else 0.0
-    lag = _engage_lag(steps, got)
-    expected = expected_commands(steps, got, engage_lag=lag)
+    lag = _engage_lag(steps, got, settings=settings)
+    expected = expected_commands(steps, got, settings, engage_lag=lag)
     errors, caused, pairing = _tracking(got, expected)
     sent_at = {index: sent for sent, index in got.sent_head}
     last = [c[-1][0] for c in got.commands.values() if c]
