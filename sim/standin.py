@@ -259,7 +259,8 @@ class StandIn:
             f = self.data.actuator_force[self._act].copy()
             goal, sp, modes, t = self._goal.copy(), self._setpoint.copy(), tuple(self._modes), self.data.time
         return JointSnapshot(self.names, tuple(map(float, q)), tuple(map(float, v)), tuple(map(float, goal)),
-                             tuple(map(float, sp)), tuple(map(float, f)), modes, self.clock.monotonic(), self.clock.time(), t)
+                             tuple(map(float, sp)), tuple(map(float, f)), modes, self.clock.monotonic(),
+                             self.clock.time(), t)
 
     def joint_positions(self) -> dict[str, float]:
         s = self.joint_state()

@@ -126,4 +126,5 @@ class FacePublisher:
                         "detector": self.detector.name,
                         "faces": [{"x": f.x, "y": f.y, "width": f.width, "height": f.height,
                                    "confidence": f.confidence} for f in faces]})
-                await asyncio.sleep(max(0.0, self._period - (asyncio.get_running_loop().time() - frame.stamp_monotonic)))
+                age = asyncio.get_running_loop().time() - frame.stamp_monotonic  # stamps are on the loop's clock
+                await asyncio.sleep(max(0.0, self._period - age))
