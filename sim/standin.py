@@ -77,7 +77,8 @@ class StandIn:
     Use as a context manager or call close(). Joint names, limits and caps come from `robot`.
     antialias defaults to 0 (no MSAA): without a GPU, 4x MSAA triples the render time (bench/standin.py:
     about 27 ms against 9 ms a 640x480 frame on 2 loaded cores) and costs the 30 fps target.
-    render_nice: how much lower the render process's CPU priority is than this process's (RenderProcess.NICE).
+    render_nice: how much lower the render process's CPU priority is than this process's (RenderProcess.NICE);
+    none on a simulated clock, where the clock waits for each frame (a niced renderer starves on a busy machine).
     """
 
     FACE_ANIMATION_HZ = 12.0
@@ -114,7 +115,7 @@ class StandIn:
             raise ValueError(f"jpeg_quality must be in 1..100, got {jpeg_quality}")
         self.camera_fps = float(camera_fps)
         self.jpeg_quality = int(jpeg_quality)
-        self.render_nice = int(render_nice)
+        self.render_nice = 0 if clock.simulated else int(render_nice)
         self.scene = scene or build_classroom(
             self.robot, shadows=shadows, antialias=antialias,
             offscreen_size=(max(1280, self.camera_width), max(720, self.camera_height)))
