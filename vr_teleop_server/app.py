@@ -155,7 +155,7 @@ class TeleopServer:
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
-        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker)
+        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock)
         self._start(self.luxai)
         self.control = ExplicitControl(
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),

@@ -16,6 +16,7 @@ from typing import Any
 
 from client_protocol import names
 from client_protocol.errors import Refusal
+from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.tasks import cancel_and_wait
@@ -29,8 +30,9 @@ log = logging.getLogger(__name__)
 
 class LuxaiApi:
     def __init__(self, bus: Bus, robot: Robot, gestures: GestureLibrary, speaker: Speaker,
-                 joint_state_hz: float = 30.0) -> None:
+                 joint_state_hz: float = 30.0, clock: Clock = WALL) -> None:
         self.bus = bus
+        self.clock = clock  # times the gesture recorder's samples
         self.robot = robot
         self.gestures = gestures
         self.speaker = speaker
@@ -257,10 +259,10 @@ class LuxaiApi:
 
     async def _sample(self, wait_s: float, timeout_s: float) -> None:
         await asyncio.sleep(wait_s)
-        loop = asyncio.get_running_loop()
-        end = loop.time() + timeout_s if timeout_s else None
-        while self.recorder.recording and (end is None or loop.time() < end):
-            self.recorder.sample(self.robot.joint_state(), loop.time())
+        clock = self.clock
+        end = clock.monotonic() + timeout_s if timeout_s else None
+        while self.recorder.recording and (end is None or clock.monotonic() < end):
+            self.recorder.sample(self.robot.joint_state(), clock.monotonic())
             await asyncio.sleep(self.recorder.period_s)
         if self.recorder.recording:  # the timeout ended it
             self.stop_recording()
@@ -270,7 +272,7 @@ class LuxaiApi:
         if not self.recorder.recording:
             raise BusError("not recording; start with /qt_robot/gesture/record")
         parts = self.recorder.parts
-        self.recorder.sample(self.robot.joint_state(), self.robot.joint_state().stamp_monotonic)
+        self.recorder.sample(self.robot.joint_state(), self.clock.monotonic())
         try:
             self._recorded = (self.recorder.stop(), parts)
         except ValueError as exc:
