@@ -108,6 +108,35 @@ def test_the_strict_build_makes_every_page_of_the_nav(site):
         assert (DOCS / page).is_file()
 
 
+@pytest.mark.parametrize("breakage", [
+    "a link to [a page that does not exist](missing.md)",
+    "a link to [an anchor that does not exist](other.md#no-such-heading)",
+    "a picture that does not exist: ![camera](images/missing.webp)",
+])
+def test_the_sites_strict_settings_fail_a_broken_link_anchor_or_picture(tmp_path, breakage):
+    """The site's own validation settings, on a two-page site: its sound version builds, a broken one does not."""
+    import yaml
+
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    (docs / "other.md").write_text("# Other\n\n## A heading\n")
+    small = {key: config[key] for key in ("theme", "validation", "markdown_extensions", "strict")}
+    small.update(site_name="check", docs_dir=str(docs), nav=["index.md", "other.md"],
+                 hooks=[str(ROOT / hook) for hook in config["hooks"]])
+    (tmp_path / "mkdocs.yml").write_text(yaml.safe_dump(small))
+
+    def build(text: str) -> subprocess.CompletedProcess:
+        (docs / "index.md").write_text(f"# Home\n\n{text}\n")
+        return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--site-dir", str(tmp_path / "site")],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                              env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+
+    assert build("[A heading](other.md#a-heading)").returncode == 0
+    broken = build(breakage)
+    assert broken.returncode != 0 and "WARNING -  Doc file 'index.md' contains a link" in broken.stderr, broken.stderr
+
+
 def test_the_protocol_page_has_every_endpoint_with_its_type_direction_and_rate(site):
     page = read_page(site, "reference/protocol")
     summary = page.sections["Summary"]
