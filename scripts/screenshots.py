@@ -2,8 +2,8 @@
 
 Starts `vr-teleop serve` on the MuJoCo stand-in (a free loopback port, stopped by its process id), then drives the
 operator page in Debian's Chromium through Playwright: flat, and in VR with IWER as the headset (as
-tests/test_operator_page.py does), and the supervisor's dashboard. Each picture is written as a small WebP into
-the output directory; the names are what the guides link to.
+tests/test_operator_page.py does), and the supervisor's dashboard. Each picture is written as a small PNG (256
+colours) into the output directory; the names are what the guides link to.
 
     python scripts/screenshots.py --out docs/images [--only NAME ...]
 """
@@ -78,10 +78,12 @@ class Shots:
         self.written: list[Path] = []
 
     def save(self, page, name: str, **options) -> None:
-        """A WebP of the page (quality 80: a tenth of the PNG's size, and text stays sharp)."""
+        """A PNG of the page in 256 colours (dithered): a third of the full-colour PNG's size, text stays sharp."""
         png = page.screenshot(**options)
-        path = self.out / f"{name}.webp"
-        Image.open(io.BytesIO(png)).convert("RGB").save(path, "WEBP", quality=80, method=6)
+        path = self.out / f"{name}.png"
+        image = Image.open(io.BytesIO(png)).convert("RGB")
+        image.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(
+            path, optimize=True)
         self.written.append(path)
         print(f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}: {path.stat().st_size // 1024} KiB")
 
@@ -137,7 +139,7 @@ class Shots:
             page.wait_for_function("window.operator.camera.uploaded >= 10", timeout=SLOW)
             self.calm(page)
             self.frames(page, 10)
-            self.save(page, "headset-control")
+            self.save(page, "operator-vr")
             self.dashboard()
             page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
             self.press(page, "right", "b-button")  # B: the emotion menu
@@ -147,7 +149,7 @@ class Shots:
             page.evaluate("xrDevice.controllers.right.updateAxes('thumbstick', 0, 0)")
             self.calm(page)
             self.frames(page, 5)
-            self.save(page, "headset-menu")
+            self.save(page, "operator-vr-menu")
             self.press(page, "right", "b-button")  # B again closes the menu
             page.wait_for_function("document.getElementById('menu-title').textContent === ''", timeout=SLOW)
             # The page's thread busy for 1.5 s: no poses, the watchdog holds the robot, the HUD warns.
@@ -155,7 +157,7 @@ class Shots:
             page.wait_for_function("/held \\d+ times? in/.test(document.getElementById('hud-link')?.textContent ?? '')",
                                    timeout=SLOW)
             self.frames(page, 10)
-            self.save(page, "headset-hud-warning")
+            self.save(page, "operator-vr-hud-warning")
             self.press(page, "right", "trigger")  # release control
         finally:
             page.context.close()
