@@ -201,33 +201,38 @@ def cli() -> str:
 
 # ---- configuration files -------------------------------------------------------------------------------------------
 
-def schema_type(prop: dict[str, Any], defs: dict[str, Any] | None = None) -> str:
+def model_anchor(root: str, name: str) -> str:
+    """A nested model's heading id, under its file's root model (two files may each have an `Item`)."""
+    return anchor(f"{root}-{name}") if root != name else anchor(name)
+
+
+def schema_type(prop: dict[str, Any], defs: dict[str, Any] | None = None, root: str = "") -> str:
     """A JSON Schema property's type, in words, with links to the sections of nested models (enums inline)."""
     defs = defs or {}
     if "$ref" in prop:
         name = prop["$ref"].rsplit("/", 1)[-1]
         if "properties" not in defs.get(name, {}):
-            return schema_type(defs.get(name, {}), defs)
-        return f"[{name}](#{anchor('model-' + name)})"
+            return schema_type(defs.get(name, {}), defs, root)
+        return f"[{name}](#{model_anchor(root, name)})"
     if "enum" in prop:
         return "one of " + ", ".join(code(v) for v in prop["enum"])
     if "const" in prop:
         return code(prop["const"])
     for key in ("anyOf", "oneOf", "allOf"):
         if key in prop:
-            return " or ".join(schema_type(p, defs) for p in prop[key])
+            return " or ".join(schema_type(p, defs, root) for p in prop[key])
     kind = prop.get("type", "any")
     if kind == "array":
-        return "list of " + schema_type(prop.get("items", {}), defs)
+        return "list of " + schema_type(prop.get("items", {}), defs, root)
     if kind == "object" and isinstance(prop.get("additionalProperties"), dict):
-        return "map of name to " + schema_type(prop["additionalProperties"], defs)
+        return "map of name to " + schema_type(prop["additionalProperties"], defs, root)
     return {"number": "number", "integer": "integer", "string": "text", "boolean": "true/false",
             "null": "null", "object": "mapping"}.get(kind, kind)
 
 
 BOUNDS = (("minimum", "≥"), ("exclusiveMinimum", ">"), ("maximum", "≤"), ("exclusiveMaximum", "<"),
-          ("minLength", "length ≥"), ("maxLength", "length ≤"), ("minItems", "items ≥"), ("maxItems", "items ≤"),
-          ("pattern", "matches"))
+          ("minLength", "length ≥"), ("maxLength", "length ≤"), ("minItems", "items ≥"),
+          ("maxItems", "items ≤"), ("pattern", "matches"))
 
 
 def constraints(prop: dict[str, Any]) -> str:
@@ -241,20 +246,22 @@ def model_section(title: str, model: Any) -> str:
     """One table per model the file uses (the file's own first), then the whole JSON Schema, folded."""
     schema = model.model_json_schema()
     out = []
-    defs = {schema.get("title", model.__name__): schema, **schema.get("$defs", {})}
+    root = schema.get("title", model.__name__)
+    defs = {root: schema, **schema.get("$defs", {})}
     for name, definition in defs.items():
         props = definition.get("properties")
         if not props:
             continue
         required = set(definition.get("required", ()))
-        out.append(f"\n#### {name} {{#{anchor('model-' + name)}}}\n\n")
+        out.append(f"\n#### {name} {{#{model_anchor(root, name)}}}\n\n")
         if definition.get("description"):
             out.append(definition["description"].strip() + "\n\n")
         rows = []
         for key, prop in props.items():
             default = ("required" if key in required else code(json.dumps(prop["default"])) if "default" in prop
                        else "")  # a default made by a factory: the meaning says what it is
-            rows.append([code(key), schema_type(prop, defs), default, constraints(prop), cell(prop.get("description", ""))])
+            rows.append([code(key), schema_type(prop, defs, root), default, constraints(prop),
+                         cell(prop.get("description", ""))])
         out.append(table(["Key", "Type", "Default", "Bounds", "Meaning"], rows))
     out.append(f'\n??? note "JSON Schema of {title}"\n\n    ```json\n')
     out.append("".join(f"    {line}\n" for line in json.dumps(schema, indent=2).splitlines()))
