@@ -83,8 +83,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "Whether the robot's arms may follow the controllers (true by default; each arm still needs its "
              "grip).", example={"data": True}),
     Endpoint(names.ESTOP_SERVICE, "std_srvs/Trigger", "call",
-             "Emergency stop: the robot holds where it is and control is released. Anyone may call it; engaging "
-             "again resumes."),
+             "Emergency stop: the robot holds where it is and control is released. Any operator or supervisor "
+             "may call it, holding control or not (spectators may not); engaging again resumes."),
     Endpoint(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", "subscribe",
              "Explicit control as the server sees it (see the type's comments for the states).",
              "30 Hz and on every change",
