@@ -112,7 +112,7 @@ class RosRobot(Robot):
         self._camera_count = 0
         self._gesture_stop: asyncio.Event | None = None
         self._sentences = 0  # say calls sent and not answered yet
-        self._stops = 0  # stops sent: a sentence that saw one sent while it was spoken was cut short
+        self._stops = 0  # stop requests: a sentence that saw one while spoken (or waiting) was cut short
         self._stopping: asyncio.Future | None = None  # the newest stop, until the robot answers it
         self._motor_readings: dict[str, tuple[float | None, float | None]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
