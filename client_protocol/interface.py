@@ -71,8 +71,15 @@ ENDPOINTS: tuple[Endpoint, ...] = (
     # ---- explicit control: the server's services and telemetry ----
     Endpoint(names.ENGAGE_SERVICE, "std_srvs/SetBool", "call",
              "data true: take control (needs a fresh head pose from the caller; the current head orientation "
-             "becomes the robot's head zero). data false: release it; the robot keeps its pose. Refused while "
-             "another client holds control.", example={"data": True}),
+             "becomes the robot's head zero). Engaging again while this operator already holds control changes "
+             "nothing (success, and the message says control is already held); to make the current head "
+             "orientation straight ahead, call " + names.RECENTER_SERVICE + ". data false: release it; the robot "
+             "keeps its pose. Refused while another client holds control.", example={"data": True}),
+    Endpoint(names.RECENTER_SERVICE, "std_srvs/Trigger", "call",
+             "Re-center while holding control: the operator's current head orientation becomes straight ahead "
+             "(the robot's head eases back to its centre as teleop resumes from there). Only the operator holding "
+             "control may call it; refused (success false, the reason in message) otherwise or without a fresh "
+             "head pose.", example={}),
     Endpoint(names.CALIBRATE_SERVICE, "std_srvs/Trigger", "call",
              "Measure the operator's shoulders and arm length from a T-pose (arms straight out to the sides), "
              "holding the headset and both controllers tracked. The reply's message holds the measurements as "
