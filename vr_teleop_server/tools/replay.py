@@ -400,7 +400,8 @@ def _tracking(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tu
 
 def _engage_lag(steps: list[Step], got: Collected, poses: int = 180, settings: TeleopSettings | None = None) -> int:
     """How many head poses after the engage call the server engaged (not on the wire: the server runs calls as
-    tasks). The lag whose first offline head commands match the first ones received, in order, wins."""
+    tasks). The lag whose first offline head commands match the first ones received, in order, wins; as in
+    _responses, the server may have sent a few commands first that no pose of the offline mapping causes."""
     received = [c[1] for c in got.commands.get("head", [])]
     engage = next((i for i, step in enumerate(steps) if step.kind == "call" and step.topic == names.ENGAGE_SERVICE),
                   None)
@@ -414,7 +415,8 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180, settings: T
         firsts = [e["head"] for _i, e in sorted(expected.items()) if "head" in e][: len(received)]
         if not firsts:
             return np.inf
-        return float(np.mean([np.abs(np.array(e) - np.array(r)).max() for e, r in zip(firsts, received)]))
+        return min(float(np.mean([np.abs(np.array(e) - np.array(r)).max() for e, r in zip(firsts, received[skip:])]))
+                   for skip in range(min(ENGAGE_LAGS, len(received))))
 
     return min(range(ENGAGE_LAGS), key=miss)
 
