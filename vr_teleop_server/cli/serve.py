@@ -34,11 +34,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="larger frames get a status error (default %(default)s)")
     p.add_argument("--service-timeout", type=float, default=defaults.service_timeout, metavar="S",
                    help="seconds a service call waits when the caller gives no timeout (default %(default)s)")
-    p.add_argument("--backend", choices=["sim", "ros", "none"], default=defaults.backend,
+    p.add_argument("--backend", choices=["sim", "ros", "luxai", "none"], default=defaults.backend,
                    help="the robot: the embedded MuJoCo stand-in (sim), a real QTrobot's rosbridge (ros, with "
-                        "--robot-url) or none (default %(default)s)")
-    p.add_argument("--robot-url", default=defaults.robot_url, metavar="ws://ROBOT:9090",
-                   help="the real robot's rosbridge, for --backend ros (default %(default)s)")
+                        "--robot-url), a QTrobot v3 through LuxAI's SDK (luxai, with --robot-url) or none "
+                        "(default %(default)s)")
+    p.add_argument("--robot-url", default=None, metavar="URL",
+                   help="the real robot: for --backend ros its rosbridge, ws://ROBOT:9090 (default "
+                        "ws://127.0.0.1:9091); for --backend luxai its service hub, tcp://ROBOT:50500 (default "
+                        "tcp://127.0.0.1:50500), or an MQTT broker, mqtt://BROKER:1883 (also mqtts://, wss://), "
+                        "with --robot-id")
+    p.add_argument("--robot-id", default=None, metavar="QTRD000320",
+                   help="the QTrobot v3's id, for --backend luxai through an MQTT broker")
+    p.add_argument("--camera-url", default=None, metavar="tcp://ROBOT:50655",
+                   help="the QTrobot v3's realsense-driver plugin over ZeroMQ (default: the robot's host, port "
+                        "50655); through MQTT it is found under its node id qtrobot-realsense-driver")
     p.add_argument("--camera-size", default=f"{defaults.camera_width}x{defaults.camera_height}", metavar="WxH",
                    help="head-camera image size (default %(default)s)")
     p.add_argument("--camera-fps", type=float, default=defaults.camera_fps,
@@ -105,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
                                   spectator_token=tokens["spectator"], insecure=args.insecure,
                                   certfile=args.certfile, keyfile=args.keyfile, teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
-                                  backend=args.backend, robot_url=args.robot_url, camera_width=width,
+                                  backend=args.backend, robot_url=args.robot_url, robot_id=args.robot_id,
+                                  camera_url=args.camera_url, camera_width=width,
                                   camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,
