@@ -101,9 +101,11 @@ class FakeQtrobotV3:
 
     # ---- the description, from the SDK's IDL ------------------------------------------------------------------
     def describe(self) -> dict[str, Any]:
-        rpc = {spec["service_name"]: {"transports": {"zmq": {"endpoint": f"tcp://*:{self.rpc_port}"},
-                                                     "mqtt": {"topic": f"{self.robot_id}/hub"}}}
-               for spec in QTROBOT_CORE_APIS["rpc"].values()}
+        services = {spec["service_name"] for spec in QTROBOT_CORE_APIS["rpc"].values()}
+        services |= {spec["cancel_service_name"] for spec in QTROBOT_CORE_APIS["rpc"].values()
+                     if spec.get("cancel_service_name")}
+        rpc = {name: {"transports": {"zmq": {"endpoint": f"tcp://*:{self.rpc_port}"},
+                                     "mqtt": {"topic": f"{self.robot_id}/hub"}}} for name in sorted(services)}
         stream = {}
         for topic, spec in _served_streams().items():
             stream[topic] = {"direction": spec["direction"], "frame_type": spec["frame_type"],
@@ -145,7 +147,7 @@ class FakeQtrobotV3:
             "/tts/engine/say/text": self._say,
             "/tts/engine/cancel": lambda a: self._cancel_speech.set() or True,
             "/tts/engine/configure/set": lambda a: self.tts_config.update(a["config"]) or True,
-            "/gesture/file/list": lambda a: ["QT/bye", "QT/happy"],
+            "/gesture/file/list": lambda a: ["QT/bye", "QT/nod"],
             "/gesture/file/play": self._play_gesture,
             "/gesture/cancel": lambda a: self._cancel_gesture.set() or True,
             "/motor/on": lambda a: self._torque(a["motor"], True),

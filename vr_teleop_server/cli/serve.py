@@ -106,6 +106,14 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"vr-teleop serve: {exc}", file=sys.stderr)
         return 2
+    if args.backend == "luxai":
+        from ..robot.backends.luxai import parse_robot_url
+
+        try:
+            parse_robot_url(args.robot_url or "tcp://127.0.0.1", args.robot_id)
+        except ValueError as exc:
+            print(f"vr-teleop serve: {exc}", file=sys.stderr)
+            return 2
     tokens = {role: getattr(args, f"{role}_token") for role in ROLES}
     if args.generate_tokens:
         tokens = {role: tokens[role] or token for role, token in generate_tokens().items()}
