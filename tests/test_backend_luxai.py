@@ -155,14 +155,20 @@ def test_motors_off_ignore_commands_and_home_uses_the_robots_own(zmq_robot):
 def test_motor_errors_and_voice_activity_become_events(zmq_robot):
     hub, server, ros = zmq_robot
     events = Watch(ros, names.EVENT_TOPIC, "vr_teleop_msgs/Event")
+    motors = Watch(ros, names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus")
     try:
         hub.faults = {"RightElbowRoll": {"overload_limit": True}}
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "motor_error" and e["level"] == "danger"
                                            and json.loads(e["detail"]) == {"motor": "RightElbowRoll",
                                                                            "faults": ["overload_limit"]}), 10)
-        assert server.call(lambda: server.server.robot.motor_faults()) == {"RightElbowRoll": ("overload_limit",)}
+        # the motors' status panel says which motor and what
+        assert wait_for(lambda: dict(zip(motors.latest.get("name", []), motors.latest.get("fault", [])))
+                        .get("RightElbowRoll") == "overload_limit", 10), motors.latest
+        assert set(motors.latest["fault"]) == {"", "overload_limit"}
+        assert motors.latest["temperature"][motors.latest["name"].index("HeadYaw")] == 35.0  # measured, not modelled
         hub.faults = {"RightElbowRoll": {}}
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "motor_ok"), 10)
+        assert wait_for(lambda: set(motors.latest["fault"]) == {""}, 10)
         hub.mic_event = {"activity": True, "direction": 75}
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "voice_activity"
                                            and json.loads(e["detail"]) == {"activity": True, "direction_deg": 75}),
@@ -170,6 +176,7 @@ def test_motor_errors_and_voice_activity_become_events(zmq_robot):
     finally:
         hub.faults, hub.mic_event = {}, None
         events.close()
+        motors.close()
 
 
 def test_the_cameras_color_stream_reaches_the_jpeg_topic(zmq_robot):

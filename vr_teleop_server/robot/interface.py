@@ -136,6 +136,7 @@ class MotorStatus:
     voltage_v: float | None
     mode: MotorMode
     source: str  # "measured" (a real robot) or "modelled" (the stand-in's thermal model)
+    fault: str = ""  # what the motor reports wrong (comma-separated), "" when nothing (or the backend cannot tell)
 
 
 class FrameMailbox:

@@ -439,9 +439,10 @@ class LuxaiRobot(Robot):
     def motor_status(self) -> tuple[MotorStatus, ...]:
         positions = self.joint_state().as_dict()
         with self._lock:
-            readings = dict(self._readings)
+            readings, faults = dict(self._readings), dict(self._faults)
         return tuple(MotorStatus(n, part, positions.get(n, math.nan), *readings.get(n, (None, None)), self._modes[n],
-                                 "measured") for part, joints in self._model.parts.items() for n in joints)
+                                 "measured", ",".join(faults.get(n, ())))
+                     for part, joints in self._model.parts.items() for n in joints)
 
     # ---- the SDK's calls ----------------------------------------------------------------------------------------
     def _refuse_if_disconnected(self, what: str) -> None:
