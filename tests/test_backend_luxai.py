@@ -250,11 +250,17 @@ def test_the_robot_lost_and_back(zmq_robot):
         engage(ros)
         headset.head_orientation = unity_yaw_pitch(20)
         assert wait_for(lambda: abs(hub.positions["HeadYaw"] - 20) < 2, 10), hub.positions
+        answers: list = []
+        long = "a sentence long enough to be cut short when the robot dies in the middle of saying it to the class"
+        roslibpy.Service(ros, names.SPEECH_SAY_SERVICE, "qt_robot_interface/speech_say").call(
+            roslibpy.ServiceRequest({"message": long}), answers.append)
+        assert wait_for(lambda: hub.said and hub.said[-1]["text"] == long, 10)
         hub.stop()
         assert wait_for(lambda: teleop.latest.get("state") == "robot_lost" and not teleop.latest["robot_connected"],
                         10), teleop.latest
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), 5)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"), 5)
+        assert wait_for(lambda: answers, 10) and answers[0]["status"] is False  # ended with the robot, not completed
         refused(call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True}), "disconnected")
         refused(call(ros, names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": "QT/sad"}))
         report = server.call(lambda: server.server.robot.set_joint_targets({"HeadPitch": 12.0}))

@@ -264,7 +264,11 @@ class LuxaiRobot(Robot):
             if alive == self._connected:
                 continue
             if alive:
-                self._open_writers()  # fresh sockets: nothing from before the loss goes out
+                try:
+                    self._open_writers()  # fresh sockets: nothing from before the loss goes out
+                except Exception as exc:  # the SDK could not open them yet: still lost, try again
+                    log.warning("QTrobot v3 at %s answers again but its streams cannot be opened: %s", self.url, exc)
+                    continue
                 log.info("QTrobot v3 at %s is back", self.url)
             else:
                 log.warning("QTrobot v3 at %s is lost (no joint state for %.1f s); waiting for it", self.url,
@@ -490,12 +494,21 @@ class LuxaiRobot(Robot):
         """Waits (bounded) for an SDK action: (completed: it ended well, stopped: stopped by us or the robot lost)."""
         from luxai.robot.core.actions import ActionError  # noqa: PLC0415
 
-        try:
-            await asyncio.to_thread(handle.result, CALL_TIMEOUT_S)
-            ok = True
-        except (ActionError, TimeoutError) as exc:
-            log.debug("QTrobot v3 action ended: %s", exc)
-            ok = False
+        def wait() -> bool:
+            """Until the action ends, the robot is lost or CALL_TIMEOUT_S passes; True if it ended well."""
+            deadline = time.monotonic() + CALL_TIMEOUT_S
+            while not handle.done():
+                if not self._connected or time.monotonic() > deadline:
+                    return False
+                with contextlib.suppress(TimeoutError):
+                    handle.wait(WATCH_PERIOD_S)
+            try:
+                return handle.result(0) is not False  # say_text, play_file: False when it did not finish
+            except ActionError as exc:
+                log.debug("QTrobot v3 action ended: %s", exc)
+                return False
+
+        ok = await asyncio.to_thread(wait)
         stopped = id(handle) in self._stopped or not self._connected
         self._stopped.discard(id(handle))
         return ok and not stopped, stopped
