@@ -127,6 +127,12 @@ class LuxaiRobot(Robot):
             self._emotions = self._list("face.list_emotions", self._sdk_robot.face.list_emotions)
             self._gesture_files = self._list("gesture.list_files", self._sdk_robot.gesture.list_files)
             self.camera_problem = self._enable_camera(camera_url)
+            narrowed = [f"{j.name} {j.lower:g}..{j.upper:g}" for j in self._model.joints
+                        if (j.lower, j.upper) != (base.joint(j.name).lower, base.joint(j.name).upper)]
+            log.info("QTrobot v3 %s (%s) at %s; %s; camera: %s", self._sdk_robot.robot_id or robot_id,
+                     self._sdk_robot.robot_type, self.url,
+                     f"its limits narrow {', '.join(narrowed)} deg" if narrowed else "the model's limits hold",
+                     self.camera_problem or "realsense-driver")
             self._state: JointState | None = None
             self._readings: dict[str, tuple[float | None, float | None]] = {}
             self._faults: dict[str, tuple[str, ...]] = {}
