@@ -58,11 +58,14 @@ def _served_streams() -> dict[str, dict[str, Any]]:
 class FakeQtrobotV3:
     """start() binds (the same ports again after a stop(): the robot process restarting); stop() kills it."""
 
-    def __init__(self, *, robot_id: str = "QTRD000320", broker: str | None = None, zmq: bool = True,
+    def __init__(self, *, robot_id: str = "QTRD000320", broker: str | None = None, broker_options: Any = None,
+                 zmq: bool = True,
                  limits: dict[str, dict[str, float]] | None = None, camera: bool = True,
                  speech_s_per_word: float = 0.25) -> None:
         self.robot_id = robot_id
         self.broker = broker
+        self.broker_options = broker_options or MqttOptions(
+            reconnect=MqttReconnectOptions(min_delay_sec=1, max_delay_sec=1))
         self.zmq = zmq
         self.model = load_qtrobot()
         self.limits = {j.name: {"part": j.part, "position_min": j.lower, "position_max": j.upper,
@@ -245,9 +248,9 @@ class FakeQtrobotV3:
 
     def _start_gateway(self, inbound: dict[str, Any]) -> None:
         """The hub's MQTT gateway: the same RPCs and streams through the broker, under the robot id."""
-        conn = MqttConnection(self.broker, options=MqttOptions(
-            reconnect=MqttReconnectOptions(min_delay_sec=1, max_delay_sec=1)))
-        conn.connect(timeout=10)
+        conn = MqttConnection(self.broker, options=self.broker_options)
+        if not conn.connect(timeout=10):
+            raise RuntimeError(f"the fake hub's gateway cannot reach the broker {self.broker}")
         self.connection = conn
         for service in (self.robot_id, f"{self.robot_id}/hub"):
             self._parts.append(ServerNode(MqttRpcResponder(conn, service), self.handle, max_workers=8))

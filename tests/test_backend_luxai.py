@@ -5,6 +5,7 @@ over ZeroMQ, and through a real mosquitto broker. The hub's limits are narrower 
 from __future__ import annotations
 
 import asyncio
+import getpass
 import json
 import shutil
 import subprocess
@@ -319,10 +320,12 @@ def test_serve_exits_1_with_the_reason_when_the_robot_cannot_be_reached():
 class Mosquitto:
     """Debian's mosquitto on a free loopback port, started and stopped by its process id."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, extra: str = "allow_anonymous true\n") -> None:
         self.port = free_port()
         self.config = tmp / "mosquitto.conf"
-        self.config.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
+        # user: started as root, mosquitto would switch to its own account, which cannot read the test's key files
+        self.config.write_text(f"listener {self.port} 127.0.0.1\npersistence false\nuser {getpass.getuser()}\n"
+                               f"{extra}")
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> Mosquitto:
@@ -403,3 +406,34 @@ def test_a_broker_restart_is_the_robot_lost_and_back(mqtt_robot):
         assert all(c.get("HeadYaw", {}).get("position") != 10.0 for c in hub.commands)
     finally:
         events.close()
+
+
+def test_a_tls_broker_with_a_login(tmp_path, monkeypatch):
+    """mqtts:// with a CA file and a username and password (as a school's or a cloud broker wants): the robot is
+    reached and moves; the gateway of the fake robot logs in the same way."""
+    from luxai.robot import MqttAuthOptions, MqttOptions, MqttTlsOptions
+
+    from vr_teleop_server.core.certs import make_certificate
+
+    cert = make_certificate(tmp_path / "tls", ["localhost"], [__import__("ipaddress").ip_address("127.0.0.1")])
+    passwords = tmp_path / "passwords"
+    subprocess.run([shutil.which("mosquitto_passwd") or "/usr/bin/mosquitto_passwd", "-b", "-c", str(passwords),
+                    "teacher", "s3cret"], check=True, capture_output=True)
+    broker = Mosquitto(tmp_path, f"allow_anonymous false\npassword_file {passwords}\ncafile {cert.certfile}\n"
+                                 f"certfile {cert.certfile}\nkeyfile {cert.keyfile}\n").start()
+    url = f"mqtts://127.0.0.1:{broker.port}"
+    login = MqttOptions(tls=MqttTlsOptions(ca_file=str(cert.certfile)),
+                        auth=MqttAuthOptions(mode="username_password", username="teacher", password="s3cret"))
+    hub = server = None
+    try:
+        hub = FakeQtrobotV3(broker=url, broker_options=login, zmq=False, camera=False).start()
+        server = luxai_server(hub, tmp_path, robot_url=url, robot_id=hub.robot_id, mqtt_ca_file=cert.certfile,
+                              mqtt_username="teacher", mqtt_password="s3cret")
+        assert server.call(lambda: server.server.robot.set_joint_targets({"HeadPitch": 12.0})).ok
+        assert wait_for(lambda: abs(hub.positions["HeadPitch"] - 12.0) < 0.5, 10), hub.positions
+    finally:
+        if server is not None:
+            server.stop()
+        if hub is not None:
+            hub.stop()
+        broker.stop()

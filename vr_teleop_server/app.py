@@ -141,8 +141,9 @@ class TeleopServer:
         elif s.backend == "luxai":
             from .robot.backends.luxai import LuxaiRobot  # the SDK loads only when a QTrobot v3 is wanted
 
-            self.robot = robot = await LuxaiRobot.create(s.resolved_robot_url, self.model, robot_id=s.robot_id,
-                                                         camera_url=s.camera_url)
+            self.robot = robot = await LuxaiRobot.create(
+                s.resolved_robot_url, self.model, robot_id=s.robot_id, camera_url=s.camera_url,
+                mqtt_ca_file=s.mqtt_ca_file, mqtt_username=s.mqtt_username, mqtt_password=s.mqtt_password)
             self.model = robot.model  # the robot's own limits narrow the model's: everything uses those in force
             robot.connection_changed.append(lambda up: publish_event(
                 self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",

@@ -23,6 +23,10 @@ class ServerSettings(CoreSettings):
                           "'luxai' its service hub, tcp://HOST:50500 (the default, on 127.0.0.1), or an MQTT broker "
                           "(mqtt://, mqtts://, wss://) with robot_id")
     robot_id: str | None = Field(None, description="the QTrobot v3's id (e.g. QTRD000320), for 'luxai' over MQTT")
+    mqtt_ca_file: Path | None = Field(None, description="for 'luxai' through a TLS broker (mqtts://, wss://): the CA "
+                                                        "certificate (PEM) to trust; default: the system's")
+    mqtt_username: str | None = Field(None, description="for 'luxai' through a broker that wants a login")
+    mqtt_password: str | None = Field(None, description="its password (the CLI reads $VR_TELEOP_MQTT_PASSWORD)")
     camera_url: str | None = Field(
         None, description="the QTrobot v3's realsense-driver plugin over ZeroMQ, tcp://HOST:PORT (default: the "
                           "robot's host, port 50655); over MQTT it is found under its node id")

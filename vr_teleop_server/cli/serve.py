@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import gc
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -45,6 +46,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "with --robot-id")
     p.add_argument("--robot-id", default=None, metavar="QTRD000320",
                    help="the QTrobot v3's id, for --backend luxai through an MQTT broker")
+    p.add_argument("--mqtt-ca-file", type=Path, default=None, metavar="CA.pem",
+                   help="--backend luxai through a TLS broker (mqtts://, wss://): the CA certificate to trust "
+                        "(default: the system's)")
+    p.add_argument("--mqtt-username", default=None, metavar="NAME",
+                   help="--backend luxai through a broker that wants a login; the password is read from "
+                        "$VR_TELEOP_MQTT_PASSWORD (never from the command line, where other users could read it)")
     p.add_argument("--camera-url", default=None, metavar="tcp://ROBOT:50655",
                    help="the QTrobot v3's realsense-driver plugin over ZeroMQ (default: the robot's host, port "
                         "50655); through MQTT it is found under its node id qtrobot-realsense-driver")
@@ -123,7 +130,10 @@ def run(args: argparse.Namespace) -> int:
                                   certfile=args.certfile, keyfile=args.keyfile, teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
                                   backend=args.backend, robot_url=args.robot_url, robot_id=args.robot_id,
-                                  camera_url=args.camera_url, camera_width=width,
+                                  camera_url=args.camera_url, mqtt_ca_file=args.mqtt_ca_file,
+                                  mqtt_username=args.mqtt_username,
+                                  mqtt_password=os.environ.get("VR_TELEOP_MQTT_PASSWORD") or None,
+                                  camera_width=width,
                                   camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,

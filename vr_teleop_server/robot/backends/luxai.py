@@ -30,6 +30,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
@@ -110,9 +111,11 @@ class LuxaiRobot(Robot):
     """QTrobot v3 through `luxai-robot`. Construction connects and blocks: from asyncio, use `await create(...)`."""
 
     def __init__(self, url: str, model: RobotModel | None = None, *, robot_id: str | None = None,
-                 camera_url: str | None = None, connect_timeout: float = 10.0) -> None:
+                 camera_url: str | None = None, connect_timeout: float = 10.0, mqtt_ca_file: Path | None = None,
+                 mqtt_username: str | None = None, mqtt_password: str | None = None) -> None:
         self.transport, self.url = parse_robot_url(url, robot_id)
         self.robot_id = robot_id
+        self._mqtt_login = (mqtt_ca_file, mqtt_username, mqtt_password)
         self._lock = threading.Lock()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=6, thread_name_prefix="luxai-sdk")
@@ -187,12 +190,16 @@ class LuxaiRobot(Robot):
             if self.transport == "zmq":
                 return SdkRobot.connect_zmq(endpoint=self.url, connect_timeout=timeout,
                                             default_rpc_timeout=CALL_TIMEOUT_S)
-            from luxai.robot import MqttOptions, MqttReconnectOptions  # noqa: PLC0415
-            from luxai.magpie.transport import MqttDefaultsOptions  # noqa: PLC0415
+            from luxai.robot import (MqttAuthOptions, MqttDefaultsOptions, MqttOptions,  # noqa: PLC0415
+                                     MqttReconnectOptions, MqttTlsOptions)
 
+            ca_file, username, password = self._mqtt_login
             # Stream frames at QoS 0: a frame the broker cannot take now is dropped, not queued for later.
             options = MqttOptions(reconnect=MqttReconnectOptions(min_delay_sec=1, max_delay_sec=MQTT_MAX_BACKOFF_S),
-                                  defaults=MqttDefaultsOptions(publish_qos=0))
+                                  defaults=MqttDefaultsOptions(publish_qos=0),
+                                  tls=MqttTlsOptions(ca_file=str(ca_file) if ca_file else None),
+                                  auth=MqttAuthOptions(mode="username_password" if username else "none",
+                                                       username=username, password=password))
             return SdkRobot.connect_mqtt(self.url, self.robot_id, options=options, connect_timeout=timeout,
                                          default_rpc_timeout=CALL_TIMEOUT_S)
         except Exception as exc:  # the SDK raises RuntimeError, TimeoutError or the socket's own errors
