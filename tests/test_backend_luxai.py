@@ -312,8 +312,16 @@ def test_serve_exits_1_with_the_reason_when_the_robot_cannot_be_reached():
     proc = serve("--robot-url", f"tcp://127.0.0.1:{port}")
     assert proc.returncode == 1, proc.stderr
     assert f"cannot reach the QTrobot v3 service hub at tcp://127.0.0.1:{port}" in proc.stderr, proc.stderr
-    proc = serve("--robot-url", f"mqtt://127.0.0.1:{port}")  # a broker needs the robot's id
-    assert proc.returncode == 2 and "--robot-id" in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("url, expected", [("mqtt://127.0.0.1:1883", "give the robot's id too (--robot-id"),
+                                           ("ws2://robot:50500", "use tcp://ROBOT:50500"),
+                                           ("tcp://:50500", "give the service hub as tcp://HOST:PORT")])
+def test_serve_refuses_a_robot_url_it_cannot_use(url, expected, capsys):
+    from vr_teleop_server.cli import main
+
+    assert main(["serve", "--port", "0", "--backend", "luxai", "--robot-url", url]) == 2
+    assert expected in capsys.readouterr().err
 
 
 # ---- through a broker ---------------------------------------------------------------------------------------------

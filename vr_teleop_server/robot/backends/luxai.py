@@ -126,7 +126,10 @@ class LuxaiRobot(Robot):
         try:
             base = model or load_qtrobot()
             self.robot_limits = self._read_limits(base)
-            self._model = base.narrowed(self.robot_limits)
+            try:
+                self._model = base.narrowed(self.robot_limits)
+            except ValueError as exc:
+                raise RobotUnreachable(f"the QTrobot v3 at {self.url} cannot be driven safely: {exc}") from None
             self._emotions = self._list("face.list_emotions", self._sdk_robot.face.list_emotions)
             self._gesture_files = self._list("gesture.list_files", self._sdk_robot.gesture.list_files)
             self.camera_problem = self._enable_camera(camera_url)
@@ -144,14 +147,6 @@ class LuxaiRobot(Robot):
             self._modes = {n: MotorMode.ON for n in self._model.names}
             self._commanded: dict[str, float] = {}
             self._writers_lock = threading.Lock()
-            self._command_writer: Any = None
-            self._speaker_writer: Any = None
-            self._open_writers()
-            self._subscriptions = [self._sdk_robot.motor.stream.on_joints_state(self._on_joint_state, queue_size=1),
-                                   *self._optional_stream("the motors' error stream", "motor", "on_joints_error",
-                                                          self._on_joints_error),
-                                   *self._optional_stream("the microphone's events", "microphone", "on_int_event",
-                                                          self._on_mic_event)]
             self._speech: Any = None  # the ActionHandle of the sentence being said
             self._gesture: Any = None  # the ActionHandle of the gesture file playing, or an asyncio.Event
             self._stopped: set[int] = set()  # id() of the handles stop_speech()/stop_gesture() cancelled
@@ -168,6 +163,14 @@ class LuxaiRobot(Robot):
             self._speaker_pending = bytearray()
             self._voice = (0.0, 0.0)
             self._mic_activity: bool | None = None
+            self._command_writer: Any = None
+            self._speaker_writer: Any = None
+            self._open_writers()
+            self._subscriptions = [self._sdk_robot.motor.stream.on_joints_state(self._on_joint_state, queue_size=1),
+                                   *self._optional_stream("the motors' error stream", "motor", "on_joints_error",
+                                                          self._on_joints_error),
+                                   *self._optional_stream("the microphone's events", "microphone", "on_int_event",
+                                                          self._on_mic_event)]
             self._watcher = threading.Thread(target=self._watch, name="luxai-watch", daemon=True)
             self._watcher.start()
         except BaseException:
