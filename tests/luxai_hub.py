@@ -61,7 +61,7 @@ class FakeQtrobotV3:
     def __init__(self, *, robot_id: str = "QTRD000320", broker: str | None = None, broker_options: Any = None,
                  zmq: bool = True,
                  limits: dict[str, dict[str, float]] | None = None, camera: bool = True,
-                 speech_s_per_word: float = 0.25) -> None:
+                 speech_s_per_word: float = 0.5) -> None:
         self.robot_id = robot_id
         self.broker = broker
         self.broker_options = broker_options or MqttOptions(
@@ -178,7 +178,7 @@ class FakeQtrobotV3:
     def _play_gesture(self, args: dict[str, Any]) -> bool:
         self.gestures.append((args["gesture"], float(args.get("speed_factor", 1.0))))
         self._cancel_gesture.clear()
-        return not self._cancel_gesture.wait(0.5)
+        return not self._cancel_gesture.wait(1.0 / float(args.get("speed_factor", 1.0)))  # a 1 s gesture
 
     def _torque(self, motor: str, on: bool) -> bool:
         with self.lock:

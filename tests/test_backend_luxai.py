@@ -110,25 +110,33 @@ def test_emotions_speech_with_stop_and_voice_config(zmq_robot):
     assert hub.cancelled == [long] and long not in hub.spoken
 
 
-def test_gestures_the_robot_holds_play_there_others_stream(zmq_robot):
+def test_the_robots_own_gestures_play_there_the_servers_stream(zmq_robot):
     hub, server, ros = zmq_robot
+    listed = call(ros, names.GESTURE_LIST_SERVICE, "qt_gesture_controller/gesture_list")["gestures"]
+    assert {"nod", "wave", "QT/bye"} <= set(listed)  # the server's files, then the robot's own
+    assert "QT/nod" not in listed  # the library's "nod" is also "QT/nod": the robot's is shadowed
     assert call(ros, names.GESTURE_PLAY_SERVICE, "qt_gesture_controller/gesture_play",
-                {"name": "nod", "speed": 2.0})["status"]
-    assert hub.gestures[-1] == ("QT/nod", 2.0)  # the robot's own gesture file, at the speed asked
-    # a gesture the robot does not hold is streamed as joint commands
-    before = len(hub.commands)
+                {"name": "QT/bye", "speed": 2.0})["status"]
+    assert hub.gestures[-1] == ("QT/bye", 2.0)  # the robot's own gesture file, at the speed asked
+    # the server's gesture is streamed as joint commands, even where the robot holds one of that name
+    before, played = len(hub.commands), len(hub.gestures)
     assert call(ros, names.GESTURE_PLAY_SERVICE, "qt_gesture_controller/gesture_play",
-                {"name": "wave", "speed": 4.0})["status"]
-    assert len(hub.commands) > before + 3 and hub.gestures[-1] == ("QT/nod", 2.0)
+                {"name": "QT/nod", "speed": 4.0})["status"]
+    assert len(hub.commands) > before + 3 and len(hub.gestures) == played
     # stopped: the robot's cancel call, and the play answers not completed
     play = roslibpy.Service(ros, names.GESTURE_PLAY_SERVICE, "qt_gesture_controller/gesture_play")
     answers: list = []
-    count = len(hub.gestures)
-    play.call(roslibpy.ServiceRequest({"name": "nod", "speed": 1.0}), answers.append)
-    assert wait_for(lambda: len(hub.gestures) > count, 10)
+    play.call(roslibpy.ServiceRequest({"name": "QT/bye", "speed": 0.1}), answers.append)  # 10 s long
+    assert wait_for(lambda: len(hub.gestures) > played, 10)
     assert call(ros, names.GESTURE_STOP_SERVICE, "qt_gesture_controller/gesture_stop")["status"]
     assert wait_for(lambda: answers, 10) and answers[0]["status"] is False
     assert "/gesture/cancel" in hub.rpc_names
+    # the gesture menu offers the robot's own too
+    menu = Watch(ros, names.MENUS_TOPIC, "vr_teleop_msgs/Menus")
+    try:
+        assert wait_for(lambda: "QT/bye" in json.dumps(menu.latest), 10)
+    finally:
+        menu.close()
 
 
 def test_motors_off_ignore_commands_and_home_uses_the_robots_own(zmq_robot):

@@ -177,7 +177,7 @@ class TeleopServer:
         self._start(FacePublisher(self.bus, robot))
         panels = {"hardware": status.hardware, "motors": status.motors, "dialog": status.dialog,
                   "motivation": motivation.message}
-        self._start(MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
+        self._start(MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
                                 status=lambda which: panels[which](), luxai=self.luxai))
         return speaker
 

@@ -131,7 +131,8 @@ class LuxaiRobot(Robot):
             except ValueError as exc:
                 raise RobotUnreachable(f"the QTrobot v3 at {self.url} cannot be driven safely: {exc}") from None
             self._emotions = self._list("face.list_emotions", self._sdk_robot.face.list_emotions)
-            self._gesture_files = self._list("gesture.list_files", self._sdk_robot.gesture.list_files)
+            self._gesture_files = tuple(f.removesuffix(".xml") for f in
+                                        self._list("gesture.list_files", self._sdk_robot.gesture.list_files))
             self.camera_problem = self._enable_camera(camera_url)
             narrowed = [f"{j.name} {j.lower:g}..{j.upper:g}" for j in self._model.joints
                         if (j.lower, j.upper) != (base.joint(j.name).lower, base.joint(j.name).upper)]
@@ -550,31 +551,33 @@ class LuxaiRobot(Robot):
         self._voice_config.update(config)
         await self._await("speech config", self._sdk_robot.tts.set_config, dict(config))
 
-    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
-        """A gesture file the robot holds plays there (gesture.play_file); any other one (a recording) is streamed
-        as joint commands, waypoint by waypoint."""
-        gesture.validate(self._model)
+    def own_gestures(self) -> tuple[str, ...]:
+        """The robot's gesture files (gesture.list_files at connect), by the names play_file takes."""
+        return self._gesture_files
+
+    async def play_own_gesture(self, name: str, speed: float = 1.0) -> GestureResult:
+        """gesture.play_file on the robot, cancellable by stop_gesture()."""
+        if name not in self._gesture_files:
+            raise ValueError(f"unknown gesture {name!r}; the robot holds: {', '.join(self._gesture_files)}")
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
         self._refuse_if_disconnected("gesture")
         self.stop_gesture()
-        name = gesture.name.removeprefix("QT/")
-        held = next((f for f in self._gesture_files if f.removesuffix(".xml").removeprefix("QT/") == name), None)
-        if held is not None:
-            return await self._play_file(gesture, held.removesuffix(".xml"), speed)
-        return await self._stream_gesture(gesture, speed)
-
-    async def _play_file(self, gesture: Gesture, file: str, speed: float) -> GestureResult:
-        handle = self._gesture = await asyncio.to_thread(self._sdk_robot.gesture.play_file_async, file, speed)
+        handle = self._gesture = await asyncio.to_thread(self._sdk_robot.gesture.play_file_async, name, speed)
         try:
             completed, stopped = await self._finished(handle)
         finally:
             if self._gesture is handle:
                 self._gesture = None
-        return GestureResult(gesture.name, completed, stopped, len(gesture.waypoints) if completed else 0, (), (),
-                             None)
+        return GestureResult(name, completed, stopped, 0, (), (), None)
 
-    async def _stream_gesture(self, gesture: Gesture, speed: float) -> GestureResult:
+    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
+        """The server's gestures (its files, recordings) are streamed as joint commands, waypoint by waypoint."""
+        gesture.validate(self._model)
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
+        self._refuse_if_disconnected("gesture")
+        self.stop_gesture()
         stop = self._gesture = asyncio.Event()
         loop = asyncio.get_running_loop()
         start, sent, clamps, ignored = loop.time(), 0, [], {}
