@@ -19,7 +19,18 @@ import pytest
 import roslibpy
 from luxai_hub import NARROW, FakeQtrobotV3, free_port
 from media_client import MediaPeer, Rosbridge, Tone
-from support import Headset, RunningServer, Watch, call, engage, joints, refused, unity_yaw_pitch, wait_for
+from support import (
+    Headset,
+    RunningServer,
+    Watch,
+    call,
+    engage,
+    joints,
+    refused,
+    unity_yaw_pitch,
+    wait_for,
+    wait_subscribed,
+)
 
 from client_protocol import names
 from vr_teleop_server.settings import ServerSettings
@@ -165,6 +176,7 @@ def test_motor_errors_and_voice_activity_become_events(zmq_robot):
     hub, server, ros = zmq_robot
     events = Watch(ros, names.EVENT_TOPIC, "vr_teleop_msgs/Event")
     motors = Watch(ros, names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus")
+    assert wait_subscribed(server, names.EVENT_TOPIC)  # an event is sent once: be there before it happens
     try:
         hub.faults = {"RightElbowRoll": {"overload_limit": True}}
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "motor_error" and e["level"] == "danger"
@@ -255,6 +267,7 @@ def test_the_robot_lost_and_back(zmq_robot):
     teleop = Watch(ros, names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState")
     events = Watch(ros, names.EVENT_TOPIC, "vr_teleop_msgs/Event")
     headset = Headset(ros).start()
+    assert wait_subscribed(server, names.EVENT_TOPIC)
     try:
         engage(ros)
         headset.head_orientation = unity_yaw_pitch(20)
@@ -405,6 +418,7 @@ def test_a_broker_restart_is_the_robot_lost_and_back(mqtt_robot):
     broker, hub, server, ros = mqtt_robot
     backend = server.server.robot
     events = Watch(ros, names.EVENT_TOPIC, "vr_teleop_msgs/Event")
+    assert wait_subscribed(server, names.EVENT_TOPIC)
     try:
         broker.stop()
         assert wait_for(lambda: not backend.connected, 10)
