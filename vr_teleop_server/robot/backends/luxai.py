@@ -122,6 +122,7 @@ class LuxaiRobot(Robot):
         self._closed = threading.Event()
         self.connection_changed: list[Callable[[bool], None]] = []  # called on the event loop with the new state
         self.events: list[Callable[[str, str, dict[str, Any]], None]] = []  # (kind, level, detail), on the loop
+        _, self._command_frame, self._audio_frame = _sdk()
         self._sdk_robot = self._connect(connect_timeout)
         try:
             base = model or load_qtrobot()
@@ -368,8 +369,7 @@ class LuxaiRobot(Robot):
             report = ClampReport(report.names, report.requested, report.applied, report.clamped, ignored)
         moving = {n: v for n, v in clamped.items() if n not in ignored}
         if moving:
-            _, JointCommandFrame, _ = _sdk()
-            frame = JointCommandFrame()
+            frame = self._command_frame()
             for name, value in moving.items():
                 frame.set_joint(name, position=value, velocity=self._model.joint(name).max_velocity)
             self._commanded.update(moving)
@@ -720,12 +720,11 @@ class LuxaiRobot(Robot):
         for out in self._speaker_resampler.resample(frame):
             self._speaker_pending += out.to_ndarray().tobytes()
         step = int(SPEAKER_RATE * SPEAKER_CHUNK_S) * 2
-        _, _, AudioFrameRaw = _sdk()
         while len(self._speaker_pending) >= step:
             chunk = bytes(self._speaker_pending[:step])
             del self._speaker_pending[:step]
-            if not self._write("_speaker_writer", AudioFrameRaw(channels=1, sample_rate=SPEAKER_RATE, bit_depth=16,
-                                                                 data=chunk)):
+            frame = self._audio_frame(channels=1, sample_rate=SPEAKER_RATE, bit_depth=16, data=chunk)
+            if not self._write("_speaker_writer", frame):
                 return
 
     @property
