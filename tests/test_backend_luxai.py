@@ -194,8 +194,17 @@ def test_motor_errors_and_voice_activity_become_events(zmq_robot):
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "voice_activity"
                                            and json.loads(e["detail"]) == {"activity": True, "direction_deg": 75}),
                         10)
+        hub.mic_event = {"activity": True, "direction": 85}  # the array's estimate wanders: no news
+        hub.mic_event = {"activity": True, "direction": 160}  # the voice moved
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "voice_activity"
+                                           and json.loads(e["detail"])["direction_deg"] == 160), 10)
+        hub.mic_event = {"activity": False, "direction": 160}
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "voice_activity"
+                                           and not json.loads(e["detail"])["activity"]), 10)
+        told = [json.loads(e["detail"]) for e in events.messages if e["kind"] == "voice_activity"]
+        assert [t["direction_deg"] for t in told if t["activity"]] == [75, 160]
     finally:
-        hub.faults, hub.mic_event = {}, None
+        hub.faults, hub.mic_event = {}, {"activity": False, "direction": 0}
         events.close()
         motors.close()
 
@@ -467,3 +476,4 @@ def test_a_tls_broker_with_a_login(tmp_path, monkeypatch):
         if hub is not None:
             hub.stop()
         broker.stop()
+

@@ -69,7 +69,13 @@ MQTT_MAX_BACKOFF_S = 5
 SPEAKER_RATE = 16000  # the media foreground audio stream: PCM S16LE, 16 kHz mono
 SPEAKER_CHUNK_S = 0.04
 JPEG_QUALITY = 80
+DIRECTION_STEP_DEG = 20.0  # a voice that moves this far while it lasts is news again
 FAULT_KEYS = ("overload_limit", "voltage_limit", "temperature_limit", "sensor_failure")
+
+
+def _angle(a: float, b: float) -> float:
+    """The smaller angle between two directions in degrees."""
+    return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
 class RobotUnreachable(RuntimeError):
@@ -164,7 +170,7 @@ class LuxaiRobot(Robot):
             self._speaker_resampler: av.AudioResampler | None = None
             self._speaker_pending = bytearray()
             self._voice = (0.0, 0.0)
-            self._mic_activity: bool | None = None
+            self._mic_activity: tuple[bool, float | None] | None = None  # the last (activity, direction) told
             self._command_writer: Any = None
             self._speaker_writer: Any = None
             self._open_writers()
@@ -691,16 +697,19 @@ class LuxaiRobot(Robot):
                 log.exception("a microphone listener failed")
 
     def _on_mic_event(self, frame: Any) -> None:
-        """{activity, direction}: a change of voice activity is an event, with where the voice comes from."""
+        """{activity, direction}: an event when a voice starts or stops, or, while it lasts, moves by
+        DIRECTION_STEP_DEG or more (the array's estimate wanders a little at its own rate)."""
         value = getattr(frame, "value", None) or {}
         activity = bool(value.get("activity"))
-        if activity == self._mic_activity:
-            return
-        self._mic_activity = activity
         direction = value.get("direction")
-        self._event("voice_activity", "info", {"activity": activity,
-                                               "direction_deg": direction if isinstance(direction, (int, float))
-                                               else None})
+        direction = float(direction) if isinstance(direction, (int, float)) else None
+        last = self._mic_activity
+        if last is not None and activity == last[0] and not (
+                activity and direction is not None and (last[1] is None or _angle(direction, last[1])
+                                                        >= DIRECTION_STEP_DEG)):
+            return
+        self._mic_activity = (activity, direction)
+        self._event("voice_activity", "info", {"activity": activity, "direction_deg": direction})
 
     # ---- the operator's voice -----------------------------------------------------------------------------------
     def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
