@@ -82,6 +82,7 @@ class FakeQtrobotV3:
         self.speeds = {j.name: 100.0 for j in self.model.joints}
         self.torque = {j.name: True for j in self.model.joints}
         self.commands: list[dict[str, Any]] = []  # every joint command frame received
+        self.command_times: list[float] = []  # time.monotonic() at each one's arrival (bench/qtrobot_v3.py)
         self.emotions: list[str] = []
         self.said: list[dict[str, Any]] = []
         self.spoken: list[str] = []  # sentences said to the end
@@ -198,6 +199,7 @@ class FakeQtrobotV3:
         frame = value.get("value", value)
         with self.lock:
             self.commands.append(frame)
+            self.command_times.append(time.monotonic())
             for name, command in frame.items():
                 if name in self.targets and self.torque[name] and "position" in command:
                     limit = self.limits[name]
