@@ -136,6 +136,28 @@ class RobotModel:
     def home_pose(self) -> dict[str, float]:
         return {j.name: j.home for j in self.joints}
 
+    def narrowed(self, limits: Mapping[str, Mapping[str, float]]) -> RobotModel:
+        """A copy limited to what a robot reports for its joints ({name: {lower, upper, max_velocity}}, each key
+        optional): each range is the intersection of the robot's and this model's (the narrower wins), each velocity
+        cap the smaller of the two, and each home is moved inside its new range. Joints the robot does not name keep
+        the model's values; a range whose intersection is empty fails, naming the joint."""
+        joints = []
+        for j in self.joints:
+            reported = limits.get(j.name)
+            if not reported:
+                joints.append(j)
+                continue
+            lower = max(j.lower, float(reported.get("lower", j.lower)))
+            upper = min(j.upper, float(reported.get("upper", j.upper)))
+            if not (math.isfinite(lower) and math.isfinite(upper) and lower < upper):
+                raise ValueError(f"joint {j.name}: the robot's range {reported.get('lower')} .. "
+                                 f"{reported.get('upper')} deg does not overlap the model's {j.lower} .. {j.upper}")
+            cap = float(reported.get("max_velocity", j.max_velocity))
+            cap = min(j.max_velocity, cap) if math.isfinite(cap) and cap > 0 else j.max_velocity
+            joints.append(dataclasses.replace(j, lower=lower, upper=upper, home=min(max(j.home, lower), upper),
+                                              max_velocity=cap))
+        return dataclasses.replace(self, joints=tuple(joints))
+
     def with_velocity_caps(self, caps: Mapping[str, float]) -> RobotModel:
         """A copy with some joints' velocity caps (deg/s) replaced; unknown joints or non-positive caps fail."""
         for name, cap in caps.items():
