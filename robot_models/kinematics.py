@@ -175,7 +175,7 @@ class ArmSolver:
             return p
         return (wx * k, self.offset + wy * k, wz * k)
 
-    def _candidates(self, goal: tuple[float, float, float]) -> list[tuple[float, float, float]]:
+    def candidates(self, goal: tuple[float, float, float]) -> list[tuple[float, float, float]]:
         """The analytic solutions for `goal`, each angle as its representative (+-2pi) within the limits if any."""
         lo, hi = self.lower, self.upper
         out = []
@@ -191,7 +191,7 @@ class ArmSolver:
             out.append((w[0], w[1], w[2]))
         return out
 
-    def _clip(self, q: Sequence[float]) -> tuple[float, float, float]:
+    def clip(self, q: Sequence[float]) -> tuple[float, float, float]:
         lo, hi = self.lower, self.upper
         return (min(max(q[0], lo[0]), hi[0]), min(max(q[1], lo[1]), hi[1]), min(max(q[2], lo[2]), hi[2]))
 
@@ -204,7 +204,7 @@ class ArmSolver:
         """
         lo, hi = self.lower, self.upper
         l1, l2 = self.l1, self.l2
-        q = self._clip(q0)
+        q = self.clip(q0)
         h = self.hand_local(*q)
         r = (h[0] - p[0], h[1] - p[1], h[2] - p[2])
         cost = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
@@ -229,7 +229,7 @@ class ArmSolver:
                 if free[i]:
                     m[i][i] += damping
             step = _solve3(m, rhs)
-            trial = self._clip((q1 + step[0], q2 + step[1], q3 + step[2]))
+            trial = self.clip((q1 + step[0], q2 + step[1], q3 + step[2]))
             h = self.hand_local(*trial)
             r_trial = (h[0] - p[0], h[1] - p[1], h[2] - p[2])
             cost_trial = r_trial[0] * r_trial[0] + r_trial[1] * r_trial[1] + r_trial[2] * r_trial[2]
@@ -259,7 +259,7 @@ class ArmSolver:
                     best, best_d = q, d
         if best is None:
             return None
-        best = self._clip(best)
+        best = self.clip(best)
         # A branch within limits that reaches `goal` beats a search; check it really lands there.
         return best if self._miss(best, goal) <= 1e-6 else None
 
@@ -267,8 +267,8 @@ class ArmSolver:
                  prefer_deg: Sequence[float]) -> tuple[float, float, float]:
         """The bounded search: from the clipped candidate landing nearest p, and from the preferred pose when that
         is no worse; enough to find the nearest reachable point in practice, at a bounded cost for 90 Hz control."""
-        clipped = min((self._clip(q) for q in candidates), key=lambda q: self._miss(q, p))
-        preferred = self._clip([math.radians(a) for a in prefer_deg])
+        clipped = min((self.clip(q) for q in candidates), key=lambda q: self._miss(q, p))
+        preferred = self.clip([math.radians(a) for a in prefer_deg])
         starts = [clipped] + ([preferred] if self._miss(preferred, p) < self._miss(clipped, p) + 0.02 else [])
         return min((self.nearest_within_limits(p, x0) for x0 in starts), key=lambda q: self._miss(q, p))
 
@@ -281,7 +281,7 @@ class ArmSolver:
         prefer = self._home if prefer_deg is None else prefer_deg
         p = self.to_local(x, y, z)
         goal = self.clamp_to_reach(p)
-        candidates = self._candidates(goal)
+        candidates = self.candidates(goal)
         best = self.closed_form(candidates, goal, prefer)
         if best is None:
             best = self.fallback(candidates, p, prefer)
