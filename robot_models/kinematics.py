@@ -192,6 +192,7 @@ class ArmSolver:
         return out
 
     def clip(self, q: Sequence[float]) -> tuple[float, float, float]:
+        """q (radians) moved into the joint limits."""
         lo, hi = self.lower, self.upper
         return (min(max(q[0], lo[0]), hi[0]), min(max(q[1], lo[1]), hi[1]), min(max(q[2], lo[2]), hi[2]))
 
