@@ -7,6 +7,12 @@ moves continuously with a little tracking jitter (so the IK cache seldom helps) 
   sides  hands sweep out towards a T-pose, where many targets lie beyond the arm's limits and the IK falls
          back to a bounded Levenberg-Marquardt search;
   mixed  half of each.
+Each frame runs through today's TeleopMapper and through the step as it was before issue 28, kept verbatim in
+bench/teleop_reference/ (same poses, the two interleaved frame by frame, their commands compared as they go).
+Costs are this thread's CPU time (time.thread_time_ns), so that the scheduler's pauses on a busy machine, which
+land on whichever implementation happens to run, stay out of the ratio; wall-clock percentiles are printed too.
+The targets: now/reference <= 0.25 at p50 and p99, and one operator at 90 Hz under 5% of a core (process CPU
+time over the frames' span of operator time).
 
 Over the wire (milliseconds). `vr-teleop serve --backend sim` runs as its own process; one client engages, then
 publishes head poses at 90 Hz and times each until the head command it causes arrives on
