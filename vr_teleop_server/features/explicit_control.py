@@ -7,7 +7,9 @@ recording of the bus shows every command teleop made.
 
 Rules the client can rely on (README "Explicit control"):
 - One holder. `/vr_teleop/control/engage` (std_srvs/SetBool, data true) makes the caller the holder; it needs a
-  fresh head pose from the caller (the current head orientation becomes the robot's head zero). Another client's
+  fresh head pose from the caller (the current head orientation becomes the robot's head zero). Engaging again while
+  holding changes nothing (a rig's "take control" pressed twice must not swing the head back to the centre);
+  `/vr_teleop/control/recenter` (std_srvs/Trigger, the holder only) re-zeroes the head on purpose. Another client's
   poses and Joy are refused with a status error (at most one a second per client) until the holder releases
   (engage false), is e-stopped, or disconnects.
 - The mapper steps on each of the holder's head poses, so a pose turns into commands at once. A 30 Hz tick
@@ -82,6 +84,7 @@ class ExplicitControl:
             bus.subscribe(SERVER_NODE, names.JOY_TOPICS[side], None, lambda p, side=side: self._on_joy(side, p))
         bus.provide(names.ENGAGE_SERVICE, "std_srvs/SetBool", self._engage_service)
         bus.provide(names.CALIBRATE_SERVICE, "std_srvs/Trigger", self._calibrate_service)
+        bus.provide(names.RECENTER_SERVICE, "std_srvs/Trigger", self._recenter_service)
         bus.provide(names.HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("head",), r))
         bus.provide(names.ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("left_arm", "right_arm"), r))
         bus.provide(names.ESTOP_SERVICE, "std_srvs/Trigger", self._estop_service)
@@ -205,6 +208,10 @@ class ExplicitControl:
         if self.holder is not None and self.holder != caller:
             raise BusError(f"control is held by another client ({self.holder}); it must release control or "
                            "disconnect first")
+        if self.holder == caller and self.mapper.engaged:
+            return {"success": True, "message": "control is already held by this operator; nothing changed (call "
+                                                f"{names.RECENTER_SERVICE} to make your current head orientation "
+                                                "straight ahead)"}
         if not self._robot_connected:
             raise BusError("the robot backend is disconnected; engage once it is back")
         if self._head_sender != caller:
@@ -252,6 +259,29 @@ class ExplicitControl:
 
     async def _estop_service(self, _request: Any) -> dict[str, Any]:
         return self.estop(self.bus.caller())
+
+    async def _recenter_service(self, _request: Any) -> dict[str, Any]:
+        return self.recenter(self.bus.caller())
+
+    def recenter(self, caller: str) -> dict[str, Any]:
+        """The holder's current head orientation becomes straight ahead; teleop resumes from the robot's pose with
+        the engage ramp, so the head eases to its new centre."""
+        operator = self.operator_of(caller) if caller != SERVER_NODE else self.holder
+        if not self._robot_connected:
+            raise BusError("the robot backend is disconnected; engage once it is back")
+        if self.holder is None or not self.mapper.engaged:
+            raise BusError("cannot recenter: nobody is controlling the robot; engage first")
+        if operator != self.holder:
+            raise BusError(f"control is held by another client ({self.holder}); only it can recenter")
+        if self._head_sender != self.holder:
+            raise BusError("cannot recenter: no head pose from the operator holding control")
+        try:
+            self.mapper.engage(self.clock(), self.robot.joint_state().as_dict())
+        except TeleopError as exc:
+            raise BusError(str(exc)) from None
+        self._event("recenter", "info", {"holder": self.holder, "by": caller})
+        self._publish_state()
+        return {"success": True, "message": "recentered: your current head orientation is straight ahead"}
 
     async def _calibrate_service(self, _request: Any) -> dict[str, Any]:
         caller = self.bus.caller()

@@ -296,7 +296,12 @@ class Robot(abc.ABC):
 
     @abc.abstractmethod
     def stop_speech(self) -> None:
-        """Cut the current speech short; its say() returns completed=False."""
+        """Cut the current speech short; its say() returns completed=False. A say() that follows is never cut by
+        this stop (a backend whose stop travels must let it arrive first)."""
+
+    async def configure_speech(self, language: str, pitch: int, speed: int) -> None:
+        """Set the robot's own voice as LuxAI's /qt_robot/speech/config does (empty or 0: keep). The default does
+        nothing: a backend whose speech is the server's rendered voice (the stand-in) has no voice of its own."""
 
     @abc.abstractmethod
     async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:

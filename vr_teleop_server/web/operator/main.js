@@ -19,6 +19,7 @@ const TOPICS = {
 };
 const SERVICES = {
   engage: "/vr_teleop/control/engage", calibrate: "/vr_teleop/control/calibrate",
+  recenter: "/vr_teleop/control/recenter",
   estop: "/vr_teleop/control/estop", select: "/vr_teleop/menu/select", time: "/rosapi/get_time",
   whoami: "/vr_teleop/whoami",
 };
@@ -353,14 +354,33 @@ async function toggleControl() {
   }
 }
 
+// The calibrate gesture measures the body (T-pose) and, while we hold control, re-centres: standing square with
+// the arms out, the way the operator faces becomes straight ahead for the robot's head.
 async function calibrate() {
   say("calibrating: hold a T-pose…");
+  const lines = [];
+  let ok = true;
   try {
     const r = await ros.call(SERVICES.calibrate, {});
-    say(`calibrated: ${r.message}`, "ok");
+    if (r.success === false) throw new Error(r.message);
+    lines.push(`calibrated: ${r.message}`);
   } catch (err) {
-    say(`calibration refused: ${err.message}`, "error");
+    ok = false;
+    lines.push(`calibration refused: ${err.message}`);
   }
+  if (holding()) {
+    const zero = headAngles(state.head.quaternion);
+    try {
+      const r = await ros.call(SERVICES.recenter, {});
+      if (r.success === false) throw new Error(r.message);
+      state.zero = zero;
+      lines.push("recentered: straight ahead is where you look now");
+    } catch (err) {
+      ok = false;
+      lines.push(`recentering refused: ${err.message}`);
+    }
+  }
+  say(lines.join("; "), ok ? "ok" : "error");
 }
 
 async function estop() {
