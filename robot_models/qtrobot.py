@@ -91,12 +91,18 @@ class RobotModel:
     gestures: tuple[str, ...] = ()  # LuxAI built-in gesture names, without the "QT/" prefix
     _index: Mapping[str, Joint] = field(  # type: ignore[assignment]
         default=None, init=False, repr=False, compare=False, hash=False)
+    _parts: Mapping[str, tuple[str, ...]] = field(  # type: ignore[assignment]
+        default=None, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         index = {j.name: j for j in self.joints}
         if len(index) != len(self.joints):
             raise ValueError(f"duplicate joint names in {[j.name for j in self.joints]}")
         object.__setattr__(self, "_index", index)
+        parts: dict[str, tuple[str, ...]] = {}
+        for j in self.joints:
+            parts[j.part] = parts.get(j.part, ()) + (j.name,)
+        object.__setattr__(self, "_parts", parts)  # read on every command: built once
 
     def joint(self, name: str) -> Joint:
         try:
@@ -116,14 +122,11 @@ class RobotModel:
     @property
     def parts(self) -> dict[str, tuple[str, ...]]:
         """Part name -> its joints, in the order of LuxAI's /qt_robot/<part>_position/command arrays."""
-        out: dict[str, tuple[str, ...]] = {}
-        for j in self.joints:
-            out[j.part] = out.get(j.part, ()) + (j.name,)
-        return out
+        return dict(self._parts)
 
     def part_joints(self, part: str) -> tuple[str, ...]:
         try:
-            return self.parts[part]
+            return self._parts[part]
         except KeyError:
             raise KeyError(f"unknown part {part!r}; valid parts: {', '.join(self.parts)}") from None
 

@@ -86,7 +86,9 @@ class LuxaiApi:
     # ---- joint commands -----------------------------------------------------------------------------------------
     def _on_part_command(self, part: str, published: Published) -> None:
         try:
-            report = self.robot.set_part_targets(part, published.value.data)
+            # a plain dict when validated from a client or a feature: no model built for the one field read
+            data = published.plain["data"] if published.plain is not None else published.value.data
+            report = self.robot.set_part_targets(part, data)
         except (ValueError, KeyError) as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
             return
