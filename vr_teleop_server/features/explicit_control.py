@@ -116,7 +116,7 @@ class ExplicitControl:
             return
         now = self.clock()
         try:
-            if not self.mapper.on_head_pose(published.value, now):
+            if not self.mapper.on_head_pose(_message(published), now):
                 return  # stamped before the newest pose taken: never replayed
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
@@ -129,7 +129,7 @@ class ExplicitControl:
         if not self._admit(published):
             return
         try:
-            self.mapper.on_controller_pose(side, published.value, self.clock())
+            self.mapper.on_controller_pose(side, _message(published), self.clock())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
 
@@ -137,8 +137,10 @@ class ExplicitControl:
         if not self._admit(published):
             return
         was = self.mapper.state
+        msg = _message(published)
+        axes, buttons = (msg["axes"], msg["buttons"]) if isinstance(msg, dict) else (msg.axes, msg.buttons)
         try:
-            self.mapper.on_joy(side, published.value.axes, published.value.buttons, self.clock())
+            self.mapper.on_joy(side, axes, buttons, self.clock())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
             return
@@ -346,10 +348,23 @@ class ExplicitControl:
             return "idle"
         return self.mapper.state.value
 
-    def _state_message(self) -> dict[str, Any]:
+    def _following(self) -> tuple[bool, bool, bool, tuple[str, ...], tuple[str, ...]]:
+        """(head, left arm, right arm following, joints clamped, parts velocity-limited) as the state topic
+        reports them: all false and empty unless the holder's teleop is active."""
         out = self._last_output
+        if out is None or out.state is not WatchdogState.ACTIVE or self.holder is None:
+            return False, False, False, (), ()
+        return (out.head_following, out.arms_following["left"], out.arms_following["right"], out.clamped,
+                out.velocity_limited)
+
+    def _summary(self) -> tuple[Any, ...]:
+        """What a client must hear about when it changes (not the pose ages, which change every time)."""
+        return (self.mapper.engaged and self.holder is not None, self.state_name(), self.holder or "",
+                *self._following()[:4], self._robot_connected)
+
+    def _state_message(self) -> dict[str, Any]:
         now = self.clock()
-        following = out is not None and out.state is WatchdogState.ACTIVE and self.holder is not None
+        head, left, right, clamped, limited = self._following()
 
         def age(key: str) -> float:
             value = self.mapper.pose_age(key, now)
@@ -359,27 +374,23 @@ class ExplicitControl:
             "header": {"stamp": self.bus.registry.now()},
             "engaged": self.mapper.engaged and self.holder is not None, "state": self.state_name(),
             "holder": self.holder or "",
-            "head_following": following and out.head_following,
-            "left_arm_following": following and out.arms_following["left"],
-            "right_arm_following": following and out.arms_following["right"],
-            "clamped": list(out.clamped) if following else [],
-            "velocity_limited": list(out.velocity_limited) if following else [],
+            "head_following": head, "left_arm_following": left, "right_arm_following": right,
+            "clamped": list(clamped), "velocity_limited": list(limited),
             "pose_age": age("head"), "left_pose_age": age("left"), "right_pose_age": age("right"),
             "robot_connected": self._robot_connected,
         }
 
     def _publish_state(self) -> None:
-        msg = self._state_message()
-        self._last_summary = self._summary(msg)
-        self.bus.publish(names.TELEOP_STATE_TOPIC, msg)
+        self._last_summary = self._summary()
+        self.bus.publish(names.TELEOP_STATE_TOPIC, self._state_message())
 
     def _publish_state_if_changed(self) -> None:
-        msg = self._state_message()
-        if self._summary(msg) != self._last_summary:
-            self._last_summary = self._summary(msg)
-            self.bus.publish(names.TELEOP_STATE_TOPIC, msg)
+        """Called on every head pose: the summary is compared before any message is built."""
+        if self._summary() != self._last_summary:
+            self._publish_state()
 
-    @staticmethod
-    def _summary(msg: dict[str, Any]) -> tuple[Any, ...]:
-        return (msg["engaged"], msg["state"], msg["holder"], msg["head_following"], msg["left_arm_following"],
-                msg["right_arm_following"], tuple(msg["clamped"]), msg["robot_connected"])
+
+def _message(published: Published) -> Any:
+    """The message as the validated plain dict a client's publish carries (no model built and dumped again per
+    pose), else the model."""
+    return published.plain if published.plain is not None else published.value
