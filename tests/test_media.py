@@ -20,6 +20,7 @@ from aiortc import RTCPeerConnection
 
 from media_client import MediaPeer, Rosbridge, Tone
 from support import RunningServer
+from test_frame_ring import holds_ring
 from vr_teleop_server.settings import ServerSettings
 
 pytestmark = pytest.mark.timeout(300)
@@ -442,12 +443,15 @@ async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_
         encoder = psutil.Process(pid)
         assert encoder.ppid() == os.getpid() and encoder.nice() > psutil.Process().nice()
         assert "encoder_process" in " ".join(encoder.cmdline())
+        # One compression per frame: the encoder reads the renderer's raw frames, and no JPEG is made for it.
+        assert holds_ring(pid) and server.call(lambda: server.server.robot.latest_frame().jpeg) == b""
         encoder.kill()
         assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 20)
         count = peer.video_count
         await peer.wait_video(10)
         assert peer.video_count >= count + 10
         replacement = psutil.Process(server.call(lambda: hub.encoder_pid))
+        assert holds_ring(replacement.pid)
         await peer.close()
         await ros.close()
     finally:
