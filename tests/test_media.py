@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
-from aiortc import RTCPeerConnection
+from aiortc import RTCPeerConnection, RTCSessionDescription
 
 from media_client import MediaPeer, Rosbridge, Tone
 from support import RunningServer
@@ -523,3 +523,43 @@ def test_the_dashboard_falls_back_to_the_jpeg_topic(browser, media_server: Runni
         page.wait_for_function("window.dashboard.camera.ages.length >= 2", timeout=20_000)
     finally:
         page.close()
+
+
+async def test_the_camera_asks_the_viewer_for_no_playout_delay(media_server: RunningServer) -> None:
+    """A viewer that offers the playout-delay extension (Chromium does) gets it in the answer, and every video
+    packet carries min 0, max 0 (render at once): what keeps Chromium's jitter buffer small. A viewer that does
+    not offer it gets video without it."""
+    from aiortc.rtp import HeaderExtensionsMap, unpack_header_extensions
+
+    from vr_teleop_server.media import playout_delay
+
+    class Recording(HeaderExtensionsMap):
+        def __init__(self) -> None:
+            super().__init__()
+            self.seen: list[dict[int, bytes]] = []  # per packet: its extensions by id
+
+        def get(self, extension_profile: int, extension_value: bytes):
+            self.seen.append(dict(unpack_header_extensions(extension_profile, extension_value)))
+            return super().get(extension_profile, extension_value)
+
+    for offered in (True, False):
+        ros = await Rosbridge.open(media_server.url)
+        pc = RTCPeerConnection()
+        pc.addTransceiver("video", direction="recvonly")
+        await pc.setLocalDescription(await pc.createOffer())
+        sdp = pc.localDescription.sdp
+        if offered:  # as Chromium's offer has it (aiortc's own offers do not)
+            sdp = re.sub(r"(m=video[^\n]*\n(?:.*\n)*?)(a=extmap:)", rf"\1a=extmap:5 {playout_delay.URI}\r\n\2", sdp,
+                         count=1)
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": sdp, "type": "offer"})
+        answer = reply["values"]
+        assert answer["success"], answer
+        assert (f"a=extmap:5 {playout_delay.URI}" in answer["sdp"]) == offered
+        await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+        transport = pc.getTransceivers()[0].receiver.transport
+        recording = transport._rtp_header_extensions_map = Recording()  # aiortc's parser, wrapped to see all
+        assert await until(lambda: len(recording.seen) >= 20, 30), "no video packets"
+        delays = [packet.get(5) for packet in recording.seen]
+        assert set(delays) == ({b"\x00\x00\x00"} if offered else {None})
+        await pc.close()
+        await ros.close()

@@ -218,6 +218,7 @@ class CameraTrack(MediaStreamTrack):
         self.hub = hub
         self.codec = ""
         self.sender: RTCRtpSender | None = None
+        self.playout_delay = False  # whether its packets carry the playout-delay extension (playout_delay.py)
         self.estimate: int | None = None  # the peer's REMB, bits per second
         self._queue: deque[EncodedFrame] = deque()
         self._ready = asyncio.Event()
