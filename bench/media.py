@@ -6,8 +6,11 @@ Figures:
   against the JPEG topic (the image decoded), p50/p95, at 640x480 and 1280x720;
 - bandwidth per path at 30 fps (WebRTC: the server's bytes sent to one peer; JSON: bytes on the WebSocket);
 - server CPU per delivered frame per path (the CPU time of the server process and its video encoder process
-  over frames delivered);
-- frames per second with 1 and 5 WebRTC viewers (aiortc peers in another process);
+  over frames delivered; a second row adds the stand-in's render process, which since issue 29 makes the JPEG only
+  for the JPEG path);
+- frames per second with 1 and 5 WebRTC viewers (aiortc peers in another process, pinned to other cores than the
+  server's when the machine has 4 or more; they count packets without decoding, except the first, which decodes
+  to check the picture);
 - on a 1 Mbit/s bottleneck (LinkShaper, a drop-tail queue on the server's side) with the head sweeping: fps and
   the encoder's bitrate;
 - speech text in to first audio sample (RMS above the floor) out at an aiortc peer, p50;
@@ -136,13 +139,14 @@ async def webrtc_path(url: str, seconds: float) -> tuple[int, int]:
     return frames, size
 
 
-def server_cpu(proc: psutil.Process) -> float:
-    """CPU seconds of the server process and of its video encoder process (media/encoder_process.py), not of the
-    stand-in's render process (the same work for both paths)."""
+def server_cpu(proc: psutil.Process, render: bool = False) -> float:
+    """CPU seconds of the server process and of its video encoder process (media/encoder_process.py), and with
+    `render` of the stand-in's render process too (which draws for both paths and makes the JPEG for one)."""
     total = sum(proc.cpu_times()[:2])
     for child in proc.children():
         with contextlib.suppress(psutil.Error):
-            if "encoder_process" in " ".join(child.cmdline()):
+            line = " ".join(child.cmdline())
+            if "encoder_process" in line or (render and "render_process" in line):
                 total += sum(child.cpu_times()[:2])
     return total
 
@@ -153,32 +157,32 @@ def bandwidth_rows(seconds: float) -> list[Row]:
     out = {}
     try:
         for name, fn in (("webrtc", webrtc_path), ("json", json_path)):
-            cpu0 = server_cpu(proc)
-            t0 = time.monotonic()
+            cpu0, all0 = server_cpu(proc), server_cpu(proc, render=True)
             frames, size = asyncio.run(fn(server.url, seconds))
-            elapsed = time.monotonic() - t0
-            cpu = server_cpu(proc) - cpu0
-            out[name] = (frames, size, cpu, elapsed)
+            out[name] = (frames, size, server_cpu(proc) - cpu0, server_cpu(proc, render=True) - all0)
     finally:
         stop(server)
-    (rf, rs, rc, re_), (jf, js, jc, je) = out["webrtc"], out["json"]
+    (rf, rs, rc, ra), (jf, js, jc, ja) = out["webrtc"], out["json"]
     return [Row("bandwidth 640x480 30 fps, head sweeping, WebRTC (VP8)", 8 * rs / seconds / 1e6, 8 * js / seconds / 1e6,
                 "JPEG topic", "Mbit/s"),
             Row("server CPU per delivered frame, WebRTC", 1000 * rc / max(1, rf), 1000 * jc / max(1, jf),
                 "JPEG topic", "ms"),
+            Row("server CPU per delivered frame with the render process, WebRTC", 1000 * ra / max(1, rf),
+                1000 * ja / max(1, jf), "JPEG topic", "ms"),
             Row("frames delivered a second, WebRTC", rf / seconds, jf / seconds, "JPEG topic", "fps", "higher")]
 
 
 # ---- viewers in another process ---------------------------------------------------------------------------------
 async def viewers(url: str, n: int, seconds: float) -> list[float]:
     """n aiortc peers; each one's frames a second over `seconds` after the first frames. They count frames without
-    decoding them: on one 2-core machine, five decoders would starve the server being measured."""
+    decoding them (on one 2-core machine, five decoders would starve the server being measured), except the first,
+    which decodes them and checks that the picture is a picture (not one flat colour)."""
     pairs = []
-    for _ in range(n):
+    for i in range(n):
         ros = await Rosbridge.open(url)
         peer = MediaPeer(audio=False)
         peer.keep_frames = 1
-        peer.light = True
+        peer.light = i > 0
         await peer.negotiate(ros)
         pairs.append((ros, peer))
     for _, peer in pairs:
@@ -186,22 +190,37 @@ async def viewers(url: str, n: int, seconds: float) -> list[float]:
     counts = [peer.video_count for _, peer in pairs]
     await asyncio.sleep(seconds)
     rates = [(peer.video_count - c) / seconds for (_, peer), c in zip(pairs, counts)]
+    picture = pairs[0][1].frames[-1][1].to_ndarray(format="gray")
+    if picture.std() < 5:
+        raise RuntimeError(f"the decoding viewer's picture is flat (std {picture.std():.1f}): the video is broken")
     for ros, peer in pairs:
         await peer.close()
         await ros.close()
     return rates
 
 
-def spawn_viewers(url: str, n: int, seconds: float, json_topic: bool = False) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds", str(seconds),
-                             *(["--json-topic"] if json_topic else [])], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+def spawn_viewers(url: str, n: int, seconds: float, json_topic: bool = False,
+                  server: subprocess.Popen | None = None) -> subprocess.Popen:
+    """The viewers in a process of their own (they stand for other machines), pinned apart from `server` when the
+    machine has cores to spare for that (4 or more: the last quarter for the viewers)."""
+    viewers = subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds",
+                                str(seconds), *(["--json-topic"] if json_topic else [])],
+                               stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    cores = os.cpu_count() or 1
+    if server is not None and cores >= 4:
+        theirs = list(range(cores - cores // 4, cores))
+        with contextlib.suppress(psutil.Error):
+            psutil.Process(viewers.pid).cpu_affinity(theirs)
+            for proc in [psutil.Process(server.pid), *psutil.Process(server.pid).children(recursive=True)]:
+                proc.cpu_affinity([c for c in range(cores) if c not in theirs])
+    return viewers
 
 
 def viewer_rows(seconds: float) -> list[Row]:
     server = serve("--backend", "sim", "--bystander-interval", "0")
     try:
-        one = json.loads(spawn_viewers(server.url, 1, seconds).communicate()[0].splitlines()[-1])
-        five = json.loads(spawn_viewers(server.url, 5, seconds).communicate()[0].splitlines()[-1])
+        one = json.loads(spawn_viewers(server.url, 1, seconds, server=server).communicate()[0].splitlines()[-1])
+        five = json.loads(spawn_viewers(server.url, 5, seconds, server=server).communicate()[0].splitlines()[-1])
     finally:
         stop(server)
     return [Row("WebRTC fps, 1 viewer", float(np.mean(one)), 30.0, "30 fps asked", "fps", "higher"),
@@ -343,11 +362,11 @@ def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
     try:
         for _ in range(rounds):
             none += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
-            watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True)
+            watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True, server=server)
             time.sleep(5)
             camera += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
             watcher.communicate()
-            watchers = spawn_viewers(server.url, 5, 2 * seconds + 20)
+            watchers = spawn_viewers(server.url, 5, 2 * seconds + 20, server=server)
             time.sleep(15)  # the five negotiate and reach steady video
             five += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
             if loop_short:
