@@ -172,6 +172,79 @@ def bandwidth_rows(seconds: float) -> list[Row]:
             Row("frames delivered a second, WebRTC", rf / seconds, jf / seconds, "JPEG topic", "fps", "higher")]
 
 
+# ---- the encoders' settings, one at a time ------------------------------------------------------------------------
+def encoder_rows(rounds: int) -> list[Row]:
+    """In this process, one thread, as in the encoder process: CPU per 1280x720 frame of the stand-in's camera while
+    the head sweeps, for each setting against the one chosen (media/encoder_process.py's encoder_options), and the
+    frames an encoder holds back before its first output (lookahead: each one is a frame period of delay). Also the
+    frame's way into the encoder: RGB from the frame ring against the JPEG it took before issue 29 (made in the
+    render process, decoded in the encoder process)."""
+    import av
+    import cv2
+
+    from sim import StandIn
+    from vr_teleop_server.media.encoder_process import encoder_options, open_encoder
+
+    standin = StandIn(camera_width=1280, camera_height=720)
+    try:
+        frames = []
+        for k in range(30):
+            standin.set_targets({"HeadYaw": -30 + 2 * k, "HeadPitch": -5 + k % 7})
+            time.sleep(0.1)  # the head moves on: each frame differs from the last
+            frames.append(standin.snapshot(width=1280, height=720))
+    finally:
+        standin.close()
+    yuv = [cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420) for f in frames]
+    rate = 2_000_000
+
+    def run(codec: str, options: dict[str, str], threads: int = 1) -> tuple[float, int]:
+        ctx = open_encoder(av, codec, 1280, 720, rate, 30.0, options, threads)
+        cpu, held, out = 0.0, None, 0
+        for i in range(rounds * len(yuv)):
+            image = av.VideoFrame.from_ndarray(yuv[i % len(yuv)], format="yuv420p")
+            image.pts = i
+            t0 = time.thread_time()
+            out += len(ctx.encode(image))
+            cpu += time.thread_time() - t0
+            if held is None and out:
+                held = i
+        return 1000 * cpu / (rounds * len(yuv)), held if held is not None else rounds * len(yuv)
+
+    vp8, h264 = encoder_options("VP8", rate), encoder_options("H264", rate)
+    base_vp8, held_vp8 = run("VP8", vp8)
+    base_h264, held_h264 = run("H264", h264)
+    rows = [Row("encoder 1280x720 VP8 (chosen): CPU per frame", base_vp8, 1000 / 30, "a frame period", "ms"),
+            Row("encoder 1280x720 H.264 (chosen): CPU per frame", base_h264, 1000 / 30, "a frame period", "ms")]
+    for name, codec, options, threads, base in (
+            ("VP8 cpu-used 16", "VP8", {**vp8, "cpu-used": "16"}, 1, base_vp8),
+            ("VP8 cpu-used 4", "VP8", {**vp8, "cpu-used": "4"}, 1, base_vp8),
+            ("VP8 2 threads", "VP8", vp8, 2, base_vp8),
+            ("H.264 preset veryfast", "H264", {**h264, "preset": "veryfast"}, 1, base_h264)):
+        rows.append(Row(f"encoder 1280x720 {name}: CPU per frame", run(codec, options, threads)[0], base,
+                        "the chosen settings", "ms"))
+    without = {k: v for k, v in h264.items() if k != "tune"}
+    rows += [Row("encoder 1280x720 VP8 (chosen): frames held before the first out", float(held_vp8), None, "-",
+                 "frames"),
+             Row("encoder 1280x720 H.264 (chosen): frames held before the first out", float(held_h264), None, "-",
+                 "frames"),
+             Row("encoder 1280x720 H.264 without zerolatency: frames held", float(run("H264", without)[1]),
+                 float(held_h264), "zerolatency", "frames"),
+             Row("encoder 1280x720 VP8 lag-in-frames 16: frames held", float(run("VP8", {**vp8,
+                 "lag-in-frames": "16"})[1]), float(held_vp8), "lag-in-frames 0", "frames")]
+    # The frame's way in: the ring's RGB to I420 against JPEG made (render process) and decoded (encoder process).
+    t0 = time.thread_time()
+    for f in frames:
+        cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420)
+    ring_ms = 1000 * (time.thread_time() - t0) / len(frames)
+    t0 = time.thread_time()
+    for f in frames:
+        ok, data = cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
+        cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2YUV_I420)
+    jpeg_ms = 1000 * (time.thread_time() - t0) / len(frames)
+    return rows + [Row("1280x720 frame into the encoder: ring RGB to I420", ring_ms, jpeg_ms,
+                       "JPEG made, decoded, to I420 (before)", "ms")]
+
+
 # ---- viewers in another process ---------------------------------------------------------------------------------
 async def viewers(url: str, n: int, seconds: float) -> list[float]:
     """n aiortc peers; each one's frames a second over `seconds` after the first frames. They count frames without
@@ -397,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rounds", type=int, default=2, help="alternating rounds of the control rows")
     parser.add_argument("--only", nargs="+", choices=["glass", "bandwidth", "viewers", "congested", "speech",
-                                                       "control"])
+                                                       "control", "encoder"])
     parser.add_argument("--viewers", type=int, help=argparse.SUPPRESS)  # the viewer subprocess
     parser.add_argument("--url", help=argparse.SUPPRESS)
     parser.add_argument("--json-topic", action="store_true", help=argparse.SUPPRESS)
@@ -410,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     parts = {"glass": lambda: glass_rows("640x480", s) + glass_rows("1280x720", s),
              "bandwidth": lambda: bandwidth_rows(s), "viewers": lambda: viewer_rows(s),
              "congested": lambda: congested_rows(s), "speech": lambda: speech_rows(5),
-             "control": lambda: control_rows(s, args.rounds)}
+             "control": lambda: control_rows(s, args.rounds), "encoder": lambda: encoder_rows(args.rounds)}
     print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     print(f"| {'figure':<56} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")
     for name in args.only or parts:

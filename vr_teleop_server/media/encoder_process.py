@@ -32,6 +32,7 @@ NICE = 10  # added to the worker's niceness: the server's loop wins a core over 
 VIDEO_CLOCK_RATE = 90000
 REOPEN_RATIO = 0.15  # an encoder is rebuilt at a new target bitrate (a keyframe) only when it moves more than this
 REOPEN_INTERVAL_S = 1.0  # and at most this often
+GOP_S = 10  # a keyframe at least this often (seconds) without being asked: a viewer that lost one recovers
 ROOT = Path(__file__).resolve().parents[2]  # the directory that holds `worker_process`
 BOOT = ("import importlib.util, sys; sys.path.insert(0, sys.argv[1]); "
         "spec = importlib.util.spec_from_file_location('vr_teleop_encoder', sys.argv[2]); "
@@ -168,28 +169,43 @@ class _Encoder:
         return data, keyframe
 
     def _open(self, width: int, height: int, bitrate: int) -> Any:
-        rate = max(1, round(self.fps))
-        if self.codec == "VP8":
-            ctx = self.av.CodecContext.create("libvpx", "w")
-            ctx.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
-                           "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
-                           "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
-                           "noise-sensitivity": "0", "error-resilient": "1"}
-            ctx.qmin, ctx.qmax = 4, 56
-        elif self.codec == "H264":
-            ctx = self.av.CodecContext.create("libx264", "w")
-            ctx.options = {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
-                           "maxrate": str(bitrate), "bufsize": str(bitrate)}
-            ctx.profile = "Baseline"
-        else:
-            raise ValueError(f"no encoder for {self.codec}")
-        ctx.width, ctx.height = width, height
-        ctx.pix_fmt = "yuv420p"
-        ctx.bit_rate = bitrate
-        ctx.framerate = fractions.Fraction(rate, 1)
-        ctx.time_base = fractions.Fraction(1, rate)
-        ctx.gop_size = 10 * rate  # a keyframe every 10 s at least; PLI and joining peers ask for more
-        # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
-        # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
-        ctx.thread_count = 1
-        return ctx
+        return open_encoder(self.av, self.codec, width, height, bitrate, self.fps)
+
+
+def encoder_options(codec: str, bitrate: int) -> dict[str, str]:
+    """Each codec's settings for interaction: real time, no lookahead (a frame out for each frame in), rate
+    control that undershoots rather than builds a burst. bench/media.py's encoder rows measure them."""
+    if codec == "VP8":
+        # cpu-used 8: at 1280x720 16 (libvpx's fastest) saved a tenth of the CPU per frame here and 4 cost 38% more
+        # (bench/media.py --only encoder); realtime means no lookahead whatever lag-in-frames says.
+        return {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
+                "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
+                "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
+                "noise-sensitivity": "0", "error-resilient": "1"}
+    if codec == "H264":  # zerolatency: no B-frames, no lookahead, no frame threads
+        return {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
+                "maxrate": str(bitrate), "bufsize": str(bitrate)}
+    raise ValueError(f"no encoder for {codec}")
+
+
+def open_encoder(av: Any, codec: str, width: int, height: int, bitrate: int, fps: float,
+                 options: dict[str, str] | None = None, threads: int = 1) -> Any:
+    """A PyAV encoder context for `codec` with `encoder_options` (or the `options` given: the bench's variants)."""
+    rate = max(1, round(fps))
+    opts = encoder_options(codec, bitrate) if options is None else options
+    ctx = av.CodecContext.create({"VP8": "libvpx", "H264": "libx264"}[codec], "w")
+    ctx.options = opts
+    if codec == "VP8":
+        ctx.qmin, ctx.qmax = 4, 56
+    else:
+        ctx.profile = "Baseline"
+    ctx.width, ctx.height = width, height
+    ctx.pix_fmt = "yuv420p"
+    ctx.bit_rate = bitrate
+    ctx.framerate = fractions.Fraction(rate, 1)
+    ctx.time_base = fractions.Fraction(1, rate)
+    ctx.gop_size = GOP_S * rate  # a keyframe at this interval at least; PLI and joining peers ask for more
+    # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
+    # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
+    ctx.thread_count = threads
+    return ctx
