@@ -4,8 +4,8 @@ Three kinds of thread touch it:
 - the physics thread steps MuJoCo at real-time factor 1 and moves each servo's setpoint toward its goal by at
   most max_velocity * dt per step, so no joint outruns its cap whatever the caller sends;
 - the render thread decides what to draw and when: the face texture, the head camera (only while someone
-  watches: into the frame ring's shared memory, and as JPEG only while a JPEG consumer watches), snapshots. The drawing happens in a render process (render_process.py: the OpenGL context,
-  llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
+  watches: into the frame ring's shared memory, and as JPEG only while a JPEG consumer watches), snapshots. The
+  drawing happens in a render process (render_process.py: the OpenGL context, llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
   delayed by it; the thread sends it the joint state, copied from the physics state under a lock held only for
   the copy, and waits for the picture. If that process dies, the camera closes (frame waiters and
   camera-closed listeners are told, snapshots fail with the reason) while the physics goes on: the robot holds;

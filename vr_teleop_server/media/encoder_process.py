@@ -11,9 +11,9 @@ GIL released, while the worker encodes): the worker reads the frame's pixels fro
 come as JPEG (a real robot's topic) sends the JPEG instead, which the worker decodes.
 
 The worker answers requests over a socket pair (the `worker_process` package: started with subprocess, it exits
-when its socket closes, so it cannot outlive the server), one at a time: the frame (its number in the ring, or a JPEG), its presentation time and, per
-codec, whether to make a keyframe and the target bitrate; the answer is, per codec, the encoded frame or why it
-failed (that codec's encoder is then rebuilt). It loads this file alone, not the `vr_teleop_server` package: it
+when its socket closes, so it cannot outlive the server), one at a time: the frame (its number in the ring, or a
+JPEG), its presentation time and, per codec, whether to make a keyframe and the target bitrate; the answer is,
+per codec, the encoded frame or why it failed (that codec's encoder is then rebuilt). It loads this file alone, not the `vr_teleop_server` package: it
 needs only PyAV, OpenCV and NumPy, and starts in a fraction of a second.
 """
 
