@@ -489,42 +489,6 @@ async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: Ru
         await ros.close()
 
 
-# The browser tests come last: sync Playwright keeps a loop running in this thread, which pytest-asyncio's
-# tests cannot share.
-def test_the_dashboard_shows_webrtc_video(browser, media_server: RunningServer) -> None:
-    page = browser.new_page(viewport={"width": 1200, "height": 900})
-    errors: list[str] = []
-    page.on("pageerror", lambda exc: errors.append(str(exc)))
-    try:
-        page.goto(f"http://127.0.0.1:{media_server.port}/#camera=webrtc")
-        page.wait_for_function("window.dashboard.videoFrames >= 10", timeout=30_000)  # requestVideoFrameCallback
-        assert page.evaluate("window.dashboard.camera.path") == "WebRTC"
-        size = page.evaluate("[document.getElementById('camera-video').videoWidth, "
-                             "document.getElementById('camera-video').videoHeight]")
-        assert size == [640, 480]
-        assert page.is_visible("#camera-video") and not page.is_visible("#camera")
-        # The telemetry's RTP mapping gives each shown frame its age.
-        page.wait_for_function("window.dashboard.camera.ages.length >= 5", timeout=20_000)
-        ages = page.evaluate("window.dashboard.camera.ages")
-        assert all(-0.05 < a < 5 for a in ages), ages
-        assert errors == []
-    finally:
-        page.close()
-
-
-def test_the_dashboard_falls_back_to_the_jpeg_topic(browser, media_server: RunningServer) -> None:
-    page = browser.new_page(viewport={"width": 1200, "height": 900})
-    page.add_init_script("delete window.RTCPeerConnection")  # a browser without WebRTC
-    try:
-        page.goto(f"http://127.0.0.1:{media_server.port}/")
-        page.wait_for_function("window.dashboard.frames >= 3", timeout=30_000)
-        assert page.evaluate("window.dashboard.camera.path") == "JPEG"
-        assert page.is_visible("#camera") and not page.is_visible("#camera-video")
-        page.wait_for_function("window.dashboard.camera.ages.length >= 2", timeout=20_000)
-    finally:
-        page.close()
-
-
 async def test_the_camera_asks_the_viewer_for_no_playout_delay(media_server: RunningServer) -> None:
     """A viewer that offers the playout-delay extension (Chromium does) gets it in the answer, and every video
     packet carries min 0, max 0 (render at once): what keeps Chromium's jitter buffer small. A viewer that does
@@ -563,3 +527,39 @@ async def test_the_camera_asks_the_viewer_for_no_playout_delay(media_server: Run
         assert set(delays) == ({b"\x00\x00\x00"} if offered else {None})
         await pc.close()
         await ros.close()
+
+
+# The browser tests come last: sync Playwright keeps a loop running in this thread, which pytest-asyncio's
+# tests cannot share.
+def test_the_dashboard_shows_webrtc_video(browser, media_server: RunningServer) -> None:
+    page = browser.new_page(viewport={"width": 1200, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        page.goto(f"http://127.0.0.1:{media_server.port}/#camera=webrtc")
+        page.wait_for_function("window.dashboard.videoFrames >= 10", timeout=30_000)  # requestVideoFrameCallback
+        assert page.evaluate("window.dashboard.camera.path") == "WebRTC"
+        size = page.evaluate("[document.getElementById('camera-video').videoWidth, "
+                             "document.getElementById('camera-video').videoHeight]")
+        assert size == [640, 480]
+        assert page.is_visible("#camera-video") and not page.is_visible("#camera")
+        # The telemetry's RTP mapping gives each shown frame its age.
+        page.wait_for_function("window.dashboard.camera.ages.length >= 5", timeout=20_000)
+        ages = page.evaluate("window.dashboard.camera.ages")
+        assert all(-0.05 < a < 5 for a in ages), ages
+        assert errors == []
+    finally:
+        page.close()
+
+
+def test_the_dashboard_falls_back_to_the_jpeg_topic(browser, media_server: RunningServer) -> None:
+    page = browser.new_page(viewport={"width": 1200, "height": 900})
+    page.add_init_script("delete window.RTCPeerConnection")  # a browser without WebRTC
+    try:
+        page.goto(f"http://127.0.0.1:{media_server.port}/")
+        page.wait_for_function("window.dashboard.frames >= 3", timeout=30_000)
+        assert page.evaluate("window.dashboard.camera.path") == "JPEG"
+        assert page.is_visible("#camera") and not page.is_visible("#camera-video")
+        page.wait_for_function("window.dashboard.camera.ages.length >= 2", timeout=20_000)
+    finally:
+        page.close()
