@@ -10,7 +10,10 @@ Three kinds of thread touch it:
   the copy, and waits for the picture. If that process dies, the camera closes (frame waiters and
   camera-closed listeners are told, snapshots fail with the reason) while the physics goes on: the robot holds;
 - callers (the asyncio loop, tests) only take short locks: every public method returns in microseconds,
-  except snapshot() and the wait_* helpers, which block by design and say so.
+  except snapshot() and the wait_* helpers, which block by design and say so. The two the server calls on every
+  pose and joint-state tick never wait for a physics batch: set_targets swaps in a new goal array (the physics
+  thread reads whichever is current), and joint_state reads the state the physics thread publishes after each
+  batch. Waiting on the batch's lock held the event loop for a millisecond at a time (bench/teleop.py).
 """
 
 from __future__ import annotations
@@ -150,7 +153,9 @@ class StandIn:
         self._ambient = float(ambient_temperature_c)
         self._temperature = np.full(len(self.names), self._ambient)
 
-        self._lock = threading.Lock()  # guards data, goals, setpoints, modes, stats
+        self._lock = threading.Lock()  # guards data, setpoints, modes, stats
+        self._goal_lock = threading.Lock()  # serialises goal writers; the goal array is replaced, never edited
+        self._state = self._capture()  # the joints as the physics thread last published them
         self._stop = threading.Event()
         self._steps = 0
         self._resyncs = 0
@@ -206,11 +211,13 @@ class StandIn:
             values.append(value)
         applied = np.clip(np.array(values), self._lower[idx], self._upper[idx]) if idx else np.array([])
         out = {}
-        with self._lock:
+        with self._goal_lock:
+            goal = self._goal.copy()
             for i, v in zip(idx, applied):
                 if self._modes[i] is MotorMode.ON:
-                    self._goal[i] = v
+                    goal[i] = v
                     out[self.names[i]] = float(v)
+            self._goal = goal
         return out
 
     def set_velocity_caps(self, caps: Mapping[str, float]) -> None:
@@ -226,13 +233,14 @@ class StandIn:
         so a stale goal cannot make the joint jump."""
         mode = MotorMode(mode)
         idx = [self.names.index(self.robot.joint(n).name) for n in joints]
-        with self._lock:
+        with self._lock, self._goal_lock:
             m = self.model
+            goal = self._goal.copy()
             for i in idx:
                 a, b = self._act[i], self._body_of[i]
                 here = math.degrees(self.data.qpos[self._qadr[i]])
                 here = min(max(here, self._lower[i]), self._upper[i])
-                self._goal[i] = self._setpoint[i] = here
+                goal[i] = self._setpoint[i] = here
                 self.data.ctrl[a] = math.radians(here)
                 if mode is MotorMode.OFF:
                     m.actuator_gainprm[a, 0] = 0.0
@@ -243,15 +251,26 @@ class StandIn:
                     m.actuator_biasprm[a, :3] = self._bias[i]
                     m.body_gravcomp[b] = self._gravcomp[b]
                 self._modes[i] = mode
+            self._goal = goal
+            self._state = self._capture()
+
+    def _capture(self) -> tuple[tuple[float, ...], ...]:
+        """(positions, velocities, setpoints, efforts, (sim time,)) from the physics state; the caller holds _lock
+        (or no physics thread runs)."""
+        d = self.data
+        return (tuple(np.degrees(d.qpos[self._qadr]).tolist()), tuple(np.degrees(d.qvel[self._dadr]).tolist()),
+                tuple(self._setpoint.tolist()), tuple(d.actuator_force[self._act].tolist()), (float(d.time),))
 
     def joint_state(self) -> JointSnapshot:
-        with self._lock:
-            q = np.degrees(self.data.qpos[self._qadr])
-            v = np.degrees(self.data.qvel[self._dadr])
-            f = self.data.actuator_force[self._act].copy()
-            goal, sp, modes, t = self._goal.copy(), self._setpoint.copy(), tuple(self._modes), self.data.time
-        return JointSnapshot(self.names, tuple(map(float, q)), tuple(map(float, v)), tuple(map(float, goal)),
-                             tuple(map(float, sp)), tuple(map(float, f)), modes, time.monotonic(), time.time(), t)
+        """The joints as of the physics thread's last batch (at most STEPS_PER_LOCK steps old), with the goals
+        as set; without a physics thread, as of now."""
+        if self._physics_thread.is_alive():
+            q, v, sp, f, (t,) = self._state
+        else:
+            with self._lock:
+                q, v, sp, f, (t,) = self._capture()
+        goal, modes = self._goal, tuple(self._modes)
+        return JointSnapshot(self.names, q, v, tuple(goal.tolist()), sp, f, modes, time.monotonic(), time.time(), t)
 
     def joint_positions(self) -> dict[str, float]:
         s = self.joint_state()
@@ -478,6 +497,7 @@ class StandIn:
                             self._temperature += (self._ambient + self.THERMAL_GAIN * f * f - self._temperature) * (
                                 thermal_every * self.dt / self.THERMAL_TAU_S)
                     self._steps = done
+                    self._state = self._capture()
                     after = time.monotonic()
                     self._lag = max(0.0, (after - t0) - done * self.dt)
                     if after - last_sample >= 0.05:

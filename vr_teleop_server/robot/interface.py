@@ -136,6 +136,7 @@ class MotorStatus:
     voltage_v: float | None
     mode: MotorMode
     source: str  # "measured" (a real robot) or "modelled" (the stand-in's thermal model)
+    fault: str = ""  # what the motor reports wrong (comma-separated), "" when nothing (or the backend cannot tell)
 
 
 class FrameMailbox:
@@ -296,7 +297,12 @@ class Robot(abc.ABC):
 
     @abc.abstractmethod
     def stop_speech(self) -> None:
-        """Cut the current speech short; its say() returns completed=False."""
+        """Cut the current speech short; its say() returns completed=False. A say() that follows is never cut by
+        this stop (a backend whose stop travels must let it arrive first)."""
+
+    async def configure_speech(self, language: str, pitch: int, speed: int) -> None:
+        """Set the robot's own voice as LuxAI's /qt_robot/speech/config does (empty or 0: keep). The default does
+        nothing: a backend whose speech is the server's rendered voice (the stand-in) has no voice of its own."""
 
     @abc.abstractmethod
     async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
@@ -304,7 +310,15 @@ class Robot(abc.ABC):
 
     @abc.abstractmethod
     def stop_gesture(self) -> None:
-        """Stop the playing gesture where it is."""
+        """Stop the playing gesture (or the robot's own) where it is."""
+
+    def own_gestures(self) -> tuple[str, ...]:
+        """Gestures the robot itself holds and plays by name (a QTrobot v3's gesture files); the default: none."""
+        return ()
+
+    async def play_own_gesture(self, name: str, speed: float = 1.0) -> GestureResult:
+        """Play one of own_gestures() on the robot; returns when it has finished or was stopped."""
+        raise ValueError(f"unknown gesture {name!r}: this robot holds no gestures of its own")
 
     # ------------------------------------------------------------------------------------------------ camera
     @abc.abstractmethod
