@@ -3,9 +3,9 @@
 Three kinds of thread touch it:
 - the physics thread steps MuJoCo at real-time factor 1 and moves each servo's setpoint toward its goal by at
   most max_velocity * dt per step, so no joint outruns its cap whatever the caller sends;
-- the render thread decides what to draw and when: the face texture, the head camera as JPEG (only while
-  someone watches), snapshots. The drawing happens in a render process (render_process.py: the OpenGL context,
-  llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
+- the render thread decides what to draw and when: the face texture, the head camera (only while someone
+  watches: into the frame ring's shared memory, and as JPEG only while a JPEG consumer watches), snapshots. The
+  drawing happens in a render process (render_process.py: the OpenGL context, llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
   delayed by it; the thread sends it the joint state, copied from the physics state under a lock held only for
   the copy, and waits for the picture. If that process dies, the camera closes (frame waiters and
   camera-closed listeners are told, snapshots fail with the reason) while the physics goes on: the robot holds;
@@ -37,6 +37,7 @@ from robot_models import RobotModel, load_qtrobot
 from robot_models.mjcf import HEAD_CAMERA
 from robot_models.types import CameraFrame, MotorMode
 from simclock import WALL, Clock
+from worker_process.frame_ring import FrameRing
 
 from .face import normalise_emotion
 from .render_process import RenderProcess, RenderProcessError
@@ -173,6 +174,7 @@ class StandIn:
         # Render-side state, guarded by _render_cond's lock.
         self._render_cond = threading.Condition()
         self._camera_subscribers = 0
+        self._jpeg_subscribers = 0  # of the camera's subscribers, those that want JPEG (the others read the ring)
         self._emotion = normalise_emotion(initial_emotion)
         self._talking_until = 0.0
         self._voice = (0.0, -math.inf)  # (level, monotonic time it was set)
@@ -186,6 +188,8 @@ class StandIn:
         self._seq = 0
         self._render_error: BaseException | None = None
         self._renderer: RenderProcess | None = None
+        # Raw frames in shared memory for the video encoder; released when the renderer stops (closed or dead).
+        self._ring = FrameRing.create(self.camera_width, self.camera_height)
         self._camera_closed_listeners: list[Callable[[], None]] = []
         self._render_ready = threading.Event()
         self._frame_requests: collections.deque[tuple[tuple, tuple[float, float, float], Future]] = \
@@ -362,16 +366,25 @@ class StandIn:
             return True
 
     # ----------------------------------------------------------------------------------------------- camera
-    def start_camera(self) -> None:
-        """Count one more viewer; frames are rendered while at least one is counted."""
+    def start_camera(self, jpeg: bool = True) -> None:
+        """Count one more viewer; frames are rendered while at least one is counted, and compressed to JPEG while
+        at least one counted with `jpeg` (the others read the frame ring: `frame_ring`)."""
         with self._render_cond:
             self._camera_subscribers += 1
+            self._jpeg_subscribers += bool(jpeg)
             self._render_cond.notify_all()
 
-    def stop_camera(self) -> None:
+    def stop_camera(self, jpeg: bool = True) -> None:
         with self._render_cond:
             self._camera_subscribers = max(0, self._camera_subscribers - 1)
+            if jpeg:
+                self._jpeg_subscribers = max(0, self._jpeg_subscribers - 1)
             self._render_cond.notify_all()
+
+    @property
+    def frame_ring(self) -> FrameRing:
+        """The shared memory the camera's raw frames go to (closed once the renderer has stopped)."""
+        return self._ring
 
     @property
     def camera_subscribers(self) -> int:
@@ -577,7 +590,7 @@ class StandIn:
 
         try:
             renderer = self._renderer = RenderProcess(self.model, self.camera_width, self.camera_height,
-                                                      nice=self.render_nice)
+                                                      nice=self.render_nice, ring=self._ring)
             self._render_ready.set()
             while not self._stop.is_set():
                 with self._render_cond:
@@ -648,6 +661,7 @@ class StandIn:
                 closed_listeners = self._camera_closed_listeners
             if renderer is not None:
                 renderer.close()
+            self._ring.close()
             for callback in closed_listeners:
                 try:
                     callback()
@@ -656,15 +670,17 @@ class StandIn:
 
     def _render_frame(self, renderer: RenderProcess, state: tuple, stamps: tuple[float, float, float]) -> None:
         t_mono, t_wall, sim_time = stamps
+        seq = self._seq + 1
+        quality = self.jpeg_quality if self._jpeg_subscribers > 0 else None
         try:
-            jpeg, width, height, render_ms, encode_ms = renderer.frame(state, self.jpeg_quality)
+            jpeg, width, height, render_ms, encode_ms = renderer.frame(state, quality, seq)
         except RenderProcessError:
             raise
         except RuntimeError as exc:
             log.error("a camera frame failed: %s", exc)
             return
-        self._seq += 1
-        frame = CameraFrame(jpeg, width, height, self._seq, t_mono, t_wall, sim_time, render_ms, encode_ms)
+        self._seq = seq
+        frame = CameraFrame(jpeg, width, height, seq, t_mono, t_wall, sim_time, render_ms, encode_ms, ring=self._ring)
         with self._frame_cond:
             self._frame = frame
             self._frame_cond.notify_all()

@@ -329,6 +329,14 @@ class Robot(abc.ABC):
     def remove_camera_subscriber(self) -> None:
         """Undo one add_camera_subscriber()."""
 
+    def add_raw_camera_subscriber(self) -> None:
+        """Count one more viewer that reads frames' raw pixels (`CameraFrame.ring`) and needs no JPEG. A backend
+        whose frames come as JPEG anyway (a real camera's topic) counts it as any viewer."""
+        self.add_camera_subscriber()
+
+    def remove_raw_camera_subscriber(self) -> None:
+        self.remove_camera_subscriber()
+
     @abc.abstractmethod
     def latest_frame(self) -> CameraFrame | None:
         """The newest frame, or None if none was produced yet (check its stamps for age)."""
@@ -341,25 +349,30 @@ class Robot(abc.ABC):
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
         """Wait (without blocking the loop) for a frame newer than after_seq; None on timeout or once closed."""
 
-    async def live_frames(self) -> AsyncIterator[CameraFrame]:
-        """Each new frame, watching the camera for as long as the iteration lasts.
+    async def live_frames(self, jpeg: bool = True) -> AsyncIterator[CameraFrame]:
+        """Each new frame, watching the camera for as long as the iteration lasts; with `jpeg` False, frames may
+        come without their JPEG (when the backend has their raw pixels: `CameraFrame.ring`), which saves the
+        compression when no one else wants it.
 
         The newest kept frame is skipped: it may be from when the camera last ran, not what the robot sees now.
         Iterate inside contextlib.aclosing() so that the camera is given back as soon as the loop ends.
         """
         latest = self.latest_frame()
         seq = latest.seq if latest is not None else 0
-        self.add_camera_subscriber()
+        add, remove = ((self.add_camera_subscriber, self.remove_camera_subscriber) if jpeg else
+                       (self.add_raw_camera_subscriber, self.remove_raw_camera_subscriber))
+        add()
         try:
             while True:
                 frame = await self.next_frame(seq, timeout=1.0)
                 if frame is not None:
                     seq = frame.seq
-                    yield frame
+                    if frame.jpeg or not jpeg:  # one drawn before this iteration asked for JPEG is skipped
+                        yield frame
                 elif self.camera_closed():  # no frame will ever come: end, rather than poll a closed camera
                     return
         finally:
-            self.remove_camera_subscriber()
+            remove()
 
     # ------------------------------------------------------------------------------------------------ microphone
     def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
