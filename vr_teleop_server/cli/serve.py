@@ -101,8 +101,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    logging.getLogger("websockets").setLevel(max(logging.WARNING, logging.getLogger().level))  # we log our own
     try:
         width, height = (int(v) for v in args.camera_size.lower().split("x"))
     except ValueError:
@@ -144,6 +142,9 @@ def run(args: argparse.Namespace) -> int:
     except ValidationError as exc:
         print(f"vr-teleop serve: {describe_validation_error(exc)}", file=sys.stderr)
         return 2
+    # Process-wide logging only once the arguments are good: a refused command line leaves the caller's alone.
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("websockets").setLevel(max(logging.WARNING, logging.getLogger().level))  # we log our own
     short_slice()  # the loop's wake-ups preempt media work (core/scheduling.py)
     return asyncio.run(_serve(settings))
 
