@@ -282,7 +282,7 @@ export class CameraFeed {
       // Why a connection could not be made, when the relay says or there is none to take
       const relay = iceErrors.summary() || (hasTurn(ice.iceServers) ? "" : "no TURN relay configured on the server " +
         `(${ice.message || "direct paths only"}), which a NAT or a firewall blocking UDP needs`);
-      const because = why === "failed" && relay ? `; ${relay}` : "";
+      const because = relay && (why === "failed" || iceErrors.errors.length) ? `; ${relay}` : "";
       this.useJpeg(`camera: WebRTC ${why} (${err.message}${because}); showing the JPEG topic`);
     }
   }
