@@ -12,7 +12,7 @@ from typing import Any
 
 import av
 import numpy as np
-from aiortc import MediaStreamTrack, RTCConfiguration, RTCPeerConnection, RTCSessionDescription
+from aiortc import MediaStreamTrack, RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
 from aiortc.mediastreams import MediaStreamError
 from websockets.asyncio.client import ClientConnection, connect
 
@@ -206,8 +206,9 @@ class MediaPeer:
     opens the poses data channel (unordered, no retransmissions) before the offer, as the operator page does."""
 
     def __init__(self, video: bool = True, audio: bool = True, mic: MediaStreamTrack | None = None,
-                 video_codec: str | None = None, poses: bool = False) -> None:
-        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+                 video_codec: str | None = None, poses: bool = False,
+                 ice_servers: list[RTCIceServer] | None = None) -> None:
+        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice_servers or []))
         self.poses: PoseSender | None = None
         if poses:
             self.poses = PoseSender(self.pc.createDataChannel("poses", ordered=False, maxRetransmits=0))
@@ -357,15 +358,29 @@ class ChannelRoad:
     decoded: a viewer whose decoding is not this machine's business). With `carry` False the channel is opened but
     nothing is sent on it: the poses stay on the WebSocket beside the same media (a baseline with the same load)."""
 
-    def __init__(self, video: bool = False, carry: bool = True, audio: bool = False) -> None:
+    def __init__(self, video: bool = False, carry: bool = True, audio: bool = False, turn: str = "") -> None:
+        """`turn` ("udp", "tcp" or "tls"): ask the server for its ICE servers and reach the relay that way (aiortc
+        uses one TURN URL, the first: the one of that transport goes first)."""
         self.video = video
+        self.turn = turn
         self.carry = carry
         self.audio = audio  # also receive the robot's audio (decoded: the bench counts its gaps)
         self.peer: MediaPeer | None = None  # made in open(), on the replay's loop and in its thread's namespace
         self.video_frames: list[tuple[float, int]] = []  # (monotonic time, frames so far) at open and close
 
     async def open(self, call: Any) -> None:
-        self.peer = MediaPeer(video=self.video, audio=self.audio, poses=True)
+        ice = None
+        if self.turn:
+            values = await call("/vr_teleop/media/ice_servers", {})
+            scheme = {"udp": "turn:", "tcp": "turn:", "tls": "turns:"}[self.turn]
+            transport = "transport=udp" if self.turn == "udp" else "transport=tcp"
+
+            def rank(url: str) -> int:
+                return 0 if url.startswith(scheme) and url.endswith(transport) else 1
+
+            ice = [RTCIceServer(urls=sorted(e["urls"], key=rank), username=e["username"] or None,
+                                credential=e["credential"] or None) for e in values.get("ice_servers", [])]
+        self.peer = MediaPeer(video=self.video, audio=self.audio, poses=True, ice_servers=ice)
         self.peer.light = True
         pc = self.peer.pc
         await pc.setLocalDescription(await pc.createOffer())
