@@ -156,7 +156,8 @@ def drive(origin: str, take_control: bool, until: str = "") -> dict:
             out.update(page.evaluate("""(() => { const c = window.operator.camera; return {
                 route: c.route, audio: c.audioViaWebRtc, video: c.video ? c.video.received : 0,
                 jpeg: c.jpeg ? c.jpeg.received : 0, ice_errors: c.iceErrors ? c.iceErrors.errors : [],
-                message: document.getElementById('hud-message')?.textContent ?? ''}; })()"""))
+                message: document.getElementById('hud-message')?.textContent ?? '',
+                numbers: document.getElementById('hud-numbers')?.textContent ?? ''}; })()"""))
             out["errors"] = errors
             return out
         finally:
@@ -284,7 +285,8 @@ def test_behind_the_school_firewall_media_and_poses_come_up_through_turn_over_tl
         entries = watch.stop()
         assert out["path"] == "WebRTC", out
         assert out["video"] > 3 and out["audio"], out
-        assert "relay" in out["route"], out  # the page's media go through the relay
+        assert "relay" in out["route"] and "relay" in out["first_message"], out  # through the relay, and it says so
+        assert "(WebRTC, " in out["numbers"] and "relay" in out["numbers"].split("(WebRTC, ")[1], out
         # open and carrying (a stall on a busy machine hands poses to rosbridge for a moment: failovers may count)
         assert out["poses"]["open"] and out["poses"]["sent"] > 20, out
         # the server: its peer connected, video sent, poses received on the channel
