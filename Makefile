@@ -7,7 +7,7 @@ HOST   ?= 127.0.0.1
 PORT   ?= 9090
 export MUJOCO_GL ?= egl
 
-.PHONY: run test bench schema clean
+.PHONY: run test bench schema docs docs-serve screenshots clean
 
 run: $(STAMP)
 	$(VENV)/bin/vr-teleop serve --host $(HOST) --port $(PORT)
@@ -20,6 +20,18 @@ bench: $(STAMP)
 
 schema: $(STAMP)
 	$(VENV)/bin/vr-teleop schema --out client_protocol/schemas
+
+# The documentation site (MkDocs, Material theme) into site/; the reference pages are generated while it builds.
+# (NO_MKDOCS_2_WARNING: Material's banner about MkDocs 2, which the docs extra's bounds exclude.)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
+docs-serve: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs serve --strict --dev-addr $(HOST):8000
+
+# The pictures the documentation shows, from the real pages on the stand-in (Chromium through Playwright).
+screenshots: $(STAMP)
+	$(PY) scripts/screenshots.py --out docs/images
 
 # Debian packages: espeak-ng for text-to-speech, Mesa's EGL for MuJoCo's offscreen camera, Chromium for the
 # dashboard's browser tests, Node's npm for the operator page's JavaScript.
@@ -39,8 +51,8 @@ $(WEB_VENDOR): package.json package-lock.json $(SYSTEM)
 $(STAMP): pyproject.toml $(SYSTEM) $(WEB_VENDOR)
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,docs]'
 	touch $@
 
 clean:
-	rm -rf $(VENV) *.egg-info .pytest_cache .hypothesis node_modules vr_teleop_server/web/vendor
+	rm -rf $(VENV) site *.egg-info .pytest_cache .hypothesis node_modules vr_teleop_server/web/vendor

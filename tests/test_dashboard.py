@@ -3,6 +3,7 @@ with the stand-in; and roles over real sockets."""
 
 from __future__ import annotations
 
+import json
 import time
 import urllib.request
 from pathlib import Path
@@ -70,6 +71,34 @@ def test_the_page_shows_live_camera_frames_joints_and_menus(browser, dashboard_s
         page.wait_for_selector("button[data-item='motion.play.list.wave']")
         SCREENSHOTS.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(SCREENSHOTS / "dashboard.png"), full_page=True)
+        assert page.errors == []
+    finally:
+        page.close()
+
+
+def test_each_emotion_has_one_button_quick_ones_first(browser, dashboard_server):
+    """The menus name the four quick emotions twice (their own items, then the generated list of all of them);
+    the dashboard shows each emotion once, the quick ones first in their file's order, then the rest in the
+    robot's order."""
+    listener = RawClient(dashboard_server.url)
+    listener.send({"op": "auth", "mac": TOKENS["spectator"]})
+    listener.send({"op": "subscribe", "topic": "/vr_teleop/menus", "type": "vr_teleop_msgs/Menus"})
+    items = listener.expect("publish", topic="/vr_teleop/menus")["msg"]["items"]
+    listener.close()
+    emotion_of = {i["id"]: json.loads(i["args"])["name"] for i in items if i["command"] == "show_emotion"}
+    published = list(emotion_of.values())
+    quick = [i["id"] for i in items if i["command"] == "show_emotion" and i["parent"] == "emotion"]
+    assert len(quick) == 4 and len(published) > len(set(published))  # the repeats the dashboard must fold
+    every = list(dashboard_server.server.robot.model.emotions)
+    page = open_page(browser, dashboard_server, "supervisor")
+    try:
+        page.wait_for_selector(f"button[data-item='{next(i for i in emotion_of if emotion_of[i] == every[-1])}']")
+        shown = page.eval_on_selector_all(
+            "#menus .menu button", "bs => bs.map(b => b.dataset.item)")
+        names = [emotion_of[i] for i in shown if i in emotion_of]
+        expected = [emotion_of[i] for i in quick]
+        expected += [e for e in every if e not in expected]
+        assert names == expected
         assert page.errors == []
     finally:
         page.close()

@@ -270,17 +270,27 @@ function select(id, args = "") {
     .then((r) => logLine($("events"), `${id}: ${r.message}`))
     .catch((err) => logLine($("events"), `${id}: ${err.message}`, "error"));
 }
+function canonicalArgs(args) {
+  if (!args) return "{}";
+  const parsed = JSON.parse(args);
+  return JSON.stringify(Object.keys(parsed).sort().map((k) => [k, parsed[k]]));
+}
 ros.subscribe("/vr_teleop/menus", "vr_teleop_msgs/Menus", (m) => {
   const byParent = new Map();
   for (const item of m.items) {
     if (!byParent.has(item.parent)) byParent.set(item.parent, []);
     byParent.get(item.parent).push(item);
   }
+  // The headset's menus repeat some commands (the quick emotions, then every emotion in a list): the dashboard
+  // shows one button per command and arguments, the first met (so the quick ones come first).
+  const shown = new Set();
   const sections = [];
   for (const menu of m.menus) {
     const buttons = el("div", {className: "buttons"});
     const walk = (parent) => (byParent.get(parent) || []).forEach((item) => {
-      if (item.command) {
+      const key = item.command && `${item.command} ${canonicalArgs(item.args)}`;
+      if (item.command && !shown.has(key)) {
+        shown.add(key);
         if (item.command === "say" && !sayItem) sayItem = item.id;
         const b = el("button", {textContent: item.label, title: item.id});
         b.dataset.item = item.id;

@@ -1,0 +1,233 @@
+"""`make screenshots`: the documentation's pictures, taken from the real pages.
+
+Starts `vr-teleop serve` on the MuJoCo stand-in (a free loopback port, stopped by its process id), then drives the
+operator page in Debian's Chromium through Playwright: flat, and in VR with IWER as the headset (as
+tests/test_operator_page.py does), and the supervisor's dashboard. Each picture is written as a small PNG (256
+colours) into the output directory; the names are what the guides link to.
+
+    python scripts/screenshots.py --out docs/images [--only NAME ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from collections.abc import Callable
+from pathlib import Path
+
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parent.parent
+IWER = ROOT / "node_modules" / "iwer" / "build" / "iwer.min.js"
+INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
+                   "window.xrDevice.installRuntime({forceInstall: true});")
+READY = "window.operator && window.operator.ros.connected && window.operator.state.teleop"
+VIEWPORT = {"width": 1000, "height": 620}
+SLOW = 120_000  # ms: a page, the stand-in and a software renderer share a busy machine
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """`vr-teleop serve --backend sim` in its own process, on loopback."""
+
+    def __init__(self, workdir: Path) -> None:
+        self.port = free_port()
+        env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--backend", "sim", "--host", "127.0.0.1",
+             "--port", str(self.port), "--gesture-dir", str(workdir / "gestures"), "--audio-dir",
+             str(workdir / "audio"), "--log-level", "warning"], cwd=ROOT, env=env)
+        deadline = time.monotonic() + 120
+        while True:
+            if self.process.poll() is not None:
+                raise SystemExit(f"vr-teleop serve exited with {self.process.returncode}")
+            try:
+                urllib.request.urlopen(f"http://127.0.0.1:{self.port}/", timeout=2).close()
+                return
+            except OSError:
+                if time.monotonic() > deadline:
+                    self.stop()
+                    raise SystemExit("vr-teleop serve did not answer within 120 s") from None
+                time.sleep(0.3)
+
+    def stop(self) -> None:
+        self.process.terminate()
+        try:
+            self.process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+
+
+class Shots:
+    def __init__(self, browser, server: Server, out: Path) -> None:
+        self.browser, self.server, self.out = browser, server, out
+        self.written: list[Path] = []
+
+    def save(self, page, name: str, **options) -> None:
+        """A PNG of the page in 256 colours (dithered): a third of the full-colour PNG's size, text stays sharp."""
+        png = page.screenshot(**options)
+        path = self.out / f"{name}.png"
+        image = Image.open(io.BytesIO(png)).convert("RGB")
+        image.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(
+            path, optimize=True)
+        self.written.append(path)
+        print(f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}: {path.stat().st_size // 1024} KiB")
+
+    def operator(self, headset: bool):
+        context = self.browser.new_context(viewport=VIEWPORT)
+        page = context.new_page()
+        if headset:
+            page.add_init_script(path=str(IWER))
+            page.add_init_script(script=INSTALL_HEADSET)
+        page.goto(f"http://127.0.0.1:{self.server.port}/operator#camera=jpeg")
+        page.wait_for_function(READY, timeout=SLOW)
+        return page
+
+    @staticmethod
+    def frames(page, n: int = 3) -> None:
+        start = page.evaluate("window.operator.state.frameCount")
+        page.wait_for_function(f"window.operator.state.frameCount >= {start + n}", timeout=SLOW)
+
+    def press(self, page, hand: str, button: str) -> None:
+        page.evaluate(f"xrDevice.controllers.{hand}.updateButtonValue({button!r}, 1)")
+        self.frames(page)
+        page.evaluate(f"xrDevice.controllers.{hand}.updateButtonValue({button!r}, 0)")
+        self.frames(page)
+
+    @staticmethod
+    def calm(page) -> None:
+        """Waits a while for the HUD to say the link is good (on a busy machine it may stay degraded: then as is)."""
+        from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+        try:
+            page.wait_for_function("(document.getElementById('hud-link')?.textContent ?? '').startsWith('link good')",
+                                   timeout=20_000)
+        except PlaywrightTimeout:
+            print("the link stayed degraded (a busy machine): the picture shows it so")
+
+    def wait_control(self, page) -> None:
+        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '')"
+                               ".startsWith('YOU HAVE CONTROL')", timeout=SLOW)
+
+    # ---- the pictures ---------------------------------------------------------------------------------------------
+    def headset(self) -> None:
+        """In the headset: the page before entering VR, then the operator's view holding control, a menu open, the
+        HUD's warning after the link stalled; the dashboard while the headset holds control."""
+        page = self.operator(headset=True)
+        try:
+            page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+            self.save(page, "operator-enter-vr")
+            page.get_by_role("button", name="Enter VR").click()
+            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                                   timeout=SLOW)
+            self.press(page, "right", "trigger")  # the right trigger takes control
+            self.wait_control(page)
+            page.wait_for_function("window.operator.camera.uploaded >= 10", timeout=SLOW)
+            self.calm(page)
+            self.frames(page, 10)
+            self.save(page, "operator-vr")
+            self.dashboard()
+            page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
+            self.press(page, "right", "b-button")  # B: the emotion menu
+            page.wait_for_function("document.getElementById('menu-title').textContent === 'Emotions'", timeout=SLOW)
+            page.evaluate("xrDevice.controllers.right.updateAxes('thumbstick', 0, -1)")  # forward: the top item
+            page.wait_for_function("window.operator.nav.highlight >= 0", timeout=SLOW)
+            page.evaluate("xrDevice.controllers.right.updateAxes('thumbstick', 0, 0)")
+            self.calm(page)
+            self.frames(page, 5)
+            self.save(page, "operator-vr-menu")
+            self.press(page, "right", "b-button")  # B again closes the menu
+            page.wait_for_function("document.getElementById('menu-title').textContent === ''", timeout=SLOW)
+            # The page's thread busy for 1.5 s: no poses, the watchdog holds the robot, the HUD warns.
+            page.evaluate("() => { const t = performance.now(); while (performance.now() - t < 1500) {} }")
+            page.wait_for_function("/held \\d+ times? in/.test(document.getElementById('hud-link')?.textContent ?? '')",
+                                   timeout=SLOW)
+            self.frames(page, 10)
+            self.save(page, "operator-vr-hud-warning")
+            self.press(page, "right", "trigger")  # release control
+        finally:
+            page.context.close()
+
+    def dashboard(self) -> None:
+        context = self.browser.new_context(viewport={"width": 1400, "height": 1000})
+        page = context.new_page()
+        try:
+            page.goto(f"http://127.0.0.1:{self.server.port}/#camera=jpeg")
+            page.wait_for_function("window.dashboard.frames >= 3", timeout=SLOW)
+            page.wait_for_selector("button[data-item='emotion.happy']", timeout=SLOW)
+            page.wait_for_function("document.getElementById('teleop-state').textContent.startsWith('active')",
+                                   timeout=SLOW)
+            time.sleep(1.0)  # a second of gauges and events
+            self.save(page, "dashboard", full_page=True)
+        finally:
+            context.close()
+
+    def flat(self) -> None:
+        """The page without a headset: E takes control, the mouse turns the head, A opens the commands menu."""
+        page = self.operator(headset=False)
+        try:
+            page.keyboard.press("e")
+            self.wait_control(page)
+            page.mouse.move(500, 300)
+            page.mouse.down()
+            for i in range(1, 11):
+                page.mouse.move(500 - 6 * i, 300)
+            page.mouse.up()
+            page.keyboard.press("a")
+            page.wait_for_function("document.getElementById('menu-title').textContent === 'Commands'", timeout=SLOW)
+            page.wait_for_function("window.operator.camera.uploaded >= 10", timeout=SLOW)
+            self.calm(page)
+            self.frames(page, 10)
+            self.save(page, "operator-flat")
+            page.keyboard.press("Backspace")
+            page.keyboard.press("e")  # release
+        finally:
+            page.context.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "images", help="directory for the pictures")
+    parser.add_argument("--chromium", default=shutil.which("chromium") or shutil.which("chromium-browser"),
+                        help="the Chromium to drive (default: Debian's, from PATH)")
+    parser.add_argument("--only", nargs="+", choices=("headset", "flat"), default=("headset", "flat"),
+                        help="take only these sets (headset: its views and the dashboard)")
+    args = parser.parse_args(argv)
+    if not args.chromium:
+        parser.error("Chromium is not installed: scripts/install-system-packages.sh installs it")
+    if not IWER.is_file():
+        parser.error(f"{IWER} is missing: run `npm ci` (make's set-up does)")
+    args.out.mkdir(parents=True, exist_ok=True)
+    from playwright.sync_api import sync_playwright
+
+    with tempfile.TemporaryDirectory(prefix="vr-teleop-shots-") as tmp, sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=args.chromium,
+                                    args=["--no-sandbox", "--enable-unsafe-swiftshader"])
+        server = Server(Path(tmp))
+        try:
+            shots = Shots(browser, server, args.out)
+            steps: dict[str, Callable[[], None]] = {"headset": shots.headset, "flat": shots.flat}
+            for name in args.only:
+                steps[name]()
+        finally:
+            server.stop()
+            browser.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
