@@ -286,7 +286,7 @@ def test_behind_the_school_firewall_media_and_poses_come_up_through_turn_over_tl
         assert out["path"] == "WebRTC", out
         assert out["video"] > 3 and out["audio"], out
         assert "relay" in out["route"] and "relay" in out["first_message"], out  # through the relay, and it says so
-        assert "(WebRTC, " in out["numbers"] and "relay" in out["numbers"].split("(WebRTC, ")[1], out
+        assert "(WebRTC) via " in out["numbers"] and "relay" in out["numbers"].split("(WebRTC) via ")[1], out
         # open and carrying (a stall on a busy machine hands poses to rosbridge for a moment: failovers may count)
         assert out["poses"]["open"] and out["poses"]["sent"] > 20, out
         # the server: its peer connected, video sent, poses received on the channel
