@@ -215,7 +215,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "as the camera topic. Refusals: success false and the reason in message (malformed SDP, no common "
              "codec, no camera access, a second offer on this connection). A data channel labelled 'poses' "
              "(ordered false, maxRetransmits 0) carries the holder's /vr/* pose and Joy publish frames (README, "
-             "Media); with one in the offer, a media section without a common codec is answered rejected (port 0, "
+             "Media), or binary messages each holding one XR frame's poses and Joy (client_protocol/pose_frame.py: "
+             "fixed layout, versioned, little-endian); with one in the offer, a media section without a common codec is answered rejected (port 0, "
              "success true, the reason in message) instead of refusing the offer.",
              example={"sdp": "v=0\r\no=- 1 1 IN IP4 0.0.0.0\r\ns=-\r\nt=0 0\r\n"
                              "m=video 9 UDP/TLS/RTP/SAVPF 96\r\na=rtpmap:96 VP8/90000\r\na=recvonly\r\n",
