@@ -28,7 +28,8 @@ home NAT, the server behind the school's symmetric NAT with its WebSocket port f
 channel through coturn in the relay namespace (the delay profile is the link between home and the internet, so a
 relayed path crosses it once). `turn-udp`: the school lets UDP out and every TURN leg is UDP; `turn-tls`: the
 school blocks UDP (TCP out to 80 and 443 only) and the server's leg is TURN over TLS on 443, the client's TURN/UDP.
-Each via's rows are against lan through the same via.
+Each via's rows are against lan through the same via. `--poses binary`: the data channel's sender packs what is
+pending into one binary pose frame per send (client_protocol/pose_frame.py) instead of a JSON frame per topic.
 
     python bench/wan.py --quick            # the first 60 s of the session, every profile
     python bench/wan.py --profiles lan continent
@@ -63,9 +64,11 @@ from wan_support import Observer, intent_errors, pose_latencies, replay_in, serv
 VIAS = ("direct", "turn-udp", "turn-tls")
 
 
-def run_profile(name: str, steps, camera_fps: float, channel: bool = False, via: str = "direct") -> dict:
+def run_profile(name: str, steps, camera_fps: float, channel: bool = False, via: str = "direct",
+                poses: str = "json") -> dict:
     # both paths receive the camera and the robot's audio: the same load on both
-    road = ChannelRoad(video=True, carry=channel, audio=True, turn="" if via == "direct" else "udp")
+    road = ChannelRoad(video=True, carry=channel, audio=True, turn="" if via == "direct" else "udp",
+                       compact=poses == "binary")
     edges = {} if via == "direct" else {
         "client_edge": "home",
         "server_edge": EDGES["school"] if via == "turn-tls" else EDGES["school"].replace(block_udp=False)}
@@ -112,7 +115,7 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False, via:
         extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_replaced": road.sender.replaced,
                  "head_failovers": road.sender.failovers,
                  "head_arrival": round(head_arrived / max(head_sent, 1), 3), **extra}
-    return {"profile": name, "via": via, "path": "datachannel" if channel else "websocket", **extra,
+    return {"profile": name, "via": via, "poses": poses, "path": "datachannel" if channel else "websocket", **extra,
             "session_s": round(steps[-1].t, 1), "holds": len(holds),
             "holds_per_min": round(len(holds) / minutes, 2),
             "threshold_s": [min(thresholds), max(thresholds)] if thresholds else None,
@@ -217,6 +220,9 @@ def main() -> int:
     parser.add_argument("--via", nargs="+", default=["direct"], choices=VIAS,
                         help="direct: the plain link; turn-udp, turn-tls: home and school NATs and the TURN relay "
                              "(module docstring)")
+    parser.add_argument("--poses", default="json", choices=["json", "binary"],
+                        help="on the data channel: JSON publish frames, or one binary pose frame per send "
+                             "(client_protocol/pose_frame.py)")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args()
     why = available() if args.via == ["direct"] else edges_available()
@@ -234,7 +240,8 @@ def main() -> int:
     for via in args.via:
         for name in args.profiles:
             for path in args.paths:
-                row = run_profile(name, steps, args.camera_fps, channel=path == "datachannel", via=via)
+                row = run_profile(name, steps, args.camera_fps, channel=path == "datachannel", via=via,
+                                  poses=args.poses)
                 rows.append(row)
                 print(f"{name} {via} {path}: {json.dumps(row)}", flush=True)
     print()

@@ -3,6 +3,7 @@ channel decoding it into the same publish frames as the JSON ones, under the sam
 
 from __future__ import annotations
 
+import asyncio
 import json
 import struct
 
@@ -10,6 +11,9 @@ import pytest
 
 from client_protocol import interface, names, pose_frame
 from client_protocol.registry import TypeRegistry
+from media_client import MediaPeer, Rosbridge
+from test_datachannel import (HEAD_COMMAND, dc_server, engage_over_websocket, my_telemetry, newest,  # noqa: F401
+                              release, stream, whoami)
 from test_pose_channel import HEAD, JOY, FakeSession, deliver, publish
 from vr_teleop_server.media.poses import PoseChannel
 
@@ -70,3 +74,30 @@ def test_the_channel_hands_a_binary_frames_messages_over_under_the_same_checks()
     refused = PoseChannel(FakeSession(), lambda name: False)
     deliver(refused, frame)
     assert refused.session.frames == [] and "does not hold control" in refused.counts.last_refusal
+
+
+async def test_binary_frames_from_an_aiortc_sender_move_the_robot(dc_server) -> None:  # noqa: F811
+    """End to end: the tests' sender packs its pending poses into one binary frame per send; the server's channel
+    decodes them into the holder's publishes, which move the head as JSON frames do."""
+    ros = await Rosbridge.open(dc_server.url)
+    client = MediaPeer(poses=True, audio=False, compact=True)
+    watcher = await Rosbridge.open(dc_server.url)
+    try:
+        reply = await client.negotiate(ros)
+        assert reply["values"]["success"], reply
+        await client.poses.wait_open()
+        name = await whoami(ros)
+        commands = await watcher.subscribe(HEAD_COMMAND, "std_msgs/Float64MultiArray", queue_length=10_000)
+        await engage_over_websocket(ros)
+        mover = asyncio.ensure_future(stream(client, 25.0, 30.0))
+        try:
+            await newest(commands, lambda m: abs(m["data"][0] - 25.0) < 1.0)
+            entry = await my_telemetry(ros, name, lambda e: e["dc_received"] >= 30)
+            assert entry["dc_refused"] == 0, entry
+        finally:
+            mover.cancel()
+        await release(ros)
+    finally:
+        await client.close()
+        await ros.close()
+        await watcher.close()
