@@ -6,8 +6,11 @@ Figures:
   against the JPEG topic (the image decoded), p50/p95, at 640x480 and 1280x720;
 - bandwidth per path at 30 fps (WebRTC: the server's bytes sent to one peer; JSON: bytes on the WebSocket);
 - server CPU per delivered frame per path (the CPU time of the server process and its video encoder process
-  over frames delivered);
-- frames per second with 1 and 5 WebRTC viewers (aiortc peers in another process);
+  over frames delivered; a second row adds the stand-in's render process, which since issue 29 makes the JPEG only
+  for the JPEG path);
+- frames per second with 1 and 5 WebRTC viewers (aiortc peers in another process, pinned to other cores than the
+  server's when the machine has 4 or more; they count packets without decoding, except the first, which decodes
+  to check the picture);
 - on a 1 Mbit/s bottleneck (LinkShaper, a drop-tail queue on the server's side) with the head sweeping: fps and
   the encoder's bitrate;
 - speech text in to first audio sample (RMS above the floor) out at an aiortc peer, p50;
@@ -136,13 +139,14 @@ async def webrtc_path(url: str, seconds: float) -> tuple[int, int]:
     return frames, size
 
 
-def server_cpu(proc: psutil.Process) -> float:
-    """CPU seconds of the server process and of its video encoder process (media/encoder_process.py), not of the
-    stand-in's render process (the same work for both paths)."""
+def server_cpu(proc: psutil.Process, render: bool = False) -> float:
+    """CPU seconds of the server process and of its video encoder process (media/encoder_process.py), and with
+    `render` of the stand-in's render process too (which draws for both paths and makes the JPEG for one)."""
     total = sum(proc.cpu_times()[:2])
     for child in proc.children():
         with contextlib.suppress(psutil.Error):
-            if "encoder_process" in " ".join(child.cmdline()):
+            line = " ".join(child.cmdline())
+            if "encoder_process" in line or (render and "render_process" in line):
                 total += sum(child.cpu_times()[:2])
     return total
 
@@ -153,32 +157,105 @@ def bandwidth_rows(seconds: float) -> list[Row]:
     out = {}
     try:
         for name, fn in (("webrtc", webrtc_path), ("json", json_path)):
-            cpu0 = server_cpu(proc)
-            t0 = time.monotonic()
+            cpu0, all0 = server_cpu(proc), server_cpu(proc, render=True)
             frames, size = asyncio.run(fn(server.url, seconds))
-            elapsed = time.monotonic() - t0
-            cpu = server_cpu(proc) - cpu0
-            out[name] = (frames, size, cpu, elapsed)
+            out[name] = (frames, size, server_cpu(proc) - cpu0, server_cpu(proc, render=True) - all0)
     finally:
         stop(server)
-    (rf, rs, rc, re_), (jf, js, jc, je) = out["webrtc"], out["json"]
+    (rf, rs, rc, ra), (jf, js, jc, ja) = out["webrtc"], out["json"]
     return [Row("bandwidth 640x480 30 fps, head sweeping, WebRTC (VP8)", 8 * rs / seconds / 1e6, 8 * js / seconds / 1e6,
                 "JPEG topic", "Mbit/s"),
             Row("server CPU per delivered frame, WebRTC", 1000 * rc / max(1, rf), 1000 * jc / max(1, jf),
                 "JPEG topic", "ms"),
+            Row("server CPU per delivered frame with the render process, WebRTC", 1000 * ra / max(1, rf),
+                1000 * ja / max(1, jf), "JPEG topic", "ms"),
             Row("frames delivered a second, WebRTC", rf / seconds, jf / seconds, "JPEG topic", "fps", "higher")]
+
+
+# ---- the encoders' settings, one at a time ------------------------------------------------------------------------
+def encoder_rows(rounds: int) -> list[Row]:
+    """In this process, one thread, as in the encoder process: CPU per 1280x720 frame of the stand-in's camera while
+    the head sweeps, for each setting against the one chosen (media/encoder_process.py's encoder_options), and the
+    frames an encoder holds back before its first output (lookahead: each one is a frame period of delay). Also the
+    frame's way into the encoder: RGB from the frame ring against the JPEG it took before issue 29 (made in the
+    render process, decoded in the encoder process)."""
+    import av
+    import cv2
+
+    from sim import StandIn
+    from vr_teleop_server.media.encoder_process import encoder_options, open_encoder
+
+    standin = StandIn(camera_width=1280, camera_height=720)
+    try:
+        frames = []
+        for k in range(30):
+            standin.set_targets({"HeadYaw": -30 + 2 * k, "HeadPitch": -5 + k % 7})
+            time.sleep(0.1)  # the head moves on: each frame differs from the last
+            frames.append(standin.snapshot(width=1280, height=720))
+    finally:
+        standin.close()
+    yuv = [cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420) for f in frames]
+    rate = 2_000_000
+
+    def run(codec: str, options: dict[str, str], threads: int = 1) -> tuple[float, int]:
+        ctx = open_encoder(av, codec, 1280, 720, rate, 30.0, options, threads)
+        cpu, held, out = 0.0, None, 0
+        for i in range(rounds * len(yuv)):
+            image = av.VideoFrame.from_ndarray(yuv[i % len(yuv)], format="yuv420p")
+            image.pts = i
+            t0 = time.thread_time()
+            out += len(ctx.encode(image))
+            cpu += time.thread_time() - t0
+            if held is None and out:
+                held = i
+        return 1000 * cpu / (rounds * len(yuv)), held if held is not None else rounds * len(yuv)
+
+    vp8, h264 = encoder_options("VP8", rate), encoder_options("H264", rate)
+    base_vp8, held_vp8 = run("VP8", vp8)
+    base_h264, held_h264 = run("H264", h264)
+    rows = [Row("encoder 1280x720 VP8 (chosen): CPU per frame", base_vp8, 1000 / 30, "a frame period", "ms"),
+            Row("encoder 1280x720 H.264 (chosen): CPU per frame", base_h264, 1000 / 30, "a frame period", "ms")]
+    for name, codec, options, threads, base in (
+            ("VP8 cpu-used 16", "VP8", {**vp8, "cpu-used": "16"}, 1, base_vp8),
+            ("VP8 cpu-used 4", "VP8", {**vp8, "cpu-used": "4"}, 1, base_vp8),
+            ("VP8 2 threads", "VP8", vp8, 2, base_vp8),
+            ("H.264 preset veryfast", "H264", {**h264, "preset": "veryfast"}, 1, base_h264)):
+        rows.append(Row(f"encoder 1280x720 {name}: CPU per frame", run(codec, options, threads)[0], base,
+                        "the chosen settings", "ms"))
+    without = {k: v for k, v in h264.items() if k != "tune"}
+    rows += [Row("encoder 1280x720 VP8 (chosen): frames held before the first out", float(held_vp8), None, "-",
+                 "frames"),
+             Row("encoder 1280x720 H.264 (chosen): frames held before the first out", float(held_h264), None, "-",
+                 "frames"),
+             Row("encoder 1280x720 H.264 without zerolatency: frames held", float(run("H264", without)[1]),
+                 float(held_h264), "zerolatency", "frames"),
+             Row("encoder 1280x720 VP8 lag-in-frames 16: frames held", float(run("VP8", {**vp8,
+                 "lag-in-frames": "16"})[1]), float(held_vp8), "lag-in-frames 0", "frames")]
+    # The frame's way in: the ring's RGB to I420 against JPEG made (render process) and decoded (encoder process).
+    t0 = time.thread_time()
+    for f in frames:
+        cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420)
+    ring_ms = 1000 * (time.thread_time() - t0) / len(frames)
+    t0 = time.thread_time()
+    for f in frames:
+        ok, data = cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
+        cv2.cvtColor(cv2.imdecode(data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2YUV_I420)
+    jpeg_ms = 1000 * (time.thread_time() - t0) / len(frames)
+    return rows + [Row("1280x720 frame into the encoder: ring RGB to I420", ring_ms, jpeg_ms,
+                       "JPEG made, decoded, to I420 (before)", "ms")]
 
 
 # ---- viewers in another process ---------------------------------------------------------------------------------
 async def viewers(url: str, n: int, seconds: float) -> list[float]:
     """n aiortc peers; each one's frames a second over `seconds` after the first frames. They count frames without
-    decoding them: on one 2-core machine, five decoders would starve the server being measured."""
+    decoding them (on one 2-core machine, five decoders would starve the server being measured), except the first,
+    which decodes them and checks that the picture is a picture (not one flat colour)."""
     pairs = []
-    for _ in range(n):
+    for i in range(n):
         ros = await Rosbridge.open(url)
         peer = MediaPeer(audio=False)
         peer.keep_frames = 1
-        peer.light = True
+        peer.light = i > 0
         await peer.negotiate(ros)
         pairs.append((ros, peer))
     for _, peer in pairs:
@@ -186,22 +263,37 @@ async def viewers(url: str, n: int, seconds: float) -> list[float]:
     counts = [peer.video_count for _, peer in pairs]
     await asyncio.sleep(seconds)
     rates = [(peer.video_count - c) / seconds for (_, peer), c in zip(pairs, counts)]
+    picture = pairs[0][1].frames[-1][1].to_ndarray(format="gray")
+    if picture.std() < 5:
+        raise RuntimeError(f"the decoding viewer's picture is flat (std {picture.std():.1f}): the video is broken")
     for ros, peer in pairs:
         await peer.close()
         await ros.close()
     return rates
 
 
-def spawn_viewers(url: str, n: int, seconds: float, json_topic: bool = False) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds", str(seconds),
-                             *(["--json-topic"] if json_topic else [])], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+def spawn_viewers(url: str, n: int, seconds: float, json_topic: bool = False,
+                  server: subprocess.Popen | None = None) -> subprocess.Popen:
+    """The viewers in a process of their own (they stand for other machines), pinned apart from `server` when the
+    machine has cores to spare for that (4 or more: the last quarter for the viewers)."""
+    viewers = subprocess.Popen([sys.executable, __file__, "--viewers", str(n), "--url", url, "--seconds",
+                                str(seconds), *(["--json-topic"] if json_topic else [])],
+                               stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    cores = os.cpu_count() or 1
+    if server is not None and cores >= 4:
+        theirs = list(range(cores - cores // 4, cores))
+        with contextlib.suppress(psutil.Error):
+            psutil.Process(viewers.pid).cpu_affinity(theirs)
+            for proc in [psutil.Process(server.pid), *psutil.Process(server.pid).children(recursive=True)]:
+                proc.cpu_affinity([c for c in range(cores) if c not in theirs])
+    return viewers
 
 
 def viewer_rows(seconds: float) -> list[Row]:
     server = serve("--backend", "sim", "--bystander-interval", "0")
     try:
-        one = json.loads(spawn_viewers(server.url, 1, seconds).communicate()[0].splitlines()[-1])
-        five = json.loads(spawn_viewers(server.url, 5, seconds).communicate()[0].splitlines()[-1])
+        one = json.loads(spawn_viewers(server.url, 1, seconds, server=server).communicate()[0].splitlines()[-1])
+        five = json.loads(spawn_viewers(server.url, 5, seconds, server=server).communicate()[0].splitlines()[-1])
     finally:
         stop(server)
     return [Row("WebRTC fps, 1 viewer", float(np.mean(one)), 30.0, "30 fps asked", "fps", "higher"),
@@ -343,11 +435,11 @@ def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
     try:
         for _ in range(rounds):
             none += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
-            watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True)
+            watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True, server=server)
             time.sleep(5)
             camera += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
             watcher.communicate()
-            watchers = spawn_viewers(server.url, 5, 2 * seconds + 20)
+            watchers = spawn_viewers(server.url, 5, 2 * seconds + 20, server=server)
             time.sleep(15)  # the five negotiate and reach steady video
             five += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
             if loop_short:
@@ -378,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rounds", type=int, default=2, help="alternating rounds of the control rows")
     parser.add_argument("--only", nargs="+", choices=["glass", "bandwidth", "viewers", "congested", "speech",
-                                                       "control"])
+                                                       "control", "encoder"])
     parser.add_argument("--viewers", type=int, help=argparse.SUPPRESS)  # the viewer subprocess
     parser.add_argument("--url", help=argparse.SUPPRESS)
     parser.add_argument("--json-topic", action="store_true", help=argparse.SUPPRESS)
@@ -391,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     parts = {"glass": lambda: glass_rows("640x480", s) + glass_rows("1280x720", s),
              "bandwidth": lambda: bandwidth_rows(s), "viewers": lambda: viewer_rows(s),
              "congested": lambda: congested_rows(s), "speech": lambda: speech_rows(5),
-             "control": lambda: control_rows(s, args.rounds)}
+             "control": lambda: control_rows(s, args.rounds), "encoder": lambda: encoder_rows(args.rounds)}
     print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     print(f"| {'figure':<56} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")
     for name in args.only or parts:

@@ -14,6 +14,12 @@ Figures, each against the baseline it should meet:
 The emulated display clock is an init script (like IWER, test-side only) that paces requestAnimationFrame at the
 chosen rate; IWER runs its XR frames off it. Rendering is SwiftShader (CPU), so on a small machine the page may
 not keep up at 90 Hz: the frame interval figures say so. `--quick` runs 4 s per rate instead of 10.
+
+`--long 60` is the long-run check instead (issue 29): the page on WebRTC at 72 Hz for 60 s, the camera frame's age
+at display p50/p95 per 10 s window, and the last window's p95 against the first's (target: within 1.2x; a jitter
+buffer that raises its delay and keeps it shows as a growing age).
+
+    MUJOCO_GL=egl PYTHONPATH=. python bench/operator_page.py [--quick] [--long 60]
 """
 
 from __future__ import annotations
@@ -130,7 +136,8 @@ class Counter:
         self.thread.join(2)
 
 
-def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, camera: str = "webrtc") -> dict:
+def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, camera: str = "webrtc",
+             window: float | None = None) -> dict:
     context = browser.new_context(viewport=viewport)
     page = context.new_page()
     page.add_init_script(script=PACED_FRAMES % {"rate": rate})
@@ -151,7 +158,13 @@ def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, came
                   " window.operator.camera.ages.length = 0; window.__count0 = s.frameCount; }")
     counter.counting = True
     t0 = time.monotonic()
-    time.sleep(seconds)
+    windows = []  # with `window`: the ages shown in each window of that many seconds
+    if window:
+        while time.monotonic() - t0 < seconds - 1e-6:
+            time.sleep(max(0.0, t0 + (len(windows) + 1) * window - time.monotonic()))
+            windows.append(page.evaluate("window.operator.camera.ages.splice(0)"))
+    else:
+        time.sleep(seconds)
     counter.counting = False
     wall = time.monotonic() - t0
     result = page.evaluate("() => ({frames: window.operator.state.frameCount - window.__count0,"
@@ -161,7 +174,7 @@ def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, came
     context.close()
     return {"rate": rate, "path": path, "wall": wall, "poses": counter.poses, "frames": result["frames"],
             "frame_ms": result["frameTimes"], "work_ms": result["workTimes"], "ages": result["ages"],
-            "arrival_ages": counter.arrival_ages, "camera": result["stats"]}
+            "arrival_ages": counter.arrival_ages, "camera": result["stats"], "windows": windows}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -170,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=None)
     parser.add_argument("--rates", default="72,90")
     parser.add_argument("--cameras", default="webrtc,jpeg", help="the panel's camera paths to run, each rate")
+    parser.add_argument("--long", type=float, metavar="SECONDS",
+                        help="the long-run check instead: WebRTC at 72 Hz for SECONDS, age per 10 s window")
     parser.add_argument("--viewport", default="960x600", help="the emulated headset's canvas, WxH (SwiftShader "
                         "shades every pixel on the CPU)")
     args = parser.parse_args(argv)
@@ -186,8 +201,13 @@ def main(argv: list[str] | None = None) -> int:
             browser = p.chromium.launch(executable_path=chromium,
                                         args=["--no-sandbox", "--enable-unsafe-swiftshader"])
             width, height = (int(v) for v in args.viewport.split("x"))
-            results = [run_rate(browser, server.port, int(r), seconds, {"width": width, "height": height}, camera)
-                       for r in args.rates.split(",") for camera in args.cameras.split(",")]
+            if args.long:
+                results = [run_rate(browser, server.port, 72, args.long, {"width": width, "height": height},
+                                    "webrtc", window=10.0)]
+            else:
+                results = [run_rate(browser, server.port, int(r), seconds, {"width": width, "height": height},
+                                    camera)
+                           for r in args.rates.split(",") for camera in args.cameras.split(",")]
             browser.close()
     finally:
         server.stop()
@@ -202,6 +222,18 @@ def main(argv: list[str] | None = None) -> int:
         ratio = value / baseline if baseline else float("nan")
         print(f"{name:64s} {value:>9.1f}{unit:1s} {baseline:>9.1f}{unit:1s} {ratio:>7.2f}")
 
+    if args.long:
+        windows = results[0]["windows"]
+        for k, ages in enumerate(windows):
+            span = f"{10 * k:g}-{10 * (k + 1):g} s"
+            row(f"long run {args.long:g} s, WebRTC: age at display p50, {span} (ms)", 1000 * percentile(ages, 50),
+                1000 * percentile(windows[0], 50))
+            row(f"long run {args.long:g} s, WebRTC: age at display p95, {span} (ms)", 1000 * percentile(ages, 95),
+                1000 * percentile(windows[0], 95))
+            print(f"{'':4s}frames shown in the window: {len(ages)}")
+        row(f"long run {args.long:g} s, WebRTC: last window's p95 vs the first's (<= 1.2x)",
+            1000 * percentile(windows[-1], 95), 1000 * percentile(windows[0], 95))
+        return 0
     for r in results:
         rate = f"{r['rate']} Hz {r['path']}"
         row(f"{rate}: head poses/s arriving at the server", r["poses"] / r["wall"], r["rate"])

@@ -156,8 +156,7 @@ def teleop_rows(duration: float) -> list[Row]:
                             stdout=subprocess.PIPE, text=True)
     echo.stdout.readline()
     try:
-        base = asyncio.run(teleop.wire_latency(f"ws://127.0.0.1:{echo_port}", False, duration))
-        lat = asyncio.run(teleop.wire_latency(ours.url, True, duration))
+        lat, base = asyncio.run(teleop.wire_latency(ours.url, f"ws://127.0.0.1:{echo_port}", duration))
     finally:
         stop(ours)
         stop(echo)

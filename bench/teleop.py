@@ -7,11 +7,17 @@ moves continuously with a little tracking jitter (so the IK cache seldom helps) 
   sides  hands sweep out towards a T-pose, where many targets lie beyond the arm's limits and the IK falls
          back to a bounded Levenberg-Marquardt search;
   mixed  half of each.
+Each frame runs through today's TeleopMapper and through the step as it was before issue 28, kept verbatim in
+bench/teleop_reference/ (same poses, the two interleaved frame by frame, their commands compared as they go).
+Costs are this thread's CPU time (time.thread_time_ns), so that the scheduler's pauses on a busy machine, which
+land on whichever implementation happens to run, stay out of the ratio; wall-clock percentiles are printed too.
+The targets: now/reference <= 0.25 at p50 and p99, and one operator at 90 Hz under 5% of a core (process CPU
+time over the frames' span of operator time).
 
 Over the wire (milliseconds). `vr-teleop serve --backend sim` runs as its own process; one client engages, then
 publishes head poses at 90 Hz and times each until the head command it causes arrives on
-/qt_robot/head_position/command. The baseline is a bare websockets echo server (bench/relay.py --echo) timed
-the same way in the same run: the ratio is what parsing, validation, mapping and re-publishing add.
+/qt_robot/head_position/command. The baseline is a bare websockets echo server (bench/relay.py --echo) sent the
+same pose in the same tick: the ratio is what parsing, validation, mapping and re-publishing add.
 `--quick` runs 2,000 mapping frames and 5 s over the wire instead of 20,000 and 20 s.
 """
 
@@ -27,11 +33,13 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from robot_models import load_qtrobot
+from teleop_reference import TeleopMapper as ReferenceMapper  # the step before issue 28, verbatim
 from vr_teleop_server.teleop import TeleopMapper
 
 RATE = 90.0
@@ -59,37 +67,81 @@ def hand_path(side: str, t: float, scenario: str, rng: np.random.Generator) -> l
     return list(shoulder + d + rng.normal(0, 0.0005, 3))
 
 
-def run(scenario: str, frames: int, seed: int = 0) -> dict[str, np.ndarray]:
+def frames_of(scenario: str, frames: int, seed: int = 0) -> list[tuple[float, dict, dict, dict]]:
+    """The operator's poses, made once so that both implementations map the very same messages."""
     rng = np.random.default_rng(seed)
-    mapper = TeleopMapper(load_qtrobot())
-    head_q = [0.0, 0.0, 0.0, 1.0]
-    mapper.on_head_pose(pose_msg([0.0, 1.2, 0.0], head_q), 0.0)
-    mapper.engage(0.0)
-    total = np.empty(frames)
-    step = np.empty(frames)
-    gc.collect()
+    out = []
     for i in range(frames):
         t = (i + 1) / RATE
         yaw = 50 * math.sin(2 * math.pi * 0.2 * t)
         pitch = 15 * math.sin(2 * math.pi * 0.13 * t)
         q = (Rotation.from_rotvec([0, math.radians(yaw), 0]) * Rotation.from_rotvec([math.radians(pitch), 0, 0])).as_quat()
-        head = pose_msg([0.0, 1.2, 0.0], q.tolist())
-        left = pose_msg(hand_path("left", t, scenario, rng), [0.0, 0.0, 0.0, 1.0])
-        right = pose_msg(hand_path("right", t, scenario, rng), [0.0, 0.0, 0.0, 1.0])
-        t0 = time.perf_counter_ns()
-        mapper.on_head_pose(head, t)
-        mapper.on_controller_pose("left", left, t)
-        mapper.on_controller_pose("right", right, t)
-        mapper.on_joy("left", [0.0, 0.0, 0.0, 1.0], [0, 0, 0, 0], t)
-        mapper.on_joy("right", [0.0, 0.0, 0.0, 1.0], [0, 0, 0, 0], t)
-        t1 = time.perf_counter_ns()
-        out = mapper.step(t)
-        t2 = time.perf_counter_ns()
-        total[i] = (t2 - t0) / 1e3
-        step[i] = (t2 - t1) / 1e3
-        if i == 10 and not all(out.arms_following.values()):
+        out.append((t, pose_msg([0.0, 1.2, 0.0], q.tolist()),
+                    pose_msg(hand_path("left", t, scenario, rng), [0.0, 0.0, 0.0, 1.0]),
+                    pose_msg(hand_path("right", t, scenario, rng), [0.0, 0.0, 0.0, 1.0])))
+    return out
+
+
+def engaged(mapper_class: type) -> Any:
+    mapper = mapper_class(load_qtrobot())
+    mapper.on_head_pose(pose_msg([0.0, 1.2, 0.0], [0.0, 0.0, 0.0, 1.0]), 0.0)
+    mapper.engage(0.0)
+    return mapper
+
+
+def one_frame(mapper: Any, t: float, head: dict, left: dict, right: dict) -> tuple[float, float, float, Any]:
+    """(frame us of wall time, frame us of this thread's CPU time, step() us of CPU, output): what the server does
+    for one 90 Hz headset sample. CPU time leaves out the time the scheduler gave other processes, which on a
+    busy machine puts millisecond spikes into the wall-clock tail of whichever implementation it happens to hit."""
+    w0 = time.perf_counter_ns()
+    t0 = time.thread_time_ns()
+    mapper.on_head_pose(head, t)
+    mapper.on_controller_pose("left", left, t)
+    mapper.on_controller_pose("right", right, t)
+    mapper.on_joy("left", [0.0, 0.0, 0.0, 1.0], [0, 0, 0, 0], t)
+    mapper.on_joy("right", [0.0, 0.0, 0.0, 1.0], [0, 0, 0, 0], t)
+    t1 = time.thread_time_ns()
+    out = mapper.step(t)
+    t2 = time.thread_time_ns()
+    w2 = time.perf_counter_ns()
+    return (w2 - w0) / 1e3, (t2 - t0) / 1e3, (t2 - t1) / 1e3, out
+
+
+def run(scenario: str, frames: int, seed: int = 0) -> dict[str, dict[str, np.ndarray] | float]:
+    """Both implementations over the same poses, frame by frame in alternating order (neither always goes first
+    on a busy machine); their commands are compared as they go."""
+    poses = frames_of(scenario, frames, seed)
+    mappers = {"reference": engaged(ReferenceMapper), "now": engaged(TeleopMapper)}
+    times = {k: {"wall": np.empty(frames), "cpu": np.empty(frames), "step": np.empty(frames)} for k in mappers}
+    worst = 0.0
+    gc.collect()
+    for i, frame in enumerate(poses):
+        outs = {}
+        for k in (("reference", "now") if i % 2 else ("now", "reference")):
+            times[k]["wall"][i], times[k]["cpu"][i], times[k]["step"][i], outs[k] = one_frame(mappers[k], *frame)
+        a, b = outs["reference"], outs["now"]
+        if a.commands.keys() != b.commands.keys():
+            raise RuntimeError(f"frame {i}: parts moved differ: {sorted(a.commands)} against {sorted(b.commands)}")
+        for part in a.commands:
+            worst = max(worst, max(abs(x - y) for x, y in zip(a.commands[part], b.commands[part])))
+        if i == 10 and not all(b.arms_following.values()):
             raise RuntimeError("benchmark set-up error: the arms are not following")
-    return {"total": total, "step": step}
+    return {**times, "worst_deg": worst}
+
+
+def cpu_per_operator(frames: int) -> tuple[float, float]:
+    """(process CPU seconds per second of operator at 90 Hz, as a fraction of one core) for each implementation:
+    the mixed scenario's frames fed back to back, CPU time by the process clock (not wall time)."""
+    poses = frames_of("mixed", frames, 1)
+    out = []
+    for cls in (ReferenceMapper, TeleopMapper):
+        mapper = engaged(cls)
+        gc.collect()
+        c0 = time.process_time()
+        for frame in poses:
+            one_frame(mapper, *frame)
+        out.append((time.process_time() - c0) / (frames / RATE))
+    return out[0], out[1]
 
 
 def free_port() -> int:
@@ -121,43 +173,54 @@ def head_frame(seq: int) -> str:
     return json.dumps({"op": "publish", "topic": "/vr/head/pose", "msg": pose_msg([0.0, 1.6, 0.0], q)})
 
 
-async def wire_latency(url: str, ours: bool, duration: float) -> np.ndarray:
-    """Milliseconds from each head pose sent to the joint command (ours) or the echo (baseline) it causes."""
+async def engage_over_wire(ws: Any) -> None:
+    await ws.send(json.dumps({"op": "subscribe", "topic": "/qt_robot/head_position/command",
+                              "type": "std_msgs/Float64MultiArray"}))
+    for seq in range(20):  # fresh head poses, then engage
+        await ws.send(head_frame(seq))
+        await asyncio.sleep(1 / RATE)
+    await ws.send(json.dumps({"op": "call_service", "id": "engage", "service": "/vr_teleop/control/engage",
+                              "args": {"data": True}}))
+    while True:
+        reply = json.loads(await asyncio.wait_for(ws.recv(), 10))
+        if reply.get("id") == "engage":
+            if not reply.get("result"):
+                raise RuntimeError(f"engage failed: {reply}")
+            return
+
+
+async def round_trip(ws: Any, frame: str, ours: bool) -> float:
+    """Milliseconds from sending `frame` to the head command it causes (ours) or its echo (the baseline)."""
+    sent = time.perf_counter()
+    await ws.send(frame)
+    while True:  # ours also sends teleop noise (none subscribed here), so skip anything that is not it
+        got = await asyncio.wait_for(ws.recv(), 5)
+        if not ours or '"/qt_robot/head_position/command"' in got:
+            return (time.perf_counter() - sent) * 1e3
+
+
+async def wire_latency(ours_url: str, echo_url: str, duration: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each 90 Hz tick sends the same head pose to both servers, one after the other, the order alternating:
+    both see the same moments of a busy machine, and neither always goes first."""
     from websockets.asyncio.client import connect
 
-    async with connect(url, compression=None, max_size=None) as ws:
-        if ours:
-            await ws.send(json.dumps({"op": "subscribe", "topic": "/qt_robot/head_position/command",
-                                      "type": "std_msgs/Float64MultiArray"}))
-            for seq in range(20):  # fresh head poses, then engage
-                await ws.send(head_frame(seq))
-                await asyncio.sleep(1 / RATE)
-            await ws.send(json.dumps({"op": "call_service", "id": "engage", "service": "/vr_teleop/control/engage",
-                                      "args": {"data": True}}))
-            while True:
-                reply = json.loads(await asyncio.wait_for(ws.recv(), 10))
-                if reply.get("id") == "engage":
-                    if not reply.get("result"):
-                        raise RuntimeError(f"engage failed: {reply}")
-                    break
-        samples = []
+    async with connect(ours_url, compression=None, max_size=None) as ours, \
+            connect(echo_url, compression=None, max_size=None) as echo:
+        await engage_over_wire(ours)
+        samples: dict[bool, list[float]] = {True: [], False: []}
         seq = 100
         loop = asyncio.get_running_loop()
         next_at = loop.time()
         end = next_at + duration
         while loop.time() < end:
             frame = head_frame(seq)
-            sent = time.perf_counter()
-            await ws.send(frame)
-            while True:  # ours also sends teleop noise (none subscribed here), so skip anything that is not it
-                got = await asyncio.wait_for(ws.recv(), 5)
-                if not ours or '"/qt_robot/head_position/command"' in got:
-                    break
-            samples.append((time.perf_counter() - sent) * 1e3)
+            for is_ours in ((True, False) if seq % 2 else (False, True)):
+                samples[is_ours].append(await round_trip(ours if is_ours else echo, frame, is_ours))
             seq += 1
             next_at += 1 / RATE
             await asyncio.sleep(max(0.0, next_at - loop.time()))
-        return np.array(samples[int(RATE):])  # the first second warms up (ramp, caches)
+        warm = int(RATE)  # the first second warms up (ramp, caches)
+        return np.array(samples[True][warm:]), np.array(samples[False][warm:])
 
 
 def wire(duration: float) -> None:
@@ -166,16 +229,16 @@ def wire(duration: float) -> None:
                   "sim", "--log-level", "error"])
     echo = start([sys.executable, str(ROOT / "bench" / "relay.py"), "--echo", "--port", str(echo_port)])
     try:
-        base = asyncio.run(wire_latency(f"ws://127.0.0.1:{echo_port}", False, duration))
-        lat = asyncio.run(wire_latency(f"ws://127.0.0.1:{ours_port}", True, duration))
+        lat, base = asyncio.run(wire_latency(f"ws://127.0.0.1:{ours_port}", f"ws://127.0.0.1:{echo_port}",
+                                             duration))
     finally:
         stop(ours)
         stop(echo)
     print(f"pose in -> head command out over the WebSocket at {RATE:g} Hz, {duration:g} s, server with the "
-          f"MuJoCo stand-in (n={lat.size})")
+          f"MuJoCo stand-in, against a bare echo in the same ticks (n={lat.size})")
     for name, q in (("p50", 50), ("p99", 99)):
         a, b = np.percentile(lat, q), np.percentile(base, q)
-        print(f"  {name}  {a:6.2f} ms   bare echo {b:6.2f} ms   ratio {a / b:5.2f}x")
+        print(f"  {name}  {a:6.2f} ms   bare echo {b:6.2f} ms   ratio {a / b:5.2f}x   (target p99 <= 1.5x)")
     print(f"  max  {lat.max():6.2f} ms   bare echo {base.max():6.2f} ms")
 
 
@@ -190,14 +253,24 @@ def main(argv: list[str] | None = None) -> int:
     frames = 2_000 if args.quick else args.frames
     scenarios = ["front", "sides", "mixed"] if args.scenario == "all" else [args.scenario]
     budget = 1e6 / RATE
-    print(f"teleop mapping, {frames} frames at {RATE:g} Hz per scenario (budget {budget:.0f} us per frame)")
+    print(f"teleop mapping, {frames} frames at {RATE:g} Hz per scenario (budget {budget:.0f} us per frame), head and "
+          "both arms following; the reference is the step before issue 28 (bench/teleop_reference), same poses, "
+          "frames interleaved")
     for sc in scenarios:
         r = run(sc, frames)
-        tot, st = r["total"], r["step"]
-        p50, p99, mx = np.percentile(tot, 50), np.percentile(tot, 99), tot.max()
-        print(f"  {sc:6s} frame p50 {p50:7.0f} us  p99 {p99:7.0f} us  max {mx:7.0f} us | step() p50 "
-              f"{np.percentile(st, 50):6.0f} p99 {np.percentile(st, 99):7.0f} us | mean CPU at 90 Hz "
-              f"{100 * tot.mean() / budget:4.1f}%")
+        row = {}
+        for k in ("reference", "now"):
+            cpu, wall, st = r[k]["cpu"], r[k]["wall"], r[k]["step"]
+            row[k] = (np.percentile(cpu, 50), np.percentile(cpu, 99))
+            print(f"  {sc:6s} {k:9s} frame CPU p50 {row[k][0]:5.0f} us  p99 {row[k][1]:5.0f} us  max {cpu.max():6.0f} us"
+                  f" | step() CPU p50 {np.percentile(st, 50):4.0f} p99 {np.percentile(st, 99):5.0f} us"
+                  f" | wall p50 {np.percentile(wall, 50):5.0f} p99 {np.percentile(wall, 99):6.0f} us")
+        print(f"  {sc:6s} now/reference  frame CPU p50 {row['now'][0] / row['reference'][0]:5.3f}  "
+              f"p99 {row['now'][1] / row['reference'][1]:5.3f}   (target <= 0.25; commands differ by at most "
+              f"{r['worst_deg']:.2g} deg)")
+    ref_cpu, now_cpu = cpu_per_operator(frames)
+    print(f"  CPU per operator at {RATE:g} Hz (process time, mixed): reference {100 * ref_cpu:4.1f}% of a core, "
+          f"now {100 * now_cpu:4.2f}% (target < 5%)")
     if not args.skip_wire:
         wire(5.0 if args.quick else args.duration)
     return 0

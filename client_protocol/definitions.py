@@ -83,9 +83,10 @@ MESSAGES: dict[str, str] = {
     ),
     "vr_teleop_msgs/MotorsStatus": (
         "# One entry per motor, once each. position_normalized: 0 at the joint's lower limit, 1 at its upper.\n"
-        "# mode: on, off or brake\n"
+        "# mode: on, off or brake. fault: what the motor reports wrong (QTrobot v3: overload_limit, voltage_limit,\n"
+        "# temperature_limit, sensor_failure; comma-separated), empty when it reports nothing\n"
         "Header header\nstring[] name\nfloat64[] position\nfloat64[] position_normalized\nfloat32[] temperature\n"
-        "float32[] voltage\nstring[] mode"
+        "float32[] voltage\nstring[] mode\nstring[] fault"
     ),
     "vr_teleop_msgs/DialogState": (
         "# The dialog system's state (the prototype's question:mode:answer:candidates:optionals:chosen line)\n"

@@ -71,8 +71,15 @@ ENDPOINTS: tuple[Endpoint, ...] = (
     # ---- explicit control: the server's services and telemetry ----
     Endpoint(names.ENGAGE_SERVICE, "std_srvs/SetBool", "call",
              "data true: take control (needs a fresh head pose from the caller; the current head orientation "
-             "becomes the robot's head zero). data false: release it; the robot keeps its pose. Refused while "
-             "another client holds control.", example={"data": True}),
+             "becomes the robot's head zero). Engaging again while this operator already holds control changes "
+             "nothing (success, and the message says control is already held); to make the current head "
+             "orientation straight ahead, call " + names.RECENTER_SERVICE + ". data false: release it; the robot "
+             "keeps its pose. Refused while another client holds control.", example={"data": True}),
+    Endpoint(names.RECENTER_SERVICE, "std_srvs/Trigger", "call",
+             "Re-center while holding control: the operator's current head orientation becomes straight ahead "
+             "(the robot's head eases back to its centre as teleop resumes from there). Only the operator holding "
+             "control may call it; refused (success false, the reason in message) otherwise or without a fresh "
+             "head pose.", example={}),
     Endpoint(names.CALIBRATE_SERVICE, "std_srvs/Trigger", "call",
              "Measure the operator's shoulders and arm length from a T-pose (arms straight out to the sides), "
              "holding the headset and both controllers tracked. The reply's message holds the measurements as "
@@ -83,8 +90,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "Whether the robot's arms may follow the controllers (true by default; each arm still needs its "
              "grip).", example={"data": True}),
     Endpoint(names.ESTOP_SERVICE, "std_srvs/Trigger", "call",
-             "Emergency stop: the robot holds where it is and control is released. Anyone may call it; engaging "
-             "again resumes."),
+             "Emergency stop: the robot holds where it is and control is released. Any operator or supervisor "
+             "may call it, holding control or not (spectators may not); engaging again resumes."),
     Endpoint(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", "subscribe",
              "Explicit control as the server sees it (see the type's comments for the states).",
              "30 Hz and on every change",

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from .qtrobot import ChainElement, RobotModel, load_qtrobot
 
 SIDES = ("left", "right")
+_TWO_PI = 2 * math.pi
 
 
 def _origin(el: ChainElement) -> np.ndarray:
@@ -62,143 +63,242 @@ class IKResult:
     error_m: float
 
 
-@dataclass(frozen=True)
-class _ArmGeometry:
-    """One arm's constants, read from the chain so that nothing here repeats the URDF's numbers."""
+class ArmSolver:
+    """One arm's inverse kinematics, with the chain's constants read once; plain floats throughout.
 
-    names: tuple[str, str, str]  # ShoulderPitch, ShoulderRoll, ElbowRoll
-    base_to_pitch: np.ndarray  # 4x4, pitch joint frame at angle 0
-    offset: float  # roll joint's distance along the pitch axis
-    l1: float  # roll joint -> elbow
-    l2: float  # elbow -> hand
-    lower: np.ndarray
-    upper: np.ndarray
+    The control loop solves twice per 90 Hz frame, so everything per call is scalar arithmetic on Python floats:
+    NumPy's per-call overhead on 3-vectors (microseconds each) was most of the cost (bench/teleop.py).
 
-
-def _arm_geometry(model: RobotModel, side: str) -> _ArmGeometry:
-    if side not in SIDES:
-        raise ValueError(f"arm side must be 'left' or 'right', got {side!r}")
-    prefix = side.capitalize()
-    names = (f"{prefix}ShoulderPitch", f"{prefix}ShoulderRoll", f"{prefix}ElbowRoll")
-    by_name = {el.name: el for el in model.chain}
-    hand = next(el for el in model.chain if el.parent == names[2] and el.type == "fixed")
-    # The solver assumes the URDF's structure (pitch about y; roll and elbow about parallel axes, links along y);
-    # check it so that a changed yaml fails loudly instead of giving wrong angles.
-    ok = (
-        by_name[names[0]].axis == (0.0, 1.0, 0.0)
-        and by_name[names[1]].axis == (1.0, 0.0, 0.0) and by_name[names[2]].axis == (1.0, 0.0, 0.0)
-        and by_name[names[1]].xyz[0] == by_name[names[1]].xyz[2] == 0.0
-        and by_name[names[2]].xyz[0] == by_name[names[2]].xyz[2] == 0.0 and by_name[names[2]].rpy_deg == (0, 0, 0)
-        and hand.xyz[0] == hand.xyz[2] == 0.0
-        and np.allclose(_origin(by_name[names[1]])[:3, 1], [0, 1, 0])
-    )
-    if not ok:
-        raise ValueError(f"{side} arm chain does not have QTrobot's pitch-roll-roll structure; "
-                         "the analytic IK cannot solve it")
-    lower = np.array([model.joint(n).lower for n in names])
-    upper = np.array([model.joint(n).upper for n in names])
-    return _ArmGeometry(names, _origin(by_name[names[0]]), by_name[names[1]].xyz[1], by_name[names[2]].xyz[1],
-                        hand.xyz[1], lower, upper)
-
-
-def _arm_hand_local(g: _ArmGeometry, q: np.ndarray) -> np.ndarray:
-    """Hand position in the pitch joint's zero frame, for angles q (radians)."""
-    q1, q2, q3 = q
-    z_r = np.array([-math.cos(q1), 0.0, math.sin(q1)])  # the roll frame's z after pitch q1
-    y = np.array([0.0, 1.0, 0.0])
-    u = g.offset + g.l1 * math.cos(q2) + g.l2 * math.cos(q2 + q3)
-    v = g.l1 * math.sin(q2) + g.l2 * math.sin(q2 + q3)
-    return u * y + v * z_r
-
-
-def _arm_jacobian(g: _ArmGeometry, q: np.ndarray) -> np.ndarray:
-    """d(hand position)/d(q), 3x3, same frame as _arm_hand_local."""
-    q1, q2, q3 = q
-    z_r = np.array([-math.cos(q1), 0.0, math.sin(q1)])
-    dz_r = np.array([math.sin(q1), 0.0, math.cos(q1)])
-    y = np.array([0.0, 1.0, 0.0])
-    s2, c2, s23, c23 = math.sin(q2), math.cos(q2), math.sin(q2 + q3), math.cos(q2 + q3)
-    v = g.l1 * s2 + g.l2 * s23
-    j1 = v * dz_r
-    j2 = (-g.l1 * s2 - g.l2 * s23) * y + (g.l1 * c2 + g.l2 * c23) * z_r
-    j3 = (-g.l2 * s23) * y + (g.l2 * c23) * z_r
-    return np.column_stack([j1, j2, j3])
-
-
-def _planar_solutions(g: _ArmGeometry, p: np.ndarray) -> list[np.ndarray]:
-    """All analytic (pitch, roll, elbow) in radians putting the hand at local point p (p assumed reachable)."""
-    px, py, pz = p
-    r = math.hypot(px, pz)
-    u = py - g.offset
-    d2 = u * u + r * r
-    c3 = np.clip((d2 - g.l1**2 - g.l2**2) / (2 * g.l1 * g.l2), -1.0, 1.0)
-    base = math.atan2(-pz, px) if r > 1e-12 else 0.0
-    sols = []
-    # Pitch `base` puts the target at in-plane coordinate v = -r; base +- pi at v = +r.
-    for q1, v in ((base, -r), (base + math.pi, r), (base - math.pi, r)):
-        for q3 in (-math.acos(c3), math.acos(c3)):
-            q2 = math.atan2(v, u) - math.atan2(g.l2 * math.sin(q3), g.l1 + g.l2 * math.cos(q3))
-            q2 = math.atan2(math.sin(q2), math.cos(q2))
-            sols.append(np.array([q1, q2, q3]))
-    return sols
-
-
-def _clamp_to_reach(g: _ArmGeometry, p: np.ndarray) -> np.ndarray:
-    """Move p, along its direction from the roll joint, into the shell the elbow's range can reach."""
-    lo3, hi3 = g.lower[2], g.upper[2]
-    # Reach d^2 = l1^2 + l2^2 + 2 l1 l2 cos q3 shrinks as |q3| grows on [0, pi]; the elbow range may or may not
-    # include 0 (full extension), so find the extreme |q3| it allows.
-    abs_lo = 0.0 if lo3 <= 0.0 <= hi3 else min(abs(lo3), abs(hi3))
-    abs_hi = max(abs(lo3), abs(hi3))
-    d_max = math.sqrt(g.l1**2 + g.l2**2 + 2 * g.l1 * g.l2 * math.cos(math.radians(abs_lo)))
-    d_min = math.sqrt(g.l1**2 + g.l2**2 + 2 * g.l1 * g.l2 * math.cos(math.radians(min(abs_hi, 180.0))))
-    centre = np.array([0.0, g.offset, 0.0])
-    w = p - centre
-    d = float(np.linalg.norm(w))
-    if d < 1e-12:
-        return centre + np.array([0.0, d_min, 0.0])
-    if d > d_max:
-        return centre + w * (d_max / d)
-    if d < d_min:
-        return centre + w * (d_min / d)
-    return p
-
-
-def _nearest_within_limits(g: _ArmGeometry, p: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                           iterations: int = 40) -> np.ndarray:
-    """The angles within [lo, hi] whose hand comes nearest p: Levenberg-Marquardt projected onto the bounds.
-
-    Three joints and an analytic Jacobian make this a few 3x3 solves; scipy's bounded least_squares gives the same
-    answers but costs milliseconds per call in overhead, too much twice per 90 Hz frame (bench/teleop.py).
+    ShoulderRoll and ElbowRoll turn about parallel axes, so ShoulderPitch is chosen to put the target in their
+    plane and the rest is a planar two-link problem (law of cosines). The roll joint sits 0.0445 m along the
+    pitch axis, so the plane's origin is that joint and the two links are 0.07708 m and 0.184 m; lumping the
+    offset into the first link (L1 = 0.1216 m) is exact only at ShoulderRoll 0. Out-of-reach targets are moved
+    to the reachable shell along their direction from the roll joint. Of the analytic branches within the
+    joint limits, the one nearest `prefer` (default: the home pose) wins; when none is within limits, a bounded
+    Levenberg-Marquardt search finds the nearest point the arm can reach. Angles are always within the limits.
     """
-    q = np.clip(q0, lo, hi)
-    r = _arm_hand_local(g, q) - p
-    cost = float(r @ r)
-    damping = 1e-3
-    for _ in range(iterations):
-        jac = _arm_jacobian(g, q)
-        # Joints at a bound that the gradient pushes further out cannot move: drop them from this step.
-        grad = jac.T @ r
-        free = ~(((q <= lo + 1e-12) & (grad > 0)) | ((q >= hi - 1e-12) & (grad < 0)))
-        if not free.any():
-            break
-        jf = jac[:, free]
-        step = np.zeros(3)
-        step[free] = np.linalg.solve(jf.T @ jf + damping * np.eye(int(free.sum())), -jf.T @ r)
-        trial = np.clip(q + step, lo, hi)
-        r_trial = _arm_hand_local(g, trial) - p
-        cost_trial = float(r_trial @ r_trial)
-        if cost_trial < cost:
-            converged = cost - cost_trial < 1e-14
-            q, r, cost = trial, r_trial, cost_trial
-            damping = max(damping / 3, 1e-9)
-            if converged:
-                break
+
+    __slots__ = ("side", "names", "_rot", "_trans", "offset", "l1", "l2", "lower", "upper", "_lo_deg", "_hi_deg",
+                 "_home", "_d_min", "_d_max")
+
+    def __init__(self, model: RobotModel, side: str) -> None:
+        if side not in SIDES:
+            raise ValueError(f"arm side must be 'left' or 'right', got {side!r}")
+        prefix = side.capitalize()
+        names = (f"{prefix}ShoulderPitch", f"{prefix}ShoulderRoll", f"{prefix}ElbowRoll")
+        by_name = {el.name: el for el in model.chain}
+        hand = next(el for el in model.chain if el.parent == names[2] and el.type == "fixed")
+        # The solver assumes the URDF's structure (pitch about y; roll and elbow about parallel axes, links along
+        # y); check it so that a changed yaml fails loudly instead of giving wrong angles.
+        ok = (
+            by_name[names[0]].axis == (0.0, 1.0, 0.0)
+            and by_name[names[1]].axis == (1.0, 0.0, 0.0) and by_name[names[2]].axis == (1.0, 0.0, 0.0)
+            and by_name[names[1]].xyz[0] == by_name[names[1]].xyz[2] == 0.0
+            and by_name[names[2]].xyz[0] == by_name[names[2]].xyz[2] == 0.0 and by_name[names[2]].rpy_deg == (0, 0, 0)
+            and hand.xyz[0] == hand.xyz[2] == 0.0
+            and np.allclose(_origin(by_name[names[1]])[:3, 1], [0, 1, 0])
+        )
+        if not ok:
+            raise ValueError(f"{side} arm chain does not have QTrobot's pitch-roll-roll structure; "
+                             "the analytic IK cannot solve it")
+        base_to_pitch = _origin(by_name[names[0]])  # pitch joint frame at angle 0
+        self.side = side
+        self.names = names
+        self._rot = tuple(float(v) for v in base_to_pitch[:3, :3].ravel())  # row-major
+        self._trans = tuple(float(v) for v in base_to_pitch[:3, 3])
+        self.offset = float(by_name[names[1]].xyz[1])  # roll joint's distance along the pitch axis
+        self.l1 = float(by_name[names[2]].xyz[1])  # roll joint -> elbow
+        self.l2 = float(hand.xyz[1])  # elbow -> hand
+        joints = [model.joint(n) for n in names]
+        self._lo_deg = tuple(float(j.lower) for j in joints)
+        self._hi_deg = tuple(float(j.upper) for j in joints)
+        self._home = tuple(float(j.home) for j in joints)
+        self.lower = tuple(math.radians(v) for v in self._lo_deg)
+        self.upper = tuple(math.radians(v) for v in self._hi_deg)
+        # Reach d^2 = l1^2 + l2^2 + 2 l1 l2 cos q3 shrinks as |q3| grows on [0, pi]; the elbow range may or may not
+        # include 0 (full extension), so find the extreme |q3| it allows.
+        lo3, hi3 = self._lo_deg[2], self._hi_deg[2]
+        abs_lo = 0.0 if lo3 <= 0.0 <= hi3 else min(abs(lo3), abs(hi3))
+        abs_hi = max(abs(lo3), abs(hi3))
+        l1, l2 = self.l1, self.l2
+        self._d_max = math.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * math.cos(math.radians(abs_lo)))
+        self._d_min = math.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * math.cos(math.radians(min(abs_hi, 180.0))))
+
+    # ----- the arm's geometry in the pitch joint's zero frame (radians) -----------------------------------------
+    def to_local(self, x: float, y: float, z: float) -> tuple[float, float, float]:
+        """A base-frame point in the pitch joint's zero frame."""
+        r, t = self._rot, self._trans
+        dx, dy, dz = x - t[0], y - t[1], z - t[2]
+        return (r[0] * dx + r[3] * dy + r[6] * dz, r[1] * dx + r[4] * dy + r[7] * dz, r[2] * dx + r[5] * dy + r[8] * dz)
+
+    def hand_local(self, q1: float, q2: float, q3: float) -> tuple[float, float, float]:
+        """Hand position in the pitch joint's zero frame: u along the pitch axis (y), v along the roll frame's z,
+        which pitch q1 turns to (-cos q1, 0, sin q1)."""
+        l1, l2 = self.l1, self.l2
+        u = self.offset + l1 * math.cos(q2) + l2 * math.cos(q2 + q3)
+        v = l1 * math.sin(q2) + l2 * math.sin(q2 + q3)
+        return (-v * math.cos(q1), u, v * math.sin(q1))
+
+    def _miss(self, q: tuple[float, float, float], p: tuple[float, float, float]) -> float:
+        h = self.hand_local(*q)
+        return math.sqrt((h[0] - p[0]) ** 2 + (h[1] - p[1]) ** 2 + (h[2] - p[2]) ** 2)
+
+    def planar_solutions(self, p: tuple[float, float, float]) -> list[tuple[float, float, float]]:
+        """All analytic (pitch, roll, elbow) in radians putting the hand at local point p (p assumed reachable)."""
+        px, py, pz = p
+        l1, l2 = self.l1, self.l2
+        r = math.hypot(px, pz)
+        u = py - self.offset
+        d2 = u * u + r * r
+        c3 = min(max((d2 - l1 * l1 - l2 * l2) / (2 * l1 * l2), -1.0), 1.0)
+        base = math.atan2(-pz, px) if r > 1e-12 else 0.0
+        a3 = math.acos(c3)
+        sols = []
+        # Pitch `base` puts the target at in-plane coordinate v = -r; base +- pi at v = +r.
+        for q1, v in ((base, -r), (base + math.pi, r), (base - math.pi, r)):
+            for q3 in (-a3, a3):
+                q2 = math.atan2(v, u) - math.atan2(l2 * math.sin(q3), l1 + l2 * math.cos(q3))
+                sols.append((q1, math.atan2(math.sin(q2), math.cos(q2)), q3))
+        return sols
+
+    def clamp_to_reach(self, p: tuple[float, float, float]) -> tuple[float, float, float]:
+        """Move p, along its direction from the roll joint, into the shell the elbow's range can reach."""
+        wx, wy, wz = p[0], p[1] - self.offset, p[2]
+        d = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if d < 1e-12:
+            return (0.0, self.offset + self._d_min, 0.0)
+        if d > self._d_max:
+            k = self._d_max / d
+        elif d < self._d_min:
+            k = self._d_min / d
         else:
-            damping *= 4
-            if damping > 1e6:
+            return p
+        return (wx * k, self.offset + wy * k, wz * k)
+
+    def candidates(self, goal: tuple[float, float, float]) -> list[tuple[float, float, float]]:
+        """The analytic solutions for `goal`, each angle as its representative (+-2pi) within the limits if any."""
+        lo, hi = self.lower, self.upper
+        out = []
+        for q in self.planar_solutions(goal):
+            w = []
+            for a, low, high in zip(q, lo, hi):
+                if not low - 1e-9 <= a <= high + 1e-9:
+                    if low - 1e-9 <= a + _TWO_PI <= high + 1e-9:
+                        a += _TWO_PI
+                    elif low - 1e-9 <= a - _TWO_PI <= high + 1e-9:
+                        a -= _TWO_PI
+                w.append(a)
+            out.append((w[0], w[1], w[2]))
+        return out
+
+    def clip(self, q: Sequence[float]) -> tuple[float, float, float]:
+        """q (radians) moved into the joint limits."""
+        lo, hi = self.lower, self.upper
+        return (min(max(q[0], lo[0]), hi[0]), min(max(q[1], lo[1]), hi[1]), min(max(q[2], lo[2]), hi[2]))
+
+    def nearest_within_limits(self, p: tuple[float, float, float], q0: Sequence[float],
+                              iterations: int = 40) -> tuple[float, float, float]:
+        """The angles within the limits whose hand comes nearest p: Levenberg-Marquardt projected onto the bounds.
+
+        Three joints and an analytic Jacobian make this a few 3x3 solves (Cramer's rule); scipy's bounded
+        least_squares gives the same answers but costs milliseconds per call in overhead.
+        """
+        lo, hi = self.lower, self.upper
+        l1, l2 = self.l1, self.l2
+        q = self.clip(q0)
+        h = self.hand_local(*q)
+        r = (h[0] - p[0], h[1] - p[1], h[2] - p[2])
+        cost = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        damping = 1e-3
+        for _ in range(iterations):
+            q1, q2, q3 = q
+            c1, s1 = math.cos(q1), math.sin(q1)
+            s2, c2, s23, c23 = math.sin(q2), math.cos(q2), math.sin(q2 + q3), math.cos(q2 + q3)
+            v = l1 * s2 + l2 * s23
+            a, b = l1 * c2 + l2 * c23, l2 * c23
+            cols = ((v * s1, 0.0, v * c1), (-a * c1, -v, a * s1), (-b * c1, -l2 * s23, b * s1))  # Jacobian columns
+            grad = [c[0] * r[0] + c[1] * r[1] + c[2] * r[2] for c in cols]
+            # Joints at a bound that the gradient pushes further out cannot move: drop them from this step.
+            free = [not ((q[i] <= lo[i] + 1e-12 and grad[i] > 0) or (q[i] >= hi[i] - 1e-12 and grad[i] < 0))
+                    for i in range(3)]
+            if not any(free):
                 break
-    return q
+            m = [[(ci[0] * cj[0] + ci[1] * cj[1] + ci[2] * cj[2]) if free[i] and free[j] else float(i == j)
+                  for j, cj in enumerate(cols)] for i, ci in enumerate(cols)]
+            rhs = [-grad[i] if free[i] else 0.0 for i in range(3)]
+            for i in range(3):
+                if free[i]:
+                    m[i][i] += damping
+            step = _solve3(m, rhs)
+            trial = self.clip((q1 + step[0], q2 + step[1], q3 + step[2]))
+            h = self.hand_local(*trial)
+            r_trial = (h[0] - p[0], h[1] - p[1], h[2] - p[2])
+            cost_trial = r_trial[0] * r_trial[0] + r_trial[1] * r_trial[1] + r_trial[2] * r_trial[2]
+            if cost_trial < cost:
+                converged = cost - cost_trial < 1e-14
+                q, r, cost = trial, r_trial, cost_trial
+                damping = max(damping / 3, 1e-9)
+                if converged:
+                    break
+            else:
+                damping *= 4
+                if damping > 1e6:
+                    break
+        return q
+
+    # ----- the solve ----------------------------------------------------------------------------------------------
+    def closed_form(self, candidates: list[tuple[float, float, float]], goal: tuple[float, float, float],
+                    prefer_deg: Sequence[float]) -> tuple[float, float, float] | None:
+        """The candidate within limits nearest `prefer_deg` that lands on `goal` (the target moved into reach), or
+        None."""
+        lo, hi = self.lower, self.upper
+        best, best_d = None, math.inf
+        for q in candidates:
+            if all(lo[i] - 1e-9 <= q[i] <= hi[i] + 1e-9 for i in range(3)):
+                d = sum((math.degrees(q[i]) - prefer_deg[i]) ** 2 for i in range(3))
+                if d < best_d:
+                    best, best_d = q, d
+        if best is None:
+            return None
+        best = self.clip(best)
+        # A branch within limits that reaches `goal` beats a search; check it really lands there.
+        return best if self._miss(best, goal) <= 1e-6 else None
+
+    def fallback(self, candidates: list[tuple[float, float, float]], p: tuple[float, float, float],
+                 prefer_deg: Sequence[float]) -> tuple[float, float, float]:
+        """The bounded search: from the clipped candidate landing nearest p, and from the preferred pose when that
+        is no worse; enough to find the nearest reachable point in practice, at a bounded cost for 90 Hz control."""
+        clipped = min((self.clip(q) for q in candidates), key=lambda q: self._miss(q, p))
+        preferred = self.clip([math.radians(a) for a in prefer_deg])
+        starts = [clipped] + ([preferred] if self._miss(preferred, p) < self._miss(clipped, p) + 0.02 else [])
+        return min((self.nearest_within_limits(p, x0) for x0 in starts), key=lambda q: self._miss(q, p))
+
+    def solve(self, x: float, y: float, z: float, prefer_deg: Sequence[float] | None = None
+              ) -> tuple[tuple[float, float, float], float]:
+        """(pitch, roll, elbow) in degrees within the limits putting the hand at base-frame (x, y, z) metres, or
+        as near as the arm gets; and the hand's distance from the target (m)."""
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            raise ValueError(f"IK target must be 3 finite numbers, got {[x, y, z]}")
+        prefer = self._home if prefer_deg is None else prefer_deg
+        p = self.to_local(x, y, z)
+        goal = self.clamp_to_reach(p)
+        candidates = self.candidates(goal)
+        best = self.closed_form(candidates, goal, prefer)
+        if best is None:
+            best = self.fallback(candidates, p, prefer)
+        lo, hi = self._lo_deg, self._hi_deg
+        angles = tuple(min(max(math.degrees(best[i]), lo[i]), hi[i]) for i in range(3))
+        return (angles[0], angles[1], angles[2]), self._miss(best, p)
+
+
+def _solve3(m: list[list[float]], b: list[float]) -> tuple[float, float, float]:
+    """x with m x = b for a 3x3 m, by Cramer's rule (m is positive definite here: damped normal equations)."""
+    (a, bb, c), (d, e, f), (g, h, i) = m
+    det = a * (e * i - f * h) - bb * (d * i - f * g) + c * (d * h - e * g)
+    x0 = b[0] * (e * i - f * h) - bb * (b[1] * i - f * b[2]) + c * (b[1] * h - e * b[2])
+    x1 = a * (b[1] * i - f * b[2]) - b[0] * (d * i - f * g) + c * (d * b[2] - b[1] * g)
+    x2 = a * (e * b[2] - b[1] * h) - bb * (d * b[2] - b[1] * g) + b[0] * (d * h - e * g)
+    return (x0 / det, x1 / det, x2 / det)
 
 
 def arm_ik(
@@ -209,59 +309,15 @@ def arm_ik(
     prefer: Mapping[str, float] | None = None,
     tolerance_m: float = 1e-4,
 ) -> IKResult:
-    """Arm angles putting the hand at `target_xyz` (base frame, metres).
+    """Arm angles putting the hand at `target_xyz` (base frame, metres); see ArmSolver for the method.
 
-    ShoulderRoll and ElbowRoll turn about parallel axes, so ShoulderPitch is chosen to put the target in their
-    plane and the rest is a planar two-link problem (law of cosines). The roll joint sits 0.0445 m along the
-    pitch axis, so the plane's origin is that joint and the two links are 0.07708 m and 0.184 m; lumping the
-    offset into the first link (L1 = 0.1216 m) is exact only at ShoulderRoll 0. Out-of-reach targets are moved
-    to the reachable shell along their direction from the roll joint. Of the analytic branches within the
-    joint limits, the one nearest `prefer` (default: the home pose) wins; when none is within limits, a bounded
-    bounded Levenberg-Marquardt search finds the nearest point the arm can reach. Angles are always within the limits.
-    Pass `model` in a control loop: loading the packaged yaml on every call is wasteful.
+    Builds the arm's solver on each call: a control loop should keep an ArmSolver per arm instead.
     """
     model = model or load_qtrobot()
-    g = _arm_geometry(model, side)
+    solver = ArmSolver(model, side)
     target = np.asarray(target_xyz, dtype=float).reshape(3)
     if not np.all(np.isfinite(target)):
         raise ValueError(f"IK target must be 3 finite numbers, got {target.tolist()}")
-    base_to_pitch = g.base_to_pitch
-    p = (np.linalg.inv(base_to_pitch) @ np.append(target, 1.0))[:3]
-    pref_deg = np.array([(prefer or {}).get(n, model.joint(n).home) for n in g.names])
-    lo, hi = np.radians(g.lower), np.radians(g.upper)
-
-    def wrap_into_limits(q: np.ndarray) -> np.ndarray:
-        q = q.copy()
-        for i in range(3):  # a revolute angle may be expressed +-2pi; use the representative within limits
-            for k in (0.0, 2 * math.pi, -2 * math.pi):
-                if lo[i] - 1e-9 <= q[i] + k <= hi[i] + 1e-9:
-                    q[i] += k
-                    break
-        return q
-
-    goal = _clamp_to_reach(g, p)
-    candidates = [wrap_into_limits(q) for q in _planar_solutions(g, goal)]
-    valid = [q for q in candidates if np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9)]
-    if valid:
-        best = min(valid, key=lambda q: float(np.sum((np.degrees(q) - pref_deg) ** 2)))
-        best = np.clip(best, lo, hi)
-        # A branch within limits that reaches `goal` beats a search; check it really lands there.
-        if np.linalg.norm(_arm_hand_local(g, best) - goal) > 1e-6:
-            best = None
-    else:
-        best = None
-    if best is None:
-        # Search from the clipped branch landing nearest the target, and from the preferred pose when that is
-        # no worse: enough to find the nearest reachable point in practice, at a bounded cost for 90 Hz control.
-        def miss(q: np.ndarray) -> float:
-            return float(np.linalg.norm(_arm_hand_local(g, q) - p))
-
-        clipped = sorted((np.clip(q, lo, hi) for q in candidates), key=miss)
-        preferred = np.clip(np.radians(pref_deg), lo, hi)
-        starts = [clipped[0]] + ([preferred] if miss(preferred) < miss(clipped[0]) + 0.02 else [])
-        fits = [_nearest_within_limits(g, p, x0, lo, hi) for x0 in starts]
-        best = min(fits, key=miss)
-    error = float(np.linalg.norm(_arm_hand_local(g, best) - p))
-    angles = {n: float(math.degrees(a)) for n, a in zip(g.names, best)}
-    angles = {n: model.clamp(n, a) for n, a in angles.items()}
-    return IKResult(angles_deg=angles, reached=error <= tolerance_m, error_m=error)
+    pref = None if prefer is None else [prefer.get(n, model.joint(n).home) for n in solver.names]
+    angles, error = solver.solve(float(target[0]), float(target[1]), float(target[2]), pref)
+    return IKResult(angles_deg=dict(zip(solver.names, angles)), reached=error <= tolerance_m, error_m=error)

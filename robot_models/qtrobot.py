@@ -91,12 +91,18 @@ class RobotModel:
     gestures: tuple[str, ...] = ()  # LuxAI built-in gesture names, without the "QT/" prefix
     _index: Mapping[str, Joint] = field(  # type: ignore[assignment]
         default=None, init=False, repr=False, compare=False, hash=False)
+    _parts: Mapping[str, tuple[str, ...]] = field(  # type: ignore[assignment]
+        default=None, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         index = {j.name: j for j in self.joints}
         if len(index) != len(self.joints):
             raise ValueError(f"duplicate joint names in {[j.name for j in self.joints]}")
         object.__setattr__(self, "_index", index)
+        parts: dict[str, tuple[str, ...]] = {}
+        for j in self.joints:
+            parts[j.part] = parts.get(j.part, ()) + (j.name,)
+        object.__setattr__(self, "_parts", parts)  # read on every command: built once
 
     def joint(self, name: str) -> Joint:
         try:
@@ -116,14 +122,11 @@ class RobotModel:
     @property
     def parts(self) -> dict[str, tuple[str, ...]]:
         """Part name -> its joints, in the order of LuxAI's /qt_robot/<part>_position/command arrays."""
-        out: dict[str, tuple[str, ...]] = {}
-        for j in self.joints:
-            out[j.part] = out.get(j.part, ()) + (j.name,)
-        return out
+        return dict(self._parts)
 
     def part_joints(self, part: str) -> tuple[str, ...]:
         try:
-            return self.parts[part]
+            return self._parts[part]
         except KeyError:
             raise KeyError(f"unknown part {part!r}; valid parts: {', '.join(self.parts)}") from None
 
@@ -135,6 +138,28 @@ class RobotModel:
 
     def home_pose(self) -> dict[str, float]:
         return {j.name: j.home for j in self.joints}
+
+    def narrowed(self, limits: Mapping[str, Mapping[str, float]]) -> RobotModel:
+        """A copy limited to what a robot reports for its joints ({name: {lower, upper, max_velocity}}, each key
+        optional): each range is the intersection of the robot's and this model's (the narrower wins), each velocity
+        cap the smaller of the two, and each home is moved inside its new range. Joints the robot does not name keep
+        the model's values; a range whose intersection is empty fails, naming the joint."""
+        joints = []
+        for j in self.joints:
+            reported = limits.get(j.name)
+            if not reported:
+                joints.append(j)
+                continue
+            lower = max(j.lower, float(reported.get("lower", j.lower)))
+            upper = min(j.upper, float(reported.get("upper", j.upper)))
+            if not (math.isfinite(lower) and math.isfinite(upper) and lower < upper):
+                raise ValueError(f"joint {j.name}: the robot's range {reported.get('lower')} .. "
+                                 f"{reported.get('upper')} deg does not overlap the model's {j.lower} .. {j.upper}")
+            cap = float(reported.get("max_velocity", j.max_velocity))
+            cap = min(j.max_velocity, cap) if math.isfinite(cap) and cap > 0 else j.max_velocity
+            joints.append(dataclasses.replace(j, lower=lower, upper=upper, home=min(max(j.home, lower), upper),
+                                              max_velocity=cap))
+        return dataclasses.replace(self, joints=tuple(joints))
 
     def with_velocity_caps(self, caps: Mapping[str, float]) -> RobotModel:
         """A copy with some joints' velocity caps (deg/s) replaced; unknown joints or non-positive caps fail."""

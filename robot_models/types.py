@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 
 class MotorMode(enum.IntEnum):
@@ -16,7 +17,11 @@ class MotorMode(enum.IntEnum):
 
 @dataclass(frozen=True)
 class CameraFrame:
-    """One JPEG frame from the head camera; whoever holds frames keeps only the newest."""
+    """One frame from the head camera; whoever holds frames keeps only the newest.
+
+    `jpeg` is empty when nobody asked for JPEG (see Robot.live_frames); the stand-in's frames also carry `ring`,
+    the worker_process.frame_ring.FrameRing whose slot holds the frame's RGB pixels under its seq (until newer
+    frames overwrite it), which the video encoder reads instead of decompressing a JPEG."""
 
     jpeg: bytes
     width: int
@@ -28,3 +33,4 @@ class CameraFrame:
     sim_time: float | None = None
     render_ms: float | None = None
     encode_ms: float | None = None
+    ring: Any = field(default=None, repr=False, compare=False)

@@ -3,14 +3,17 @@
 Three kinds of thread touch it:
 - the physics thread steps MuJoCo at real-time factor 1 and moves each servo's setpoint toward its goal by at
   most max_velocity * dt per step, so no joint outruns its cap whatever the caller sends;
-- the render thread decides what to draw and when: the face texture, the head camera as JPEG (only while
-  someone watches), snapshots. The drawing happens in a render process (render_process.py: the OpenGL context,
-  llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
+- the render thread decides what to draw and when: the face texture, the head camera (only while someone
+  watches: into the frame ring's shared memory, and as JPEG only while a JPEG consumer watches), snapshots. The
+  drawing happens in a render process (render_process.py: the OpenGL context, llvmpipe, JPEG, the face), at a lower CPU priority and with its own GIL, so the server's event loop is not
   delayed by it; the thread sends it the joint state, copied from the physics state under a lock held only for
   the copy, and waits for the picture. If that process dies, the camera closes (frame waiters and
   camera-closed listeners are told, snapshots fail with the reason) while the physics goes on: the robot holds;
 - callers (the asyncio loop, tests) only take short locks: every public method returns in microseconds,
-  except snapshot() and the wait_* helpers, which block by design and say so.
+  except snapshot() and the wait_* helpers, which block by design and say so. The two the server calls on every
+  pose and joint-state tick never wait for a physics batch: set_targets swaps in a new goal array (the physics
+  thread reads whichever is current), and joint_state reads the state the physics thread publishes after each
+  batch. Waiting on the batch's lock held the event loop for a millisecond at a time (bench/teleop.py).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np
 from robot_models import RobotModel, load_qtrobot
 from robot_models.mjcf import HEAD_CAMERA
 from robot_models.types import CameraFrame, MotorMode
+from worker_process.frame_ring import FrameRing
 
 from .face import normalise_emotion
 from .render_process import RenderProcess, RenderProcessError
@@ -149,7 +153,9 @@ class StandIn:
         self._ambient = float(ambient_temperature_c)
         self._temperature = np.full(len(self.names), self._ambient)
 
-        self._lock = threading.Lock()  # guards data, goals, setpoints, modes, stats
+        self._lock = threading.Lock()  # guards data, setpoints, modes, stats
+        self._goal_lock = threading.Lock()  # serialises goal writers; the goal array is replaced, never edited
+        self._state = self._capture()  # the joints as the physics thread last published them
         self._stop = threading.Event()
         self._steps = 0
         self._resyncs = 0
@@ -161,6 +167,7 @@ class StandIn:
         # Render-side state, guarded by _render_cond's lock.
         self._render_cond = threading.Condition()
         self._camera_subscribers = 0
+        self._jpeg_subscribers = 0  # of the camera's subscribers, those that want JPEG (the others read the ring)
         self._emotion = normalise_emotion(initial_emotion)
         self._talking_until = 0.0
         self._voice = (0.0, -math.inf)  # (level, monotonic time it was set)
@@ -174,6 +181,8 @@ class StandIn:
         self._seq = 0
         self._render_error: BaseException | None = None
         self._renderer: RenderProcess | None = None
+        # Raw frames in shared memory for the video encoder; released when the renderer stops (closed or dead).
+        self._ring = FrameRing.create(self.camera_width, self.camera_height)
         self._camera_closed_listeners: list[Callable[[], None]] = []
         self._render_ready = threading.Event()
 
@@ -202,11 +211,13 @@ class StandIn:
             values.append(value)
         applied = np.clip(np.array(values), self._lower[idx], self._upper[idx]) if idx else np.array([])
         out = {}
-        with self._lock:
+        with self._goal_lock:
+            goal = self._goal.copy()
             for i, v in zip(idx, applied):
                 if self._modes[i] is MotorMode.ON:
-                    self._goal[i] = v
+                    goal[i] = v
                     out[self.names[i]] = float(v)
+            self._goal = goal
         return out
 
     def set_velocity_caps(self, caps: Mapping[str, float]) -> None:
@@ -222,13 +233,14 @@ class StandIn:
         so a stale goal cannot make the joint jump."""
         mode = MotorMode(mode)
         idx = [self.names.index(self.robot.joint(n).name) for n in joints]
-        with self._lock:
+        with self._lock, self._goal_lock:
             m = self.model
+            goal = self._goal.copy()
             for i in idx:
                 a, b = self._act[i], self._body_of[i]
                 here = math.degrees(self.data.qpos[self._qadr[i]])
                 here = min(max(here, self._lower[i]), self._upper[i])
-                self._goal[i] = self._setpoint[i] = here
+                goal[i] = self._setpoint[i] = here
                 self.data.ctrl[a] = math.radians(here)
                 if mode is MotorMode.OFF:
                     m.actuator_gainprm[a, 0] = 0.0
@@ -239,15 +251,26 @@ class StandIn:
                     m.actuator_biasprm[a, :3] = self._bias[i]
                     m.body_gravcomp[b] = self._gravcomp[b]
                 self._modes[i] = mode
+            self._goal = goal
+            self._state = self._capture()
+
+    def _capture(self) -> tuple[tuple[float, ...], ...]:
+        """(positions, velocities, setpoints, efforts, (sim time,)) from the physics state; the caller holds _lock
+        (or no physics thread runs)."""
+        d = self.data
+        return (tuple(np.degrees(d.qpos[self._qadr]).tolist()), tuple(np.degrees(d.qvel[self._dadr]).tolist()),
+                tuple(self._setpoint.tolist()), tuple(d.actuator_force[self._act].tolist()), (float(d.time),))
 
     def joint_state(self) -> JointSnapshot:
-        with self._lock:
-            q = np.degrees(self.data.qpos[self._qadr])
-            v = np.degrees(self.data.qvel[self._dadr])
-            f = self.data.actuator_force[self._act].copy()
-            goal, sp, modes, t = self._goal.copy(), self._setpoint.copy(), tuple(self._modes), self.data.time
-        return JointSnapshot(self.names, tuple(map(float, q)), tuple(map(float, v)), tuple(map(float, goal)),
-                             tuple(map(float, sp)), tuple(map(float, f)), modes, time.monotonic(), time.time(), t)
+        """The joints as of the physics thread's last batch (at most STEPS_PER_LOCK steps old), with the goals
+        as set; without a physics thread, as of now."""
+        if self._physics_thread.is_alive():
+            q, v, sp, f, (t,) = self._state
+        else:
+            with self._lock:
+                q, v, sp, f, (t,) = self._capture()
+        goal, modes = self._goal, tuple(self._modes)
+        return JointSnapshot(self.names, q, v, tuple(goal.tolist()), sp, f, modes, time.monotonic(), time.time(), t)
 
     def joint_positions(self) -> dict[str, float]:
         s = self.joint_state()
@@ -329,16 +352,25 @@ class StandIn:
             return True
 
     # ----------------------------------------------------------------------------------------------- camera
-    def start_camera(self) -> None:
-        """Count one more viewer; frames are rendered while at least one is counted."""
+    def start_camera(self, jpeg: bool = True) -> None:
+        """Count one more viewer; frames are rendered while at least one is counted, and compressed to JPEG while
+        at least one counted with `jpeg` (the others read the frame ring: `frame_ring`)."""
         with self._render_cond:
             self._camera_subscribers += 1
+            self._jpeg_subscribers += bool(jpeg)
             self._render_cond.notify_all()
 
-    def stop_camera(self) -> None:
+    def stop_camera(self, jpeg: bool = True) -> None:
         with self._render_cond:
             self._camera_subscribers = max(0, self._camera_subscribers - 1)
+            if jpeg:
+                self._jpeg_subscribers = max(0, self._jpeg_subscribers - 1)
             self._render_cond.notify_all()
+
+    @property
+    def frame_ring(self) -> FrameRing:
+        """The shared memory the camera's raw frames go to (closed once the renderer has stopped)."""
+        return self._ring
 
     @property
     def camera_subscribers(self) -> int:
@@ -465,6 +497,7 @@ class StandIn:
                             self._temperature += (self._ambient + self.THERMAL_GAIN * f * f - self._temperature) * (
                                 thermal_every * self.dt / self.THERMAL_TAU_S)
                     self._steps = done
+                    self._state = self._capture()
                     after = time.monotonic()
                     self._lag = max(0.0, (after - t0) - done * self.dt)
                     if after - last_sample >= 0.05:
@@ -499,7 +532,7 @@ class StandIn:
 
         try:
             renderer = self._renderer = RenderProcess(self.model, self.camera_width, self.camera_height,
-                                                      nice=self.render_nice)
+                                                      nice=self.render_nice, ring=self._ring)
             self._render_ready.set()
             while not self._stop.is_set():
                 with self._render_cond:
@@ -559,6 +592,7 @@ class StandIn:
                 closed_listeners = self._camera_closed_listeners
             if renderer is not None:
                 renderer.close()
+            self._ring.close()
             for callback in closed_listeners:
                 try:
                     callback()
@@ -567,15 +601,17 @@ class StandIn:
 
     def _render_frame(self, renderer: RenderProcess, state: tuple, stamps: tuple[float, float, float]) -> None:
         t_mono, t_wall, sim_time = stamps
+        seq = self._seq + 1
+        quality = self.jpeg_quality if self._jpeg_subscribers > 0 else None
         try:
-            jpeg, width, height, render_ms, encode_ms = renderer.frame(state, self.jpeg_quality)
+            jpeg, width, height, render_ms, encode_ms = renderer.frame(state, quality, seq)
         except RenderProcessError:
             raise
         except RuntimeError as exc:
             log.error("a camera frame failed: %s", exc)
             return
-        self._seq += 1
-        frame = CameraFrame(jpeg, width, height, self._seq, t_mono, t_wall, sim_time, render_ms, encode_ms)
+        self._seq = seq
+        frame = CameraFrame(jpeg, width, height, seq, t_mono, t_wall, sim_time, render_ms, encode_ms, ring=self._ring)
         with self._frame_cond:
             self._frame = frame
             self._frame_cond.notify_all()

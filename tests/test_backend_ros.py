@@ -106,35 +106,6 @@ def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, tmp_
         ros.close()
 
 
-def test_motor_states_are_read_from_the_robot(tmp_path):
-    """The firmware's /qt_robot/motors/states type varies; the backend subscribes without naming one."""
-    port = free_port()
-    robot = robot_side(port, tmp_path)
-    firmware = roslibpy.Ros(host="127.0.0.1", port=port)
-    firmware.run(timeout=10)
-    server = None
-    try:
-        states = roslibpy.Topic(firmware, "/qt_robot/motors/states", "vr_teleop_msgs/MotorsStatus")
-        states.advertise()  # exists before the backend connects, as on a robot
-        server = RunningServer(ServerSettings(port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}",
-                                              gesture_dir=tmp_path / "g", audio_dir=tmp_path / "a"))
-        backend = server.server.robot
-
-        def temperatures():
-            states.publish(roslibpy.Message({"name": ["HeadYaw", "RightElbowRoll"], "temperature": [41.5, 38.0],
-                                             "voltage": [12.1, 11.9]}))
-            return {m.name: (m.temperature_c, m.voltage_v) for m in backend.motor_status()}
-
-        assert wait_for(lambda: temperatures()["HeadYaw"] == (41.5, pytest.approx(12.1)), 10)
-        assert temperatures()["RightElbowRoll"] == (38.0, pytest.approx(11.9))
-        assert temperatures()["HeadPitch"] == (None, None)  # not reported: unknown, not zero
-    finally:
-        if server is not None:
-            server.stop()
-        firmware.close()
-        robot.stop()
-
-
 def test_serve_says_when_the_robot_cannot_be_reached():
     import subprocess
     import sys

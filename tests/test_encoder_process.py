@@ -1,4 +1,5 @@
-"""The video encoder process on its own (media/encoder_process.py): JPEGs in, VP8 and H.264 out, over its socket."""
+"""The video encoder process on its own (media/encoder_process.py): frames in (JPEGs over its socket, or numbers
+of frames in a frame ring), VP8 and H.264 out."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import numpy as np
 import psutil
 import pytest
 
+from test_frame_ring import holds_ring
 from vr_teleop_server.media.encoder_process import REOPEN_INTERVAL_S, EncoderProcess, EncoderProcessError
+from worker_process.frame_ring import FrameRing
 
 BITRATE = 800_000
 
@@ -87,3 +90,35 @@ def test_a_dead_encoder_is_an_error_and_it_never_outlives_its_socket(encoder: En
     other = EncoderProcess(30.0)
     other._conn.close()  # what the server's exit does: the worker reads the end of its socket and leaves
     assert other.process.wait(10) == 0
+
+
+def test_frames_from_the_ring_are_encoded_without_a_jpeg_and_a_lapped_one_is_lost() -> None:
+    """The render process draws into the frame ring; the encoder process maps it and reads frames by number."""
+    ring = FrameRing.create(640, 480)
+    writer = FrameRing.attach((ring.dup(), 640, 480, ring.slots))
+    process = EncoderProcess(30.0, ring=ring)
+    try:
+        assert holds_ring(process.pid)
+        chunks = []
+        for seq in range(1, 6):
+            writer.begin(seq)[:] = cv2.cvtColor(cv2.imdecode(np.frombuffer(jpeg(8 * seq), np.uint8),
+                                                             cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            writer.commit(seq)
+            data, key, _ = process.encode(seq, seq * 3000, {"VP8": (False, BITRATE)})["VP8"]
+            assert key == (seq == 1)
+            chunks.append(data)
+        frames = decode("VP8", chunks)
+        assert len(frames) == 5 and frames[0].shape == (480, 640)
+        assert np.abs(frames[-1].astype(int) - frames[0].astype(int)).mean() > 5, "the picture did not move"
+        writer.begin(5 + ring.slots)  # the writer came round to frame 5's slot
+        assert process.encode(5, 6 * 3000, {"VP8": (False, BITRATE)}) == {}
+        ring.close()  # the owner lets go; the encoder process keeps its own hold while it lives
+        writer.commit(5 + ring.slots)
+        assert process.encode(5 + ring.slots, 7 * 3000, {"VP8": (False, BITRATE)})["VP8"][0]
+        with pytest.raises(EncoderProcessError, match="ring is closed"):
+            EncoderProcess(30.0, ring=ring)
+    finally:
+        process.close()
+        writer.close()
+        ring.close()
+    assert process.process.poll() is not None  # exited: its hold on the ring went with it

@@ -246,3 +246,29 @@ def test_the_telemetry_tells_the_holder_how_good_its_link_is(ros, headset, state
     call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
     # not holding: no watchdog figures
     assert wait_for(lambda: mine().get("watchdog_threshold") == -1.0 and mine()["watchdog_holds"] == 0, 5), mine()
+
+
+def test_recenter_makes_the_current_head_direction_straight_ahead_for_the_holder_only(sim_server, ros, headset,
+                                                                                      state, joint_states, watch):
+    events = watch("/vr_teleop/events", "vr_teleop_msgs/Event")
+    refused_before = call(ros, "/vr_teleop/control/recenter", "std_srvs/Trigger")
+    assert refused_before["success"] is False and "engage first" in refused_before["message"], refused_before
+    engage(ros)
+    headset.head_orientation = unity_yaw_pitch(35.0)
+    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 35.0) < 2.0, 10), joints(joint_states)
+    intruder = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
+    intruder.run(timeout=10)
+    try:
+        other = call(intruder, "/vr_teleop/control/recenter", "std_srvs/Trigger")
+        assert other["success"] is False and "only it can recenter" in other["message"], other
+    finally:
+        intruder.close()
+    reply = call(ros, "/vr_teleop/control/recenter", "std_srvs/Trigger")
+    assert reply["success"] and "recentered" in reply["message"], reply
+    # looking 35 degrees left is now straight ahead: the robot's head comes back to the centre, then follows
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"]) < 2.0, 10), joints(joint_states)
+    headset.head_orientation = unity_yaw_pitch(50.0)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] - 15.0) < 2.0, 10), joints(joint_states)
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "recenter"), 5)
+    assert state.latest["state"] == "active"
+    call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})

@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import psutil
 import pytest
-from aiortc import RTCPeerConnection
+from aiortc import RTCPeerConnection, RTCSessionDescription
 
 from media_client import MediaPeer, Rosbridge, Tone
 from support import RunningServer
+from test_frame_ring import holds_ring
 from vr_teleop_server.settings import ServerSettings
 
 pytestmark = pytest.mark.timeout(300)
@@ -442,12 +443,15 @@ async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_
         encoder = psutil.Process(pid)
         assert encoder.ppid() == os.getpid() and encoder.nice() > psutil.Process().nice()
         assert "encoder_process" in " ".join(encoder.cmdline())
+        # One compression per frame: the encoder reads the renderer's raw frames, and no JPEG is made for it.
+        assert holds_ring(pid) and server.call(lambda: server.server.robot.latest_frame().jpeg) == b""
         encoder.kill()
         assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 20)
         count = peer.video_count
         await peer.wait_video(10)
         assert peer.video_count >= count + 10
         replacement = psutil.Process(server.call(lambda: hub.encoder_pid))
+        assert holds_ring(replacement.pid)
         await peer.close()
         await ros.close()
     finally:
@@ -482,6 +486,46 @@ async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: Ru
         assert floor["rtc_target_bitrate"] == 150_000  # clamped to MIN_BITRATE: the picture stays usable
     finally:
         await peer.close()
+        await ros.close()
+
+
+async def test_the_camera_asks_the_viewer_for_no_playout_delay(media_server: RunningServer) -> None:
+    """A viewer that offers the playout-delay extension (Chromium does) gets it in the answer, and every video
+    packet carries min 0, max 0 (render at once): what keeps Chromium's jitter buffer small. A viewer that does
+    not offer it gets video without it."""
+    from aiortc.rtp import HeaderExtensionsMap, unpack_header_extensions
+
+    from vr_teleop_server.media import playout_delay
+
+    class Recording(HeaderExtensionsMap):
+        def __init__(self) -> None:
+            super().__init__()
+            self.seen: list[dict[int, bytes]] = []  # per packet: its extensions by id
+
+        def get(self, extension_profile: int, extension_value: bytes):
+            self.seen.append(dict(unpack_header_extensions(extension_profile, extension_value)))
+            return super().get(extension_profile, extension_value)
+
+    for offered in (True, False):
+        ros = await Rosbridge.open(media_server.url)
+        pc = RTCPeerConnection()
+        pc.addTransceiver("video", direction="recvonly")
+        await pc.setLocalDescription(await pc.createOffer())
+        sdp = pc.localDescription.sdp
+        if offered:  # as Chromium's offer has it (aiortc's own offers do not)
+            sdp = re.sub(r"(m=video[^\n]*\n(?:.*\n)*?)(a=extmap:)", rf"\1a=extmap:5 {playout_delay.URI}\r\n\2", sdp,
+                         count=1)
+        reply = await ros.call("/vr_teleop/media/offer", {"sdp": sdp, "type": "offer"})
+        answer = reply["values"]
+        assert answer["success"], answer
+        assert (f"a=extmap:5 {playout_delay.URI}" in answer["sdp"]) == offered
+        await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
+        transport = pc.getTransceivers()[0].receiver.transport
+        recording = transport._rtp_header_extensions_map = Recording()  # aiortc's parser, wrapped to see all
+        assert await until(lambda: len(recording.seen) >= 20, 30), "no video packets"
+        delays = [packet.get(5) for packet in recording.seen]
+        assert set(delays) == ({b"\x00\x00\x00"} if offered else {None})
+        await pc.close()
         await ros.close()
 
 

@@ -199,13 +199,20 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 10)
 
         take_control(page)
+        standin = sim_server.server.robot.standin
+        set_head(page, 20.0)  # the operator faces 20 degrees left of where control was taken
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 20.0, 2.0), standin.joint_positions()
         page.evaluate("xrDevice.controllers.left.position.set(-0.75, 1.45, 0.0);"
                       "xrDevice.controllers.right.position.set(0.75, 1.45, 0.0)")  # a T-pose
         frames(page, 5)
-        press(page, "right", "thumbstick")  # the right stick alone: calibrate
-        page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '').startsWith('calibrated: ')",
+        press(page, "right", "thumbstick")  # the right stick alone: calibrate, and while in control recenter
+        page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '').startsWith('calibrated: ')"
+                               " && document.getElementById('hud-message').textContent.includes('recentered')",
                                timeout=SLOW)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "calibrate"), 10)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "recenter"), 10)
+        # where the operator faces is straight ahead now: the robot's head comes back to the centre
+        assert settles(lambda: standin.joint_positions()["HeadYaw"], 0.0, 2.0), standin.joint_positions()
 
         page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 1);"
                       "xrDevice.controllers.right.updateButtonValue('thumbstick', 1)")  # both sticks: e-stop

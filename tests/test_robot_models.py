@@ -195,3 +195,19 @@ def test_emotion_and_gesture_names():
     assert len(MODEL.emotions) == 23 and "happy" in MODEL.emotions and "talking" in MODEL.emotions
     assert len(MODEL.gestures) == 32 and "bye-bye" in MODEL.gestures and "show_QT" in MODEL.gestures
     assert not any(name.startswith("QT/") for name in MODEL.emotions + MODEL.gestures)
+
+
+def test_a_robots_own_limits_narrow_the_model():
+    """The intersection of ranges (the narrower wins on each side), the smaller velocity cap, home kept inside."""
+    model = load_qtrobot()
+    narrowed = model.narrowed({"HeadYaw": {"lower": -90.0, "upper": 45.0, "max_velocity": 500.0},
+                               "HeadPitch": {"lower": 5.0, "upper": 20.0, "max_velocity": 10.0},
+                               "LeftElbowRoll": {}})
+    yaw, pitch = narrowed.joint("HeadYaw"), narrowed.joint("HeadPitch")
+    assert (yaw.lower, yaw.upper) == (model.joint("HeadYaw").lower, 45.0)  # the model's -60 is narrower than -90
+    assert yaw.max_velocity == model.joint("HeadYaw").max_velocity
+    assert (pitch.lower, pitch.upper, pitch.max_velocity, pitch.home) == (5.0, 20.0, 10.0, 5.0)
+    assert narrowed.joint("LeftElbowRoll") == model.joint("LeftElbowRoll")
+    assert narrowed.clamp("HeadYaw", 55.0) == 45.0
+    with pytest.raises(ValueError, match="HeadPitch.*does not overlap"):
+        model.narrowed({"HeadPitch": {"lower": 30.0, "upper": 40.0}})

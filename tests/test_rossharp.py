@@ -126,6 +126,30 @@ def test_ros_sharp_default_frame_id_unity_is_already_in_ros_axes(sim_server, rig
         _engage(head.connection, False)
 
 
+def test_take_control_pressed_twice_changes_nothing(sim_server, rig):
+    """A rig whose "take control" button is pressed again while it holds control: the second engage answers
+    success, says control is already held, and does not re-zero the head (the robot keeps following where the
+    operator looks, it does not swing back to the centre)."""
+    head = PoseStampedPublisher(sim_server.url, HEAD_TOPIC)
+    joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
+    rig.extend([joints, head])
+    assert wait_for(lambda: head.sent >= 5, 5)
+    assert _engage(head.connection)["success"] is True
+    try:
+        _settle_head_ahead(joints)
+        head.rotation = _yaw_left(30.0)
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 30.0) < 3.0, 15), _joints(joints)
+        again = _engage(head.connection)
+        assert again["success"] is True and "already held" in again["message"], again
+        head.rotation = _yaw_left(40.0)  # re-zeroed at 30 this would be 10
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 40.0) < 3.0, 15), _joints(joints)
+        recentered = head.connection.call_service("/vr_teleop/control/recenter", srv_type("std_srvs/Trigger"))
+        assert recentered["success"] is True, recentered
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 99.0)) < 3.0, 15), _joints(joints)
+    finally:
+        _engage(head.connection, False)
+
+
 def test_a_refusal_is_a_response_ros_sharp_can_read(sim_server, rig):
     connection = RosSharpConnection(sim_server.url)
     rig.append(connection)

@@ -19,6 +19,8 @@ from robot_models import forward_kinematics, load_qtrobot
 from sim import MotorMode, StandIn
 from sim.face import draw_face
 from sim.scene import OVERVIEW_CAMERA
+from test_frame_ring import holds_ring, is_ring
+from worker_process.frame_ring import FrameRing
 
 ROBOT = load_qtrobot()
 ARTIFACTS = os.environ.get("VR_TELEOP_TEST_ARTIFACTS")  # set it to keep the rendered PNGs for a look
@@ -131,6 +133,36 @@ def test_camera_streams_only_while_watched_and_changes_when_the_head_turns(stand
     time.sleep(1.0)
     assert standin.latest_frame().seq <= at_stop + 1  # the frame in flight may still land, and no more
     settle_home(standin)
+
+
+def test_frames_for_raw_viewers_skip_the_jpeg_and_share_their_pixels(standin):
+    """A viewer that reads the frame ring (the video encoder) costs no JPEG; a JPEG viewer gets both, the same
+    picture."""
+    ring = standin.frame_ring
+    reader = FrameRing.attach((ring.dup(), ring.width, ring.height, ring.slots))
+    standin.start_camera(jpeg=False)
+    try:
+        raw = standin.wait_frame(standin.latest_frame().seq if standin.latest_frame() else 0, timeout=30.0)
+        raw = standin.wait_frame(raw.seq, timeout=30.0)  # one drawn after the count changed
+        assert raw.jpeg == b"" and raw.ring is ring
+        standin.start_camera()
+        try:
+            both = standin.wait_frame(raw.seq + 1, timeout=30.0)
+            while True:
+                pixels = reader.read(both.seq, np.copy)
+                if pixels is not None:
+                    break
+                both = standin.wait_frame(both.seq, timeout=30.0)  # overwritten: the machine is slow; the next
+        finally:
+            standin.stop_camera()
+        assert both.jpeg and pixels.shape == (480, 640, 3) and pixels.std() > 10
+        assert np.abs(cv2.cvtColor(decode(both), cv2.COLOR_BGR2RGB).astype(int) - pixels).mean() < 4
+        after = standin.wait_frame(both.seq + 1, timeout=30.0)
+        after = standin.wait_frame(after.seq, timeout=30.0)
+        assert after.jpeg == b""  # the JPEG viewer left: no more JPEG
+    finally:
+        standin.stop_camera(jpeg=False)
+        reader.close()
 
 
 def face_region(img: np.ndarray) -> np.ndarray:
@@ -256,9 +288,12 @@ def test_close_stops_threads_and_the_render_process_promptly():
     assert worker.nice() > psutil.Process().nice(), "the render process runs at a lower CPU priority"
     threads = [(task / "comm").read_text().strip() for task in Path(f"/proc/{s.render_pid}/task").iterdir()]
     assert not any(t.startswith("llvmpipe") for t in threads), threads  # one thread renders: a core left free
+    ring = s.frame_ring.fd
+    assert is_ring(ring) and holds_ring(worker.pid), "camera frames go through the shared frame ring"
     s.close()  # joins each thread for up to 5 s (logging an error past that), so a thread alive now did not stop
     assert not s._physics_thread.is_alive() and not s._render_thread.is_alive()
     assert not worker.is_running(), "the render process outlived the stand-in"
+    assert not is_ring(ring), "the frame ring outlived the stand-in"
     with pytest.raises(RuntimeError, match="closed"):
         s.snapshot()
 
@@ -273,8 +308,10 @@ def test_a_dead_render_process_closes_the_camera_and_the_robot_goes_on():
         s.start_camera()
         first = s.wait_frame(0, 30.0)
         assert first is not None
+        ring = s.frame_ring.fd
         psutil.Process(s.render_pid).kill()
         assert closed.wait(30.0), "the camera-closed listeners were not told"
+        assert not is_ring(ring), "the frame ring outlived its renderer"
         assert isinstance(s.render_error, RuntimeError) and "render process" in str(s.render_error)
         assert s.wait_frame(s.latest_frame().seq, 1.0) is None  # returns at once: no frame will come
         with pytest.raises(RuntimeError, match="renderer died"):

@@ -13,7 +13,7 @@ from robot_models import load_qtrobot
 
 from .core.access import AccessPolicy, Role, is_loopback, tokens_from
 from .core.bus import Bus
-from .core.events import publish_event
+from .core.events import declare_event_topic, publish_event
 from .core.rosapi import RosApi
 from .features.avatar import Avatar
 from .features.whoami import WhoAmI
@@ -109,8 +109,11 @@ class TeleopServer:
         joints = [{"name": n, "part": part, "lower": self.model.joint(n).lower, "upper": self.model.joint(n).upper,
                    "home": self.model.joint(n).home, "max_velocity": self.model.joint(n).max_velocity}
                   for part, joint_names in self.model.parts.items() for n in joint_names]
-        self.bus.publish(names.DESCRIPTION_TOPIC, {"data": json.dumps({"robot": "QTrobot", "joints": joints})},
-                         latch=True)
+        description: dict[str, Any] = {"robot": "QTrobot", "joints": joints}
+        info = getattr(self.robot, "info", None)  # what a real robot's backend knows of it (type, id, camera)
+        if isinstance(info, dict):
+            description["backend"] = info
+        self.bus.publish(names.DESCRIPTION_TOPIC, {"data": json.dumps(description)}, latch=True)
 
     def _report(self, owner: str, level: str, text: str) -> None:
         session = self.sessions.get(owner)
@@ -131,10 +134,24 @@ class TeleopServer:
         if s.backend == "ros":
             from .robot.backends.ros import RosRobot
 
-            self.robot = robot = await RosRobot.create(s.robot_url, self.model)
+            self.robot = robot = await RosRobot.create(s.resolved_robot_url, self.model)
             robot.connection_changed.append(lambda up: publish_event(
                 self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",
-                {"robot_url": s.robot_url}))
+                {"robot_url": s.resolved_robot_url}))
+        elif s.backend == "luxai":
+            from .robot.backends.luxai import LuxaiRobot  # the SDK loads only when a QTrobot v3 is wanted
+
+            self.robot = robot = await LuxaiRobot.create(
+                s.resolved_robot_url, self.model, robot_id=s.robot_id, camera_url=s.camera_url,
+                mqtt_ca_file=s.mqtt_ca_file, mqtt_username=s.mqtt_username, mqtt_password=s.mqtt_password)
+            self.model = robot.model  # the robot's own limits narrow the model's: everything uses those in force
+            robot.connection_changed.append(lambda up: publish_event(
+                self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",
+                {"robot_url": robot.url}))
+            robot.events.append(lambda kind, level, detail: publish_event(self.bus, "backend", kind, level, detail))
+            if robot.camera_problem:
+                declare_event_topic(self.bus)
+                publish_event(self.bus, "backend", "camera_unavailable", "warning", {"problem": robot.camera_problem})
         else:
             from .robot.backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
 
@@ -160,7 +177,7 @@ class TeleopServer:
         self._start(FacePublisher(self.bus, robot))
         panels = {"hardware": status.hardware, "motors": status.motors, "dialog": status.dialog,
                   "motivation": motivation.message}
-        self._start(MenuService(self.bus, self.menus, gestures=gestures.names, emotions=self.model.emotions,
+        self._start(MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
                                 status=lambda which: panels[which](), luxai=self.luxai))
         return speaker
 
@@ -174,10 +191,10 @@ class TeleopServer:
             self.rosapi = RosApi(self.bus)
             self._start(self.rosapi)
             self._start(WhoAmI(self.bus, self._identity))
-            self._publish_description()
             # the experimenter's labels
             self.bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
             self._start_media(await self._start_robot())
+            self._publish_description()  # after the robot: its own limits may have narrowed the model's
             self._start(Avatar(self.bus, self.rosapi, self.robot))
             await self.transport.start()
         except BaseException:

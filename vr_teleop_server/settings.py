@@ -15,10 +15,22 @@ __all__ = ["MIB", "CoreSettings", "ServerSettings"]
 
 
 class ServerSettings(CoreSettings):
-    backend: Literal["sim", "ros", "none"] = Field(
+    backend: Literal["sim", "ros", "luxai", "none"] = Field(
         "sim", description="the robot: 'sim', the embedded MuJoCo stand-in; 'ros', a real QTrobot through its own "
-                           "rosbridge at robot_url; 'none', the protocol server alone")
-    robot_url: str = Field("ws://127.0.0.1:9091", description="the real robot's rosbridge, for backend 'ros'")
+                           "rosbridge at robot_url; 'luxai', a QTrobot v3 through LuxAI's SDK at robot_url; 'none', "
+                           "the protocol server alone")
+    robot_url: str | None = Field(
+        None, description="the real robot: its rosbridge for backend 'ros' (default ws://127.0.0.1:9091); for "
+                          "'luxai' its service hub, tcp://HOST:50500 (the default, on 127.0.0.1), or an MQTT broker "
+                          "(mqtt://, mqtts://, wss://) with robot_id")
+    robot_id: str | None = Field(None, description="the QTrobot v3's id (e.g. QTRD000320), for 'luxai' over MQTT")
+    mqtt_ca_file: Path | None = Field(None, description="for 'luxai' through a TLS broker (mqtts://, wss://): the CA "
+                                                        "certificate (PEM) to trust; default: the system's")
+    mqtt_username: str | None = Field(None, description="for 'luxai' through a broker that wants a login")
+    mqtt_password: str | None = Field(None, description="its password (the CLI reads $VR_TELEOP_MQTT_PASSWORD)")
+    camera_url: str | None = Field(
+        None, description="the QTrobot v3's realsense-driver plugin over ZeroMQ, tcp://HOST:PORT (default: the "
+                          "robot's host, port 50655); over MQTT it is found under its node id")
     camera_width: int = Field(640, ge=16, le=4096)
     camera_height: int = Field(480, ge=16, le=4096)
     camera_fps: float = Field(30.0, gt=0, le=120, description="head-camera frames a second while someone watches")
@@ -64,3 +76,10 @@ class ServerSettings(CoreSettings):
         """The ICE servers every peer gets (STUN as given, TURN with credentials from the secret)."""
         secret = self.turn_secret.get_secret_value() if self.turn_secret is not None else ""
         return IceConfig(urls=(*self.ice_servers, *self.turn_urls), secret=secret, ttl_s=self.turn_ttl)
+
+    @property
+    def resolved_robot_url(self) -> str:
+        """robot_url, or the backend's default."""
+        if self.robot_url:
+            return self.robot_url
+        return "tcp://127.0.0.1:50500" if self.backend == "luxai" else "ws://127.0.0.1:9091"

@@ -34,12 +34,13 @@ class WorkerProcess:
     REPLY_TIMEOUT_S = 30.0
     Died: type[WorkerDied] = WorkerDied
 
-    def __init__(self, boot: str, args: list[str], nice: int, hello: tuple) -> None:
-        """Run `python -c boot *args FD`, FD the worker's end of the socket pair, and wait until it is ready."""
+    def __init__(self, boot: str, args: list[str], nice: int, hello: tuple, pass_fds: tuple[int, ...] = ()) -> None:
+        """Run `python -c boot *args FD`, FD the worker's end of the socket pair, and wait until it is ready.
+        `pass_fds` reach the worker under the same numbers (a frame_ring.FrameRing's, say)."""
         ours, theirs = socket.socketpair()
         try:
             self.process = subprocess.Popen([sys.executable, "-c", boot, *args, str(theirs.fileno())],
-                                            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
+                                            pass_fds=(theirs.fileno(), *pass_fds), stdin=subprocess.DEVNULL,
                                             stdout=subprocess.DEVNULL, close_fds=True)
         except BaseException:
             ours.close()

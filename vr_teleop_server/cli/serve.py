@@ -37,11 +37,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="larger frames get a status error (default %(default)s)")
     p.add_argument("--service-timeout", type=float, default=defaults.service_timeout, metavar="S",
                    help="seconds a service call waits when the caller gives no timeout (default %(default)s)")
-    p.add_argument("--backend", choices=["sim", "ros", "none"], default=defaults.backend,
+    p.add_argument("--backend", choices=["sim", "ros", "luxai", "none"], default=defaults.backend,
                    help="the robot: the embedded MuJoCo stand-in (sim), a real QTrobot's rosbridge (ros, with "
-                        "--robot-url) or none (default %(default)s)")
-    p.add_argument("--robot-url", default=defaults.robot_url, metavar="ws://ROBOT:9090",
-                   help="the real robot's rosbridge, for --backend ros (default %(default)s)")
+                        "--robot-url), a QTrobot v3 through LuxAI's SDK (luxai, with --robot-url) or none "
+                        "(default %(default)s)")
+    p.add_argument("--robot-url", default=None, metavar="URL",
+                   help="the real robot: for --backend ros its rosbridge, ws://ROBOT:9090 (default "
+                        "ws://127.0.0.1:9091); for --backend luxai its service hub, tcp://ROBOT:50500 (default "
+                        "tcp://127.0.0.1:50500), or an MQTT broker, mqtt://BROKER:1883 (also mqtts://, wss://), "
+                        "with --robot-id")
+    p.add_argument("--robot-id", default=None, metavar="QTRD000320",
+                   help="the QTrobot v3's id, for --backend luxai through an MQTT broker")
+    p.add_argument("--mqtt-ca-file", type=Path, default=None, metavar="CA.pem",
+                   help="--backend luxai through a TLS broker (mqtts://, wss://): the CA certificate to trust "
+                        "(default: the system's)")
+    p.add_argument("--mqtt-username", default=None, metavar="NAME",
+                   help="--backend luxai through a broker that wants a login; the password is read from "
+                        "$VR_TELEOP_MQTT_PASSWORD (never from the command line, where other users could read it)")
+    p.add_argument("--camera-url", default=None, metavar="tcp://ROBOT:50655",
+                   help="the QTrobot v3's realsense-driver plugin over ZeroMQ (default: the robot's host, port "
+                        "50655); through MQTT it is found under its node id qtrobot-realsense-driver")
     p.add_argument("--camera-size", default=f"{defaults.camera_width}x{defaults.camera_height}", metavar="WxH",
                    help="head-camera image size (default %(default)s)")
     p.add_argument("--camera-fps", type=float, default=defaults.camera_fps,
@@ -110,6 +125,14 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"vr-teleop serve: {exc}", file=sys.stderr)
         return 2
+    if args.backend == "luxai":
+        from ..robot.backends.luxai import parse_robot_url
+
+        try:
+            parse_robot_url(args.robot_url or "tcp://127.0.0.1", args.robot_id)
+        except ValueError as exc:
+            print(f"vr-teleop serve: {exc}", file=sys.stderr)
+            return 2
     tokens = {role: getattr(args, f"{role}_token") for role in ROLES}
     if args.generate_tokens:
         tokens = {role: tokens[role] or token for role, token in generate_tokens().items()}
@@ -118,7 +141,11 @@ def run(args: argparse.Namespace) -> int:
                                   spectator_token=tokens["spectator"], insecure=args.insecure,
                                   certfile=args.certfile, keyfile=args.keyfile, teleop=teleop, host=args.host, port=args.port, time_style=args.time_style,
                                   max_message_size=args.max_message_size, service_timeout=args.service_timeout,
-                                  backend=args.backend, robot_url=args.robot_url, camera_width=width,
+                                  backend=args.backend, robot_url=args.robot_url, robot_id=args.robot_id,
+                                  camera_url=args.camera_url, mqtt_ca_file=args.mqtt_ca_file,
+                                  mqtt_username=args.mqtt_username,
+                                  mqtt_password=os.environ.get("VR_TELEOP_MQTT_PASSWORD") or None,
+                                  camera_width=width,
                                   camera_height=height,
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,

@@ -7,7 +7,9 @@ recording of the bus shows every command teleop made.
 
 Rules the client can rely on (README "Explicit control"):
 - One holder. `/vr_teleop/control/engage` (std_srvs/SetBool, data true) makes the caller the holder; it needs a
-  fresh head pose from the caller (the current head orientation becomes the robot's head zero). Another client's
+  fresh head pose from the caller (the current head orientation becomes the robot's head zero). Engaging again while
+  holding changes nothing (a rig's "take control" pressed twice must not swing the head back to the centre);
+  `/vr_teleop/control/recenter` (std_srvs/Trigger, the holder only) re-zeroes the head on purpose. Another client's
   poses and Joy are refused with a status error (at most one a second per client) until the holder releases
   (engage false), is e-stopped, or disconnects.
 - The mapper steps on each of the holder's head poses, so a pose turns into commands at once. A 30 Hz tick
@@ -82,6 +84,7 @@ class ExplicitControl:
             bus.subscribe(SERVER_NODE, names.JOY_TOPICS[side], None, lambda p, side=side: self._on_joy(side, p))
         bus.provide(names.ENGAGE_SERVICE, "std_srvs/SetBool", self._engage_service)
         bus.provide(names.CALIBRATE_SERVICE, "std_srvs/Trigger", self._calibrate_service)
+        bus.provide(names.RECENTER_SERVICE, "std_srvs/Trigger", self._recenter_service)
         bus.provide(names.HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("head",), r))
         bus.provide(names.ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("left_arm", "right_arm"), r))
         bus.provide(names.ESTOP_SERVICE, "std_srvs/Trigger", self._estop_service)
@@ -113,7 +116,7 @@ class ExplicitControl:
             return
         now = self.clock()
         try:
-            if not self.mapper.on_head_pose(published.value, now):
+            if not self.mapper.on_head_pose(_message(published), now):
                 return  # stamped before the newest pose taken: never replayed
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
@@ -126,7 +129,7 @@ class ExplicitControl:
         if not self._admit(published):
             return
         try:
-            self.mapper.on_controller_pose(side, published.value, self.clock())
+            self.mapper.on_controller_pose(side, _message(published), self.clock())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
 
@@ -134,8 +137,10 @@ class ExplicitControl:
         if not self._admit(published):
             return
         was = self.mapper.state
+        msg = _message(published)
+        axes, buttons = (msg["axes"], msg["buttons"]) if isinstance(msg, dict) else (msg.axes, msg.buttons)
         try:
-            self.mapper.on_joy(side, published.value.axes, published.value.buttons, self.clock())
+            self.mapper.on_joy(side, axes, buttons, self.clock())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
             return
@@ -203,6 +208,10 @@ class ExplicitControl:
         if self.holder is not None and self.holder != caller:
             raise BusError(f"control is held by another client ({self.holder}); it must release control or "
                            "disconnect first")
+        if self.holder == caller and self.mapper.engaged:
+            return {"success": True, "message": "control is already held by this operator; nothing changed (call "
+                                                f"{names.RECENTER_SERVICE} to make your current head orientation "
+                                                "straight ahead)"}
         if not self._robot_connected:
             raise BusError("the robot backend is disconnected; engage once it is back")
         if self._head_sender != caller:
@@ -250,6 +259,29 @@ class ExplicitControl:
 
     async def _estop_service(self, _request: Any) -> dict[str, Any]:
         return self.estop(self.bus.caller())
+
+    async def _recenter_service(self, _request: Any) -> dict[str, Any]:
+        return self.recenter(self.bus.caller())
+
+    def recenter(self, caller: str) -> dict[str, Any]:
+        """The holder's current head orientation becomes straight ahead; teleop resumes from the robot's pose with
+        the engage ramp, so the head eases to its new centre."""
+        operator = self.operator_of(caller) if caller != SERVER_NODE else self.holder
+        if not self._robot_connected:
+            raise BusError("the robot backend is disconnected; engage once it is back")
+        if self.holder is None or not self.mapper.engaged:
+            raise BusError("cannot recenter: nobody is controlling the robot; engage first")
+        if operator != self.holder:
+            raise BusError(f"control is held by another client ({self.holder}); only it can recenter")
+        if self._head_sender != self.holder:
+            raise BusError("cannot recenter: no head pose from the operator holding control")
+        try:
+            self.mapper.engage(self.clock(), self.robot.joint_state().as_dict())
+        except TeleopError as exc:
+            raise BusError(str(exc)) from None
+        self._event("recenter", "info", {"holder": self.holder, "by": caller})
+        self._publish_state()
+        return {"success": True, "message": "recentered: your current head orientation is straight ahead"}
 
     async def _calibrate_service(self, _request: Any) -> dict[str, Any]:
         caller = self.bus.caller()
@@ -316,10 +348,23 @@ class ExplicitControl:
             return "idle"
         return self.mapper.state.value
 
-    def _state_message(self) -> dict[str, Any]:
+    def _following(self) -> tuple[bool, bool, bool, tuple[str, ...], tuple[str, ...]]:
+        """(head, left arm, right arm following, joints clamped, parts velocity-limited) as the state topic
+        reports them: all false and empty unless the holder's teleop is active."""
         out = self._last_output
+        if out is None or out.state is not WatchdogState.ACTIVE or self.holder is None:
+            return False, False, False, (), ()
+        return (out.head_following, out.arms_following["left"], out.arms_following["right"], out.clamped,
+                out.velocity_limited)
+
+    def _summary(self) -> tuple[Any, ...]:
+        """What a client must hear about when it changes (not the pose ages, which change every time)."""
+        return (self.mapper.engaged and self.holder is not None, self.state_name(), self.holder or "",
+                *self._following()[:4], self._robot_connected)
+
+    def _state_message(self) -> dict[str, Any]:
         now = self.clock()
-        following = out is not None and out.state is WatchdogState.ACTIVE and self.holder is not None
+        head, left, right, clamped, limited = self._following()
 
         def age(key: str) -> float:
             value = self.mapper.pose_age(key, now)
@@ -329,27 +374,23 @@ class ExplicitControl:
             "header": {"stamp": self.bus.registry.now()},
             "engaged": self.mapper.engaged and self.holder is not None, "state": self.state_name(),
             "holder": self.holder or "",
-            "head_following": following and out.head_following,
-            "left_arm_following": following and out.arms_following["left"],
-            "right_arm_following": following and out.arms_following["right"],
-            "clamped": list(out.clamped) if following else [],
-            "velocity_limited": list(out.velocity_limited) if following else [],
+            "head_following": head, "left_arm_following": left, "right_arm_following": right,
+            "clamped": list(clamped), "velocity_limited": list(limited),
             "pose_age": age("head"), "left_pose_age": age("left"), "right_pose_age": age("right"),
             "robot_connected": self._robot_connected,
         }
 
     def _publish_state(self) -> None:
-        msg = self._state_message()
-        self._last_summary = self._summary(msg)
-        self.bus.publish(names.TELEOP_STATE_TOPIC, msg)
+        self._last_summary = self._summary()
+        self.bus.publish(names.TELEOP_STATE_TOPIC, self._state_message())
 
     def _publish_state_if_changed(self) -> None:
-        msg = self._state_message()
-        if self._summary(msg) != self._last_summary:
-            self._last_summary = self._summary(msg)
-            self.bus.publish(names.TELEOP_STATE_TOPIC, msg)
+        """Called on every head pose: the summary is compared before any message is built."""
+        if self._summary() != self._last_summary:
+            self._publish_state()
 
-    @staticmethod
-    def _summary(msg: dict[str, Any]) -> tuple[Any, ...]:
-        return (msg["engaged"], msg["state"], msg["holder"], msg["head_following"], msg["left_arm_following"],
-                msg["right_arm_following"], tuple(msg["clamped"]), msg["robot_connected"])
+
+def _message(published: Published) -> Any:
+    """The message as the validated plain dict a client's publish carries (no model built and dumped again per
+    pose), else the model."""
+    return published.plain if published.plain is not None else published.value

@@ -86,7 +86,9 @@ class LuxaiApi:
     # ---- joint commands -----------------------------------------------------------------------------------------
     def _on_part_command(self, part: str, published: Published) -> None:
         try:
-            report = self.robot.set_part_targets(part, published.value.data)
+            # a plain dict when validated from a client or a feature: no model built for the one field read
+            data = published.plain["data"] if published.plain is not None else published.value.data
+            report = self.robot.set_part_targets(part, data)
         except (ValueError, KeyError) as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
             return
@@ -208,13 +210,31 @@ class LuxaiApi:
         except KeyError as exc:
             raise BusError(str(exc.args[0]) if exc.args else f"unknown gesture {name!r}") from None
 
+    def gesture_names(self) -> list[str]:
+        """The library's gestures, then those the robot holds itself (a QTrobot v3's files) that the library does not
+        (the library's "wave" is also "QT/wave": a robot's gesture of that name is shadowed)."""
+        return self.gestures.names() + [n for n in self.robot.own_gestures() if n not in self.gestures]
+
     def _on_gesture_topic(self, published: Published) -> None:
+        name = published.value.data
+        if name not in self.gestures and name in self.robot.own_gestures():
+            self._spawn(self._play_own(name, 1.0, published.sender))
+            return
         try:
-            gesture = self._gesture(published.value.data)
+            gesture = self._gesture(name)
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
             return
         self._spawn(self._play(gesture, 1.0, published.sender))
+
+    async def _play_own(self, name: str, speed: float, sender: str | None) -> bool:
+        try:
+            return (await self.robot.play_own_gesture(name, speed)).completed
+        except Refusal as exc:
+            if sender is None:
+                raise
+            self.bus.report(sender, "error", f"{names.GESTURE_PLAY_SERVICE} {name}: {exc}")
+            return False
 
     async def _play(self, gesture: Gesture, speed: float, sender: str | None) -> bool:
         result = await self.robot.play_gesture(gesture, speed)
@@ -229,10 +249,12 @@ class LuxaiApi:
         speed = request.speed or 1.0  # LuxAI scripts often leave speed out (0)
         if not 0.1 <= speed <= 10:
             raise BusError(f"speed {request.speed:g} is outside 0.1..10 (1 plays as recorded)")
+        if request.name not in self.gestures and request.name in self.robot.own_gestures():
+            return {"status": await self._play_own(request.name, speed, None)}
         return {"status": await self._play(self._gesture(request.name), speed, None)}
 
     async def _gesture_list(self, _request: Any) -> dict[str, Any]:
-        return {"gestures": self.gestures.names()}
+        return {"gestures": self.gesture_names()}
 
     async def _gesture_stop(self, _request: Any) -> dict[str, Any]:
         """Stops a recording if one runs (as LuxAI's controller does), else the playing gesture."""

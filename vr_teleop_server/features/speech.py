@@ -160,10 +160,12 @@ class Speaker:
             self._stream = None
 
     async def configure(self, language: str, pitch: int, speed: int) -> None:
+        """The server's voice (what the headset hears) and the robot's own, if it has one, change together."""
         try:
             await self.tts.configure(language, pitch, speed)
         except ValueError as exc:
             raise BusError(str(exc)) from None
+        await self.robot.configure_speech(language, pitch, speed)
 
     def _log(self, text: str, wav: Wav) -> None:
         """Keeps what the robot said in the audio log, beside the operator's voice."""

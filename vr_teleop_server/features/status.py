@@ -97,7 +97,7 @@ class StatusPublisher:
                 "position": [m.position for m in motors], "position_normalized": normalized,
                 "temperature": [m.temperature_c if m.temperature_c is not None else 0.0 for m in motors],
                 "voltage": [m.voltage_v if m.voltage_v is not None else 0.0 for m in motors],
-                "mode": [MODE_NAMES.get(m.mode, str(m.mode)) for m in motors]}
+                "mode": [MODE_NAMES.get(m.mode, str(m.mode)) for m in motors], "fault": [m.fault for m in motors]}
 
     def dialog(self) -> dict[str, Any]:
         return {"header": self._header(), **self._dialog}

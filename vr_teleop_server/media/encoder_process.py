@@ -4,30 +4,35 @@ Why a process: in the server's process the encoding thread shares the GIL with t
 operator's poses. At a lower priority it is preempted (by the render process, by other work) while it holds the
 GIL between two C calls, and the loop then waits on a starved thread; at the same priority it competes with the
 loop for the CPU. In its own process, at nice `NICE`, it shares no GIL with the loop and the kernel gives the loop
-the CPU first; a crash in libvpx or x264 ends the process, not the server. The server's side of a frame is a JPEG
-sent and a few kilobytes of VP8 or H.264 read back, in the hub's thread (blocked in a socket read, GIL released,
-while the worker encodes).
+the CPU first; a crash in libvpx or x264 ends the process, not the server. The server's side of a frame is a
+frame number sent and a few kilobytes of VP8 or H.264 read back, in the hub's thread (blocked in a socket read,
+GIL released, while the worker encodes): the worker reads the frame's pixels from the stand-in's frame ring
+(worker_process/frame_ring.py, shared memory, mapped here), so a frame is compressed once. A camera whose frames
+come as JPEG (a real robot's topic) sends the JPEG instead, which the worker decodes.
 
 The worker answers requests over a socket pair (the `worker_process` package: started with subprocess, it exits
-when its socket closes, so it cannot outlive the server), one at a time: the JPEG, its presentation time and, per
-codec, whether to make a keyframe and the target bitrate; the answer is, per codec, the encoded frame or why it
-failed (that codec's encoder is then rebuilt). It loads this file alone, not the `vr_teleop_server` package: it
+when its socket closes, so it cannot outlive the server), one at a time: the frame (its number in the ring, or a
+JPEG), its presentation time and, per codec, whether to make a keyframe and the target bitrate; the answer is,
+per codec, the encoded frame or why it failed (that codec's encoder is then rebuilt). It loads this file alone, not the `vr_teleop_server` package: it
 needs only PyAV, OpenCV and NumPy, and starts in a fraction of a second.
 """
 
 from __future__ import annotations
 
 import fractions
+import os
 import time
 from pathlib import Path
 from typing import Any
 
 from worker_process import WorkerDied, WorkerProcess, accept, answer
+from worker_process.frame_ring import FrameRing
 
 NICE = 10  # added to the worker's niceness: the server's loop wins a core over the encoder
 VIDEO_CLOCK_RATE = 90000
 REOPEN_RATIO = 0.15  # an encoder is rebuilt at a new target bitrate (a keyframe) only when it moves more than this
 REOPEN_INTERVAL_S = 1.0  # and at most this often
+GOP_S = 10  # a keyframe at least this often (seconds) without being asked: a viewer that lost one recovers
 ROOT = Path(__file__).resolve().parents[2]  # the directory that holds `worker_process`
 BOOT = ("import importlib.util, sys; sys.path.insert(0, sys.argv[1]); "
         "spec = importlib.util.spec_from_file_location('vr_teleop_encoder', sys.argv[2]); "
@@ -50,13 +55,25 @@ class EncoderProcess(WorkerProcess):
     REPLY_TIMEOUT_S = 10.0  # a frame takes milliseconds: a worker silent this long is hung
     Died = EncoderProcessError
 
-    def __init__(self, fps: float, *, nice: int = NICE) -> None:
-        super().__init__(BOOT, [str(ROOT), __file__], nice, (float(fps),))
+    def __init__(self, fps: float, *, nice: int = NICE, ring: FrameRing | None = None) -> None:
+        """`ring`: the frame ring that `encode`'s frame numbers refer to (this process maps its own copy)."""
+        self.ring = ring
+        fd = None if ring is None else ring.dup()
+        if ring is not None and fd is None:
+            raise EncoderProcessError(f"{self.NAME}: the camera's frame ring is closed")
+        try:
+            spec = None if fd is None else (fd, ring.width, ring.height, ring.slots)
+            super().__init__(BOOT, [str(ROOT), __file__], nice, (float(fps), spec),
+                             pass_fds=() if fd is None else (fd,))
+        finally:
+            if fd is not None:
+                os.close(fd)
 
-    def encode(self, jpeg: bytes, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
-        """Decode the JPEG once and encode it with each codec in `jobs` ({codec: (keyframe, bitrate)}): per codec
-        the encoded frame (none when the encoder held it back) or the error's text."""
-        return self.call((jpeg, pts, jobs))
+    def encode(self, frame: bytes | int, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
+        """Encode a frame (its seq in the ring, or a JPEG, decoded once) with each codec in `jobs` ({codec:
+        (keyframe, bitrate)}): per codec the encoded frame (none when the encoder held it back) or the error's
+        text; nothing at all when the ring's slot already holds a newer frame (this one is lost)."""
+        return self.call((frame, pts, jobs))
 
     def failed(self, why: str) -> Exception:
         """A frame the worker could not handle at all: the hub starts another worker (as when one dies)."""
@@ -66,9 +83,9 @@ class EncoderProcess(WorkerProcess):
 # ---- the worker ----------------------------------------------------------------------------------------------
 def serve(fd: int) -> None:
     """Worker entry point: answer requests until the socket closes."""
-    conn, (fps,) = accept(fd)
+    conn, (fps, ring) = accept(fd)
     try:
-        worker = _Worker(fps)
+        worker = _Worker(fps, ring)
     except Exception as exc:
         conn.send((False, f"the encoders did not load ({type(exc).__name__}: {exc})"))
         return
@@ -76,7 +93,7 @@ def serve(fd: int) -> None:
 
 
 class _Worker:
-    def __init__(self, fps: float) -> None:
+    def __init__(self, fps: float, ring: tuple | None) -> None:
         import av
         import cv2
         import numpy as np
@@ -85,16 +102,27 @@ class _Worker:
         self.time_base = fractions.Fraction(1, VIDEO_CLOCK_RATE)
         self.fps = fps
         self.encoders: dict[str, _Encoder] = {}
+        self.ring = None if ring is None else FrameRing.attach(ring)
 
-    def encode(self, jpeg: bytes, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
-        """JPEG to I420 once, then each codec's encoder once."""
-        cv2 = self.cv2
-        bgr = cv2.imdecode(self.np.frombuffer(jpeg, self.np.uint8), cv2.IMREAD_COLOR)
-        if bgr is None:  # this frame is lost; the encoders and the next frames are not
-            return {codec: f"a camera frame of {len(jpeg)} bytes is not a JPEG; not encoded" for codec in jobs}
-        h, w = bgr.shape[:2]
+    def i420(self, image: Any, code: int) -> Any:
+        h, w = image.shape[:2]
         w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
-        yuv = cv2.cvtColor(self.np.ascontiguousarray(bgr[:h2, :w2]), cv2.COLOR_BGR2YUV_I420)
+        return self.cv2.cvtColor(self.np.ascontiguousarray(image[:h2, :w2]), code)
+
+    def encode(self, frame: bytes | int, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
+        """The frame to I420 once (from the ring's RGB, or a JPEG), then each codec's encoder once."""
+        cv2 = self.cv2
+        if isinstance(frame, int):
+            if self.ring is None:
+                raise ValueError("a frame number was sent, but this encoder process has no frame ring")
+            yuv = self.ring.read(frame, lambda rgb: self.i420(rgb, cv2.COLOR_RGB2YUV_I420))
+            if yuv is None:  # overwritten by a newer frame, which the hub sends next
+                return {}
+        else:
+            bgr = cv2.imdecode(self.np.frombuffer(frame, self.np.uint8), cv2.IMREAD_COLOR)
+            if bgr is None:  # this frame is lost; the encoders and the next frames are not
+                return {codec: f"a camera frame of {len(frame)} bytes is not a JPEG; not encoded" for codec in jobs}
+            yuv = self.i420(bgr, cv2.COLOR_BGR2YUV_I420)
         out: dict[str, Encoded] = {}
         for codec, (keyframe, bitrate) in jobs.items():
             encoder = self.encoders.get(codec)
@@ -141,28 +169,43 @@ class _Encoder:
         return data, keyframe
 
     def _open(self, width: int, height: int, bitrate: int) -> Any:
-        rate = max(1, round(self.fps))
-        if self.codec == "VP8":
-            ctx = self.av.CodecContext.create("libvpx", "w")
-            ctx.options = {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
-                           "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
-                           "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
-                           "noise-sensitivity": "0", "error-resilient": "1"}
-            ctx.qmin, ctx.qmax = 4, 56
-        elif self.codec == "H264":
-            ctx = self.av.CodecContext.create("libx264", "w")
-            ctx.options = {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
-                           "maxrate": str(bitrate), "bufsize": str(bitrate)}
-            ctx.profile = "Baseline"
-        else:
-            raise ValueError(f"no encoder for {self.codec}")
-        ctx.width, ctx.height = width, height
-        ctx.pix_fmt = "yuv420p"
-        ctx.bit_rate = bitrate
-        ctx.framerate = fractions.Fraction(rate, 1)
-        ctx.time_base = fractions.Fraction(1, rate)
-        ctx.gop_size = 10 * rate  # a keyframe every 10 s at least; PLI and joining peers ask for more
-        # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
-        # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
-        ctx.thread_count = 1
-        return ctx
+        return open_encoder(self.av, self.codec, width, height, bitrate, self.fps)
+
+
+def encoder_options(codec: str, bitrate: int) -> dict[str, str]:
+    """Each codec's settings for interaction: real time, no lookahead (a frame out for each frame in), rate
+    control that undershoots rather than builds a burst. bench/media.py's encoder rows measure them."""
+    if codec == "VP8":
+        # cpu-used 8: at 1280x720 16 (libvpx's fastest) saved a tenth of the CPU per frame here and 4 cost 38% more
+        # (bench/media.py --only encoder); realtime means no lookahead whatever lag-in-frames says.
+        return {"deadline": "realtime", "cpu-used": "8", "lag-in-frames": "0", "static-thresh": "1",
+                "undershoot-pct": "100", "overshoot-pct": "15", "bufsize": str(bitrate),
+                "minrate": str(bitrate // 4), "maxrate": str(bitrate), "partitions": "0",
+                "noise-sensitivity": "0", "error-resilient": "1"}
+    if codec == "H264":  # zerolatency: no B-frames, no lookahead, no frame threads
+        return {"preset": "ultrafast", "tune": "zerolatency", "level": "31",
+                "maxrate": str(bitrate), "bufsize": str(bitrate)}
+    raise ValueError(f"no encoder for {codec}")
+
+
+def open_encoder(av: Any, codec: str, width: int, height: int, bitrate: int, fps: float,
+                 options: dict[str, str] | None = None, threads: int = 1) -> Any:
+    """A PyAV encoder context for `codec` with `encoder_options` (or the `options` given: the bench's variants)."""
+    rate = max(1, round(fps))
+    opts = encoder_options(codec, bitrate) if options is None else options
+    ctx = av.CodecContext.create({"VP8": "libvpx", "H264": "libx264"}[codec], "w")
+    ctx.options = opts
+    if codec == "VP8":
+        ctx.qmin, ctx.qmax = 4, 56
+    else:
+        ctx.profile = "Baseline"
+    ctx.width, ctx.height = width, height
+    ctx.pix_fmt = "yuv420p"
+    ctx.bit_rate = bitrate
+    ctx.framerate = fractions.Fraction(rate, 1)
+    ctx.time_base = fractions.Fraction(1, rate)
+    ctx.gop_size = GOP_S * rate  # a keyframe at this interval at least; PLI and joining peers ask for more
+    # One thread: libvpx with two threads cost ten times the CPU per frame on a loaded 2-core machine (34 ms
+    # against 3.6 ms at 640x480, its threads spin on each other); x264 gains nothing from a second either.
+    ctx.thread_count = threads
+    return ctx

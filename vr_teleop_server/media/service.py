@@ -40,7 +40,7 @@ from client_protocol import names
 from ..core.access import AccessDenied, AccessPolicy, Role
 from ..core.bus import SERVER_NODE, Bus, Published
 from ..robot.interface import Robot
-from . import link_quality
+from . import link_quality, playout_delay
 from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
 from .poses import PoseChannel
@@ -287,6 +287,8 @@ class MediaService:
             if transceiver.kind == "video" and self.video is not None and peer.video is None:
                 peer.video = CameraTrack(self.video)
                 pc.addTrack(peer.video)
+                sending = next(t for t in pc.getTransceivers() if t.sender.track is peer.video)
+                peer.video.playout_delay = playout_delay.enable(sending, offer)
             elif transceiver.kind == "audio" and peer.audio is None:
                 peer.audio = RobotAudioTrack(self.audio)
                 pc.addTrack(peer.audio)

@@ -2,7 +2,10 @@
 
 aiortc encodes per sender: five viewers would cost five encoders. Here one `VideoHub` per server runs one encoder
 per codec (VP8, H.264) in an encoder process (encoder_process.py: no GIL shared with the event loop, a lower CPU
-priority), fed by one thread that hands it each camera frame's JPEG and waits for the bitstreams; each peer's
+priority), fed by one thread that hands it each camera frame and waits for the bitstreams. A frame crosses as
+its number in the stand-in's frame ring (shared memory the renderer draws into), so it is compressed once, and
+the camera makes no JPEG for WebRTC viewers (`live_frames(jpeg=False)`); a camera that delivers JPEG anyway (a
+real robot's) sends that; each peer's
 `CameraTrack` hands the sender already-encoded packets, which aiortc only packetizes (`Encoder.pack`), so the
 per-peer cost is the RTP packetization alone. If the encoder process dies, the next frame starts another.
 
@@ -133,7 +136,7 @@ class VideoHub:
     async def _pump(self) -> None:
         loop = asyncio.get_running_loop()
         try:
-            async with contextlib.aclosing(self.robot.live_frames()) as frames:
+            async with contextlib.aclosing(self.robot.live_frames(jpeg=False)) as frames:
                 async for frame in frames:
                     jobs = {}
                     for codec, tracks in self._tracks.items():
@@ -162,11 +165,13 @@ class VideoHub:
     def _encode(self, frame: CameraFrame, jobs: dict[str, tuple[bool, int]]) -> dict[str, EncodedFrame]:
         """Executor thread: the frame through the encoder process (started on first use, or again after it
         failed); blocks in a socket read, without the GIL, while the process encodes."""
+        if self._encoder is not None and self._encoder.ring is not frame.ring:
+            self._close_encoder()  # another camera (a new stand-in): another ring to map
         if self._encoder is None:
-            self._encoder = EncoderProcess(self.fps)
+            self._encoder = EncoderProcess(self.fps, ring=frame.ring)
         pts = round((frame.stamp_wall - self.epoch) * VIDEO_CLOCK_RATE)
         try:
-            results = self._encoder.encode(frame.jpeg, pts, jobs)
+            results = self._encoder.encode(frame.seq if frame.ring is not None else frame.jpeg, pts, jobs)
         except EncoderProcessError:
             self._close_encoder()
             raise
@@ -213,6 +218,7 @@ class CameraTrack(MediaStreamTrack):
         self.hub = hub
         self.codec = ""
         self.sender: RTCRtpSender | None = None
+        self.playout_delay = False  # whether its packets carry the playout-delay extension (playout_delay.py)
         self.estimate: int | None = None  # the peer's REMB, bits per second
         self._queue: deque[EncodedFrame] = deque()
         self._ready = asyncio.Event()

@@ -136,6 +136,7 @@ class MotorStatus:
     voltage_v: float | None
     mode: MotorMode
     source: str  # "measured" (a real robot) or "modelled" (the stand-in's thermal model)
+    fault: str = ""  # what the motor reports wrong (comma-separated), "" when nothing (or the backend cannot tell)
 
 
 class FrameMailbox:
@@ -296,7 +297,12 @@ class Robot(abc.ABC):
 
     @abc.abstractmethod
     def stop_speech(self) -> None:
-        """Cut the current speech short; its say() returns completed=False."""
+        """Cut the current speech short; its say() returns completed=False. A say() that follows is never cut by
+        this stop (a backend whose stop travels must let it arrive first)."""
+
+    async def configure_speech(self, language: str, pitch: int, speed: int) -> None:
+        """Set the robot's own voice as LuxAI's /qt_robot/speech/config does (empty or 0: keep). The default does
+        nothing: a backend whose speech is the server's rendered voice (the stand-in) has no voice of its own."""
 
     @abc.abstractmethod
     async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
@@ -304,7 +310,15 @@ class Robot(abc.ABC):
 
     @abc.abstractmethod
     def stop_gesture(self) -> None:
-        """Stop the playing gesture where it is."""
+        """Stop the playing gesture (or the robot's own) where it is."""
+
+    def own_gestures(self) -> tuple[str, ...]:
+        """Gestures the robot itself holds and plays by name (a QTrobot v3's gesture files); the default: none."""
+        return ()
+
+    async def play_own_gesture(self, name: str, speed: float = 1.0) -> GestureResult:
+        """Play one of own_gestures() on the robot; returns when it has finished or was stopped."""
+        raise ValueError(f"unknown gesture {name!r}: this robot holds no gestures of its own")
 
     # ------------------------------------------------------------------------------------------------ camera
     @abc.abstractmethod
@@ -314,6 +328,14 @@ class Robot(abc.ABC):
     @abc.abstractmethod
     def remove_camera_subscriber(self) -> None:
         """Undo one add_camera_subscriber()."""
+
+    def add_raw_camera_subscriber(self) -> None:
+        """Count one more viewer that reads frames' raw pixels (`CameraFrame.ring`) and needs no JPEG. A backend
+        whose frames come as JPEG anyway (a real camera's topic) counts it as any viewer."""
+        self.add_camera_subscriber()
+
+    def remove_raw_camera_subscriber(self) -> None:
+        self.remove_camera_subscriber()
 
     @abc.abstractmethod
     def latest_frame(self) -> CameraFrame | None:
@@ -327,25 +349,30 @@ class Robot(abc.ABC):
     async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
         """Wait (without blocking the loop) for a frame newer than after_seq; None on timeout or once closed."""
 
-    async def live_frames(self) -> AsyncIterator[CameraFrame]:
-        """Each new frame, watching the camera for as long as the iteration lasts.
+    async def live_frames(self, jpeg: bool = True) -> AsyncIterator[CameraFrame]:
+        """Each new frame, watching the camera for as long as the iteration lasts; with `jpeg` False, frames may
+        come without their JPEG (when the backend has their raw pixels: `CameraFrame.ring`), which saves the
+        compression when no one else wants it.
 
         The newest kept frame is skipped: it may be from when the camera last ran, not what the robot sees now.
         Iterate inside contextlib.aclosing() so that the camera is given back as soon as the loop ends.
         """
         latest = self.latest_frame()
         seq = latest.seq if latest is not None else 0
-        self.add_camera_subscriber()
+        add, remove = ((self.add_camera_subscriber, self.remove_camera_subscriber) if jpeg else
+                       (self.add_raw_camera_subscriber, self.remove_raw_camera_subscriber))
+        add()
         try:
             while True:
                 frame = await self.next_frame(seq, timeout=1.0)
                 if frame is not None:
                     seq = frame.seq
-                    yield frame
+                    if frame.jpeg or not jpeg:  # one drawn before this iteration asked for JPEG is skipped
+                        yield frame
                 elif self.camera_closed():  # no frame will ever come: end, rather than poll a closed camera
                     return
         finally:
-            self.remove_camera_subscriber()
+            remove()
 
     # ------------------------------------------------------------------------------------------------ microphone
     def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:

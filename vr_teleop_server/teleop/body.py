@@ -54,10 +54,20 @@ def _rz(angle: float) -> np.ndarray:
 
 def shoulder_positions(body: BodyModel, head: Pose, torso_heading: float) -> dict[str, np.ndarray]:
     """Estimated operator shoulders (tracking space) from the head pose."""
-    neck = head.position + _rz(heading(head.matrix)) @ np.array([-body.eye_to_neck_back_m, 0.0, 0.0])
-    centre = neck - np.array([0.0, 0.0, body.eye_to_shoulder_drop_m])
-    lateral = _rz(torso_heading) @ np.array([0.0, body.shoulder_half_width_m, 0.0])
-    return {"left": centre + lateral, "right": centre - lateral}
+    fx, fy, _ = head.forward
+    return {side: np.array(p) for side, p in zip(SIDES, shoulder_points(body, head.xyz, math.atan2(fy, fx),
+                                                                         torso_heading))}
+
+
+def shoulder_points(body: BodyModel, eyes: tuple[float, float, float], head_heading: float, torso_heading: float
+                    ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """(left, right) shoulders as plain floats: the per-frame form of shoulder_positions."""
+    back, half = body.eye_to_neck_back_m, body.shoulder_half_width_m
+    cx = eyes[0] - back * math.cos(head_heading)
+    cy = eyes[1] - back * math.sin(head_heading)
+    cz = eyes[2] - body.eye_to_shoulder_drop_m
+    lx, ly = -half * math.sin(torso_heading), half * math.cos(torso_heading)
+    return (cx + lx, cy + ly, cz), (cx - lx, cy - ly, cz)
 
 
 def _check_range(value: float, lo: float, hi: float, what: str, hint: str) -> None:
@@ -137,4 +147,16 @@ def hand_target(
     side: str, controller: np.ndarray, shoulder: np.ndarray, torso_heading: float, scale: float, robot: RobotArms
 ) -> np.ndarray:
     """The robot hand target (base frame, metres) for one controller position (tracking space)."""
-    return robot.shoulder[side] + scale * (_rz(-torso_heading) @ (controller - shoulder))
+    c, s = (tuple(float(v) for v in a) for a in (controller, shoulder))
+    origin = tuple(float(v) for v in robot.shoulder[side])
+    return np.array(hand_point(c, s, math.cos(torso_heading), math.sin(torso_heading), scale, origin))
+
+
+def hand_point(controller: tuple[float, float, float], shoulder: tuple[float, float, float], cos_torso: float,
+               sin_torso: float, scale: float, robot_shoulder: tuple[float, float, float]
+               ) -> tuple[float, float, float]:
+    """hand_target as plain floats: robot_shoulder + scale Rz(-torso) (controller - shoulder)."""
+    dx, dy, dz = controller[0] - shoulder[0], controller[1] - shoulder[1], controller[2] - shoulder[2]
+    return (robot_shoulder[0] + scale * (cos_torso * dx + sin_torso * dy),
+            robot_shoulder[1] + scale * (-sin_torso * dx + cos_torso * dy),
+            robot_shoulder[2] + scale * dz)

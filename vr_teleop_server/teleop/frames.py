@@ -15,8 +15,7 @@ and Unity's ROS-TCP-Connector use. Tests check it against the matrix conjugation
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -28,7 +27,6 @@ UNITY_FRAME_ID = "unity_left_handed"
 
 UNITY_TO_ROS = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 UNITY_TO_ROS.setflags(write=False)
-_AXIS_SIGN = round(float(np.linalg.det(UNITY_TO_ROS)))  # -1: rotation axes are pseudovectors
 
 # Unity floats are single precision, but clients often round JSON to 3-4 decimals: rounding each component to
 # 3 decimals alone moves the norm by up to ~2e-3, so 1e-3 would reject honest messages. 1e-2 accepts those and
@@ -36,57 +34,89 @@ _AXIS_SIGN = round(float(np.linalg.det(UNITY_TO_ROS)))  # -1: rotation axes are 
 DEFAULT_QUATERNION_NORM_TOLERANCE = 1e-2
 
 
-@dataclass(frozen=True, slots=True)
 class Pose:
-    """A validated pose in ROS convention: position in metres and a unit rotation (also as a matrix, which the
-    per-frame maths uses: a 3x3 product costs a microsecond, a scipy Rotation operation tens)."""
+    """A validated pose in ROS convention: position in metres and a unit quaternion (x, y, z, w), as plain floats.
 
-    position: np.ndarray
-    rotation: Rotation
-    frame_id: str = ""
-    matrix: np.ndarray = field(default=None, compare=False)  # type: ignore[assignment]
+    The per-frame maths reads `xyz` and `forward`: scalar arithmetic, since a NumPy or scipy call on a 3-vector
+    costs microseconds, which was most of a teleop step. `position`, `rotation` and `matrix` build the array
+    forms on demand (calibration, tests)."""
 
-    def __post_init__(self) -> None:
-        if self.matrix is None:
-            object.__setattr__(self, "matrix", self.rotation.as_matrix())
+    __slots__ = ("xyz", "quat", "frame_id")
+
+    def __init__(self, xyz: tuple[float, float, float], quat: tuple[float, float, float, float],
+                 frame_id: str = "") -> None:
+        self.xyz = xyz
+        self.quat = quat
+        self.frame_id = frame_id
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.array(self.xyz)
+
+    @property
+    def rotation(self) -> Rotation:
+        return Rotation.from_quat(self.quat)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        return self.rotation.as_matrix()
+
+    @property
+    def forward(self) -> tuple[float, float, float]:
+        """The body's x axis (R e_x) in the tracking space: the rotation matrix's first column."""
+        x, y, z, w = self.quat
+        return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + z * w), 2.0 * (x * z - y * w))
+
+    def __repr__(self) -> str:
+        return f"Pose(xyz={self.xyz}, quat={self.quat}, frame_id={self.frame_id!r})"
+
+
+def _unity_position(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """UNITY_TO_ROS v: (x, y, z)_unity -> (z, -x, y)_ros."""
+    return (z, -x, y)
+
+
+def _unity_quaternion(x: float, y: float, z: float, w: float) -> tuple[float, float, float, float]:
+    """(det(M) M q_xyz, q_w) = (-q_z, q_x, -q_y, q_w); see the module docstring for the derivation."""
+    return (-z, x, -y, w)
 
 
 def unity_to_ros_position(xyz: Any) -> np.ndarray:
-    return UNITY_TO_ROS @ np.asarray(xyz, dtype=float).reshape(3)
+    return np.array(_unity_position(*np.asarray(xyz, dtype=float).reshape(3).tolist()))
 
 
 def unity_to_ros_quaternion(xyzw: Any) -> np.ndarray:
     """Quaternion (x, y, z, w) from Unity's axes to ROS's; see the module docstring for the derivation."""
-    q = np.asarray(xyzw, dtype=float).reshape(4)
-    axis_part = _AXIS_SIGN * (UNITY_TO_ROS @ q[:3])
-    return np.append(axis_part, q[3])
+    return np.array(_unity_quaternion(*np.asarray(xyzw, dtype=float).reshape(4).tolist()))
 
 
-def check_vector(values: Any, field: str, size: int) -> np.ndarray:
-    """`values` as a float array of `size` finite numbers, or a ValueError naming `field`."""
+def check_floats(values: Iterable[Any], field: str, size: int | None = None) -> list[float]:
+    """`values` as finite floats (`size` of them, if given), or a ValueError naming `field`."""
+    what = f"{size} numbers" if size is not None else "numbers"
     try:
-        arr = np.asarray(values, dtype=float).reshape(-1)
+        out = [float(v) for v in values]
     except (TypeError, ValueError):
-        raise ValueError(f"{field}: expected {size} numbers, got {values!r}") from None
-    if arr.size != size:
-        raise ValueError(f"{field}: expected {size} numbers, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{field}: contains NaN or infinity ({arr.tolist()}); send finite numbers")
-    return arr
+        raise ValueError(f"{field}: expected {what}, got {values!r}") from None
+    if size is not None and len(out) != size:
+        raise ValueError(f"{field}: expected {size} numbers, got {len(out)}")
+    for v in out:
+        if not math.isfinite(v):
+            raise ValueError(f"{field}: contains NaN or infinity ({out}); send finite numbers")
+    return out
 
 
-def check_quaternion(xyzw: Any, field: str, tolerance: float = DEFAULT_QUATERNION_NORM_TOLERANCE) -> np.ndarray:
+def check_quaternion(xyzw: Any, field: str, tolerance: float = DEFAULT_QUATERNION_NORM_TOLERANCE
+                     ) -> tuple[float, float, float, float]:
     """A finite quaternion whose norm is 1 within `tolerance`, renormalised; else a ValueError naming `field`."""
-    q = check_vector(xyzw, field, 4)
-    with np.errstate(over="ignore"):  # a huge component overflows to an infinite norm, refused below
-        norm = float(np.linalg.norm(q))
+    x, y, z, w = check_floats(xyzw, field, 4)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)  # a huge component overflows to an infinite norm, refused below
     if norm == 0.0:
         raise ValueError(f"{field}: the zero quaternion is not a rotation; send a unit quaternion (w=1 for none)")
     if abs(norm - 1.0) > tolerance:
         raise ValueError(
             f"{field}: quaternion norm {norm:.4g} is not 1 (tolerance {tolerance:g}); send a unit quaternion"
         )
-    return q / norm
+    return (x / norm, y / norm, z / norm, w / norm)
 
 
 def _get(msg: Mapping[str, Any], key: str, field: str) -> Any:
@@ -123,19 +153,28 @@ def pose_from_message(
     else:
         frame_id, body, prefix = "", msg, ""
     dot = f"{prefix}." if prefix else ""
-    position = check_vector(_xyz(_get(body, "position", prefix or "pose"), f"{dot}position", "xyz"),
+    position = check_floats(_xyz(_get(body, "position", prefix or "pose"), f"{dot}position", "xyz"),
                             f"{dot}position", 3)
     orientation = check_quaternion(_xyz(_get(body, "orientation", prefix or "pose"), f"{dot}orientation", "xyzw"),
                                    f"{dot}orientation", quaternion_tolerance)
-    return make_pose(position, orientation, frame_id)
+    return _pose(position, orientation, frame_id)
+
+
+def _pose(position: Sequence[float], q: Sequence[float], frame_id: str) -> Pose:
+    if frame_id and frame_id.strip().lower() == UNITY_FRAME_ID:
+        return Pose(_unity_position(*position), _unity_quaternion(*q), frame_id)
+    return Pose((position[0], position[1], position[2]), (q[0], q[1], q[2], q[3]), frame_id)
 
 
 def make_pose(position: Any, orientation_xyzw: Any, frame_id: str = "") -> Pose:
-    """A Pose from already-validated numbers, converting from Unity's axes if frame_id says "unity_left_handed"."""
-    if frame_id.strip().lower() == UNITY_FRAME_ID:
-        position = unity_to_ros_position(position)
-        orientation_xyzw = unity_to_ros_quaternion(orientation_xyzw)
-    return Pose(np.asarray(position, dtype=float).reshape(3), Rotation.from_quat(orientation_xyzw), frame_id)
+    """A Pose from already-validated numbers, converting from Unity's axes if frame_id says "unity_left_handed".
+    The quaternion is normalised; one that is zero or not finite is refused."""
+    xyz = np.asarray(position, dtype=float).reshape(3).tolist()
+    q = np.asarray(orientation_xyzw, dtype=float).reshape(4).tolist()
+    norm = math.sqrt(sum(c * c for c in q))
+    if not (norm > 0.0 and math.isfinite(norm)):
+        raise ValueError(f"orientation: {q} is not a rotation; send a unit quaternion (w=1 for none)")
+    return _pose(xyz, [c / norm for c in q], frame_id)
 
 
 def heading(rotation: Rotation | np.ndarray) -> float:

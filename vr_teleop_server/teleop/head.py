@@ -30,7 +30,11 @@ from scipy.spatial.transform import Rotation
 def yaw_pitch_deg(relative: Rotation | np.ndarray) -> tuple[float, float, float]:
     """(yaw, pitch, cos(pitch)) of a rotation (or its matrix), intrinsic Z-Y-X, degrees."""
     m = relative if isinstance(relative, np.ndarray) else relative.as_matrix()
-    fx, fy, fz = m[0, 0], m[1, 0], m[2, 0]
+    return _yaw_pitch_of_forward(float(m[0, 0]), float(m[1, 0]), float(m[2, 0]))
+
+
+def _yaw_pitch_of_forward(fx: float, fy: float, fz: float) -> tuple[float, float, float]:
+    """(yaw, pitch, cos(pitch)) of the forward axis R e_x, degrees: all the decomposition needs of R."""
     horizontal = math.hypot(fx, fy)
     return math.degrees(math.atan2(fy, fx)), math.degrees(math.atan2(-fz, horizontal)), horizontal
 
@@ -49,7 +53,7 @@ class HeadTracker:
         self.pitch_scale = pitch_scale
         self.wrap_hysteresis_deg = wrap_hysteresis_deg
         self._min_cos_pitch = math.sin(math.radians(gimbal_margin_deg))
-        self._zero_inv: np.ndarray | None = None  # R_zero^-1 as a matrix (its transpose)
+        self._zero_inv: tuple[float, ...] | None = None  # R_zero^-1 (its transpose), row-major floats
         self._yaw: float | None = None  # unwrapped, operator degrees
 
     @property
@@ -58,7 +62,7 @@ class HeadTracker:
 
     def set_zero(self, rotation: Rotation) -> None:
         """Capture the orientation that means "looking straight ahead" (robot head at 0, 0)."""
-        self._zero_inv = rotation.as_matrix().T
+        self._zero_inv = tuple(float(v) for v in rotation.as_matrix().T.ravel())
         self._yaw = 0.0
 
     def clear(self) -> None:
@@ -67,10 +71,16 @@ class HeadTracker:
 
     def update(self, rotation: Rotation | np.ndarray) -> tuple[float, float]:
         """(HeadYaw, HeadPitch) targets in degrees for the head's current orientation (Rotation or matrix)."""
-        if self._zero_inv is None:
-            raise RuntimeError("head zero not captured; engage before mapping head poses")
         m = rotation if isinstance(rotation, np.ndarray) else rotation.as_matrix()
-        yaw, pitch, cos_pitch = yaw_pitch_deg(self._zero_inv @ m)
+        return self.update_forward(float(m[0, 0]), float(m[1, 0]), float(m[2, 0]))
+
+    def update_forward(self, fx: float, fy: float, fz: float) -> tuple[float, float]:
+        """The same from the head's forward axis R e_x (Pose.forward), which is all the Z-Y-X yaw and pitch need."""
+        z = self._zero_inv
+        if z is None:
+            raise RuntimeError("head zero not captured; engage before mapping head poses")
+        yaw, pitch, cos_pitch = _yaw_pitch_of_forward(z[0] * fx + z[1] * fy + z[2] * fz, z[3] * fx + z[4] * fy + z[5] * fz,
+                                                      z[6] * fx + z[7] * fy + z[8] * fz)
         prev = self._yaw if self._yaw is not None else 0.0
         if cos_pitch < self._min_cos_pitch:
             yaw = prev  # looking (almost) straight up or down: heading undefined, keep the last one

@@ -25,7 +25,7 @@ left out, so an outage never teaches the watchdog to wait longer.
 
 from __future__ import annotations
 
-import heapq
+import bisect
 import math
 from collections import deque
 from collections.abc import Mapping
@@ -75,6 +75,7 @@ class PoseLink:
         self.offset_window_s = offset_window_s
         self.clock_reset_s = clock_reset_s
         self._samples: deque[float] = deque(maxlen=window)
+        self._sorted: list[float] = []  # the same samples in order: the quantile is an index, not a selection
         self._threshold = floor_s
         self._dirty = 0
         self.stale_dropped = 0
@@ -101,7 +102,7 @@ class PoseLink:
             self._threshold = self.floor_s
             return
         k = max(1, math.ceil((1.0 - self.quantile) * n))
-        high = heapq.nlargest(k, self._samples)[-1]
+        high = self._sorted[n - k]  # the k-th largest
         self._threshold = min(max(self.margin * high, self.floor_s), self.ceiling_s)
 
     def arrive(self, stamp: float | None, now: float) -> Arrival:
@@ -121,11 +122,18 @@ class PoseLink:
         if self._last_effective is not None:
             effective = max(effective, self._last_effective)
         if self._last_arrival is not None and now - self._last_arrival <= self.ceiling_s:
-            self._samples.append(max(0.0, now - self._last_arrival))
-            self._dirty += 1
+            self._add_sample(max(0.0, now - self._last_arrival))
         self._last_effective = effective
         self._last_arrival = now
         return Arrival(True, effective, now - effective)
+
+    def _add_sample(self, silence: float) -> None:
+        samples = self._samples
+        if len(samples) == samples.maxlen:
+            del self._sorted[bisect.bisect_left(self._sorted, samples[0])]
+        samples.append(silence)
+        bisect.insort(self._sorted, silence)
+        self._dirty += 1
 
     def _lateness(self, transit: float, now: float) -> float:
         """The transit minus the least transit of the last offset_window_s (a sliding-window minimum)."""

@@ -27,20 +27,17 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import numpy as np
+from robot_models import ArmSolver, RobotModel, load_qtrobot
 
-from robot_models import RobotModel, arm_ik, load_qtrobot
-
-from .body import SIDES, BodyModel, calibrate_forward, calibrate_t_pose, hand_target, robot_arms, shoulder_positions
-from .frames import Pose, check_vector, heading, pose_from_message
+from .body import SIDES, BodyModel, calibrate_forward, calibrate_t_pose, hand_point, robot_arms, shoulder_points
+from .frames import Pose, check_floats, heading, pose_from_message
 from .head import HeadTracker
 from .link import PoseLink, stamp_seconds
 from .one_euro import OneEuroFilter
-from .safety import (
-    DeadMan, VelocityRamp, Watchdog, WatchdogState, cap_step, clamp_joints, is_fresh,
-)
+from .safety import DeadMan, VelocityRamp, Watchdog, WatchdogState, cap_step, clamp_to_limits, is_fresh
 from .settings import TeleopSettings
 
+ARM_IK_TOLERANCE_M = 1e-4  # an arm's IK "reached" its target within this
 AXIS_GRIP = 3
 BUTTON_STICK = 2
 JOY_AXES = 4
@@ -124,6 +121,9 @@ class TeleopMapper:
         self.parts = self.model.parts
         self._arms = robot_arms(self.model)
         self._reach = s.robot_reach_m or self._arms.reach_m
+        # Per-frame constants as plain floats: the step is scalar arithmetic (bench/teleop.py).
+        self._solvers = {side: ArmSolver(self.model, side) for side in SIDES}
+        self._robot_shoulder = {side: tuple(float(v) for v in self._arms.shoulder[side]) for side in SIDES}
         self._body: BodyModel = s.body.body_model()
         self._head = HeadTracker(s.head_yaw_scale, s.head_pitch_scale, s.yaw_wrap_hysteresis_deg, s.gimbal_margin_deg)
         self._watchdog = Watchdog(s.watchdog_timeout_s)
@@ -138,13 +138,15 @@ class TeleopMapper:
             for n in names:
                 self._filters[n] = OneEuroFilter(f.min_cutoff_hz, f.beta, f.d_cutoff_hz)
         self._caps = {n: self.model.joint(n).max_velocity * s.velocity_scale for n in self.model.names}
+        self._limits = {part: ([self.model.joint(n).lower for n in names], [self.model.joint(n).upper for n in names])
+                        for part, names in self.parts.items()}
         self._command = self.model.home_pose()
         self._enabled = {part: True for part in self.parts}
         self._moving = {part: False for part in self.parts}  # was the part commanded on the last step
         self._head_pose: _Stamped | None = None
         self._controllers: dict[str, _Stamped | None] = {side: None for side in SIDES}
         self._joy: dict[str, _Joy | None] = {side: None for side in SIDES}
-        self._ik_cache: dict[str, tuple[np.ndarray, Any]] = {}
+        self._ik_cache: dict[str, tuple[tuple[float, float, float], tuple[tuple[float, ...], float]]] = {}
         self._torso0 = 0.0  # torso heading at engage
         self._head0 = 0.0  # head heading at engage
         self._last_step: float | None = None
@@ -180,10 +182,10 @@ class TeleopMapper:
     def on_joy(self, side: str, axes: Sequence[float], buttons: Sequence[int], now: float) -> None:
         """A sensor_msgs/Joy of one Touch controller (layout in the module docstring)."""
         _check_side(side)
-        ax = check_vector(axes, f"{side} joy axes", len(axes)) if len(axes) else np.zeros(0)
-        if ax.size < JOY_AXES:
+        ax = check_floats(axes, f"{side} joy axes")
+        if len(ax) < JOY_AXES:
             raise ValueError(f"{side} joy axes: expected at least {JOY_AXES} (stick x, stick y, trigger, grip), "
-                             f"got {ax.size}")
+                             f"got {len(ax)}")
         if len(buttons) < JOY_BUTTONS:
             raise ValueError(f"{side} joy buttons: expected at least {JOY_BUTTONS} (A/X, B/Y, stick click, menu), "
                              f"got {len(buttons)}")
@@ -191,8 +193,8 @@ class TeleopMapper:
             btn = tuple(int(b) for b in buttons)
         except (TypeError, ValueError):
             raise ValueError(f"{side} joy buttons: expected integers, got {list(buttons)!r}") from None
-        self._joy[side] = _Joy(tuple(float(a) for a in ax), btn, now)
-        self._deadman[side].update(float(ax[AXIS_GRIP]))
+        self._joy[side] = _Joy(tuple(ax), btn, now)
+        self._deadman[side].update(ax[AXIS_GRIP])
         if self.settings.estop_both_sticks and self._watchdog.engaged and self._both_sticks(now):
             self._stop(WatchdogState.ESTOPPED)
 
@@ -319,19 +321,20 @@ class TeleopMapper:
             return False
         return True
 
-    def _arm_target(self, side: str, head: Pose, scale: float, torso: float) -> tuple[list[float], ArmIK] | None:
-        names = self.parts[f"{side}_arm"]
-        shoulder = shoulder_positions(self._body, head, torso)[side]
-        target = hand_target(side, self._controllers[side].pose.position, shoulder, torso, scale, self._arms)
-        if not np.all(np.isfinite(target)):
+    def _arm_target(self, side: str, shoulder: tuple[float, float, float], cos_torso: float, sin_torso: float,
+                    scale: float) -> tuple[list[float], ArmIK] | None:
+        target = hand_point(self._controllers[side].pose.xyz, shoulder, cos_torso, sin_torso, scale,
+                            self._robot_shoulder[side])
+        if not all(map(math.isfinite, target)):
             return None
         cached = self._ik_cache.get(side)
-        if cached is not None and np.linalg.norm(cached[0] - target) <= self.settings.ik_reuse_tolerance_m:
-            result = cached[1]
+        if cached is not None and math.dist(cached[0], target) <= self.settings.ik_reuse_tolerance_m:
+            angles, error = cached[1]
         else:
-            result = arm_ik(side, target, self.model, prefer={n: self._command[n] for n in names})
-            self._ik_cache[side] = (target, result)
-        return [result.angles_deg[n] for n in names], ArmIK(result.reached, result.error_m)
+            solver = self._solvers[side]
+            angles, error = solver.solve(*target, [self._command[n] for n in solver.names])
+            self._ik_cache[side] = (target, (angles, error))
+        return list(angles), ArmIK(error <= ARM_IK_TOLERANCE_M, error)
 
     def _output(self, now: float, dt: float, commands=None, clamped=(), limited=(), ik=None) -> TeleopOutput:
         commands = commands or {}
@@ -366,15 +369,20 @@ class TeleopMapper:
             return self._output(now, dt)
 
         head = self._head_pose.pose
+        forward = head.forward
         raw: dict[str, list[float]] = {}
         ik: dict[str, ArmIK] = {}
         if self._enabled["head"]:
-            raw["head"] = list(self._head.update(head.matrix))
-        torso = self._torso0 + self._body_follow(head)
-        scale = self._reach / self._body.arm_length_m
-        for side in SIDES:
-            if self._arm_follows(side, now):
-                solved = self._arm_target(side, head, scale, torso)
+            raw["head"] = list(self._head.update_forward(*forward))
+        following = [side for side in SIDES if self._arm_follows(side, now)]
+        if following:  # an arm whose grip is not held needs no body model and no IK
+            head_heading = math.atan2(forward[1], forward[0])
+            torso = self._torso0 + self._body_follow(head_heading)
+            cos_t, sin_t = math.cos(torso), math.sin(torso)
+            scale = self._reach / self._body.arm_length_m
+            shoulders = dict(zip(SIDES, shoulder_points(self._body, head.xyz, head_heading, torso)))
+            for side in following:
+                solved = self._arm_target(side, shoulders[side], cos_t, sin_t, scale)
                 if solved is not None:
                     raw[f"{side}_arm"], ik[side] = solved
 
@@ -388,11 +396,12 @@ class TeleopMapper:
                 self._ramps[part].restart(now)
                 for n, p in zip(names, previous):
                     self._filters[n].reset(p, now - dt)
-            target, hit = clamp_joints(self.model, names, target)
+            lower, upper = self._limits[part]
+            target, hit = clamp_to_limits(names, target, lower, upper)
             filtered = [self._filters[n](v, now) for n, v in zip(names, target)]
             ramp = self._ramps[part].factor(now)
             capped, was_capped = cap_step(previous, filtered, [self._caps[n] * ramp for n in names], dt)
-            final, hit2 = clamp_joints(self.model, names, capped)
+            final, hit2 = clamp_to_limits(names, capped, lower, upper)
             clamped.extend(n for n in names if n in hit or n in hit2)
             if was_capped:
                 limited.append(part)
@@ -402,8 +411,9 @@ class TeleopMapper:
         self._moving = {part: part in commands for part in self.parts}
         return self._output(now, dt, commands, clamped, limited, ik)
 
-    def _body_follow(self, head: Pose) -> float:
+    def _body_follow(self, head_heading: float) -> float:
         follow = self.settings.body.torso_yaw_follow
         if follow == 0.0:
             return 0.0
-        return follow * math.remainder(heading(head.matrix) - self._head0, 2 * math.pi)
+        return follow * math.remainder(head_heading - self._head0, 2 * math.pi)
+

@@ -36,9 +36,18 @@ def cap_step(
 
 def clamp_joints(model: RobotModel, names: Sequence[str], values: Sequence[float]) -> tuple[list[float], list[str]]:
     """Joint limits from the robot model; returns (clamped values, names of the joints that were clamped)."""
+    joints = [model.joint(n) for n in names]
+    return clamp_to_limits(names, values, [j.lower for j in joints], [j.upper for j in joints])
+
+
+def clamp_to_limits(names: Sequence[str], values: Sequence[float], lower: Sequence[float], upper: Sequence[float]
+                    ) -> tuple[list[float], list[str]]:
+    """clamp_joints with the limits given (the control loop reads them once); a NaN is refused naming the joint."""
     out, clamped = [], []
-    for name, value in zip(names, values):
-        c = model.clamp(name, value)
+    for name, value, lo, hi in zip(names, values, lower, upper):
+        if value != value:
+            raise ValueError(f"joint {name}: target is NaN; send a number of degrees in [{lo}, {hi}]")
+        c = lo if value < lo else hi if value > hi else float(value)
         if c != value:
             clamped.append(name)
         out.append(c)

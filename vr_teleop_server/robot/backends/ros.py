@@ -13,6 +13,14 @@ sound into the robot (`/qt_robot/audio/play` plays a file already on it), so the
 own topic (names.ROBOT_SPEAKER_TOPIC: AudioData, mono S16LE at 16 kHz, 40 ms a message), which audio_common's
 `audio_play` node, run on the robot, plays on its speaker (README). While the robot is away the voice is dropped,
 never queued to burst out later.
+
+Speech. ROS 1's rosbridge answers each service call from a thread of its own, so two calls sent back to back may
+reach LuxAI's nodes in either order. A stop is therefore sent only while one of our sentences is being spoken, and
+the next sentence waits for the stop's answer: a stop can never cut the sentence that follows it. Speech speed,
+pitch and language go to the robot's own voice through /qt_robot/speech/config.
+
+Motor states. /qt_robot/motors/states is subscribed with LuxAI's type (qt_motors_controller/MotorState): ROS 1's
+rosbridge refuses a subscription without a type string.
 """
 
 from __future__ import annotations
@@ -56,7 +64,8 @@ from ..interface import (
 log = logging.getLogger(__name__)
 
 MAX_BACKOFF_S = 5.0
-CALL_TIMEOUT_S = 10.0
+CALL_TIMEOUT_S = 10.0  # for an answer that does not wait for the robot to finish something
+MOTOR_STATE_TYPE = "qt_motors_controller/MotorState"  # LuxAI's: string[] name, float32[] temperature, voltage
 MICROPHONE_RATE = 16000  # qt_respeaker_app's channels: the ReSpeaker array's rate, mono S16LE
 SPEAKER_RATE = 16000  # the operator's voice for the robot's speaker: speech, at the rate audio_play defaults to
 SPEAKER_CHUNK_S = 0.04
@@ -102,6 +111,9 @@ class RosRobot(Robot):
         self._frame_seq = 0
         self._camera_count = 0
         self._gesture_stop: asyncio.Event | None = None
+        self._sentences = 0  # say calls sent and not answered yet
+        self._stops = 0  # stop requests: a sentence that saw one while spoken (or waiting) was cut short
+        self._stopping: asyncio.Future | None = None  # the newest stop, until the robot answers it
         self._motor_readings: dict[str, tuple[float | None, float | None]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self.connection_changed: list[Callable[[bool], None]] = []  # called on the event loop with the new state
@@ -120,8 +132,7 @@ class RosRobot(Robot):
             topic.advertise()
         self._joints_topic = roslibpy.Topic(self._ros, names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")
         self._joints_topic.subscribe(self._on_joint_state)
-        # no type: the robot's rosbridge names it (it varies by firmware); a robot without the topic answers a status
-        self._motors_topic = roslibpy.Topic(self._ros, names.MOTOR_STATES_TOPIC, "")
+        self._motors_topic = roslibpy.Topic(self._ros, names.MOTOR_STATES_TOPIC, MOTOR_STATE_TYPE)
         self._motors_topic.subscribe(self._on_motor_states)
         self._camera_topic = roslibpy.Topic(self._ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage",
                                             queue_length=1)
@@ -259,7 +270,8 @@ class RosRobot(Robot):
         roslibpy.Service(self._ros, name, type_name).call(
             roslibpy.ServiceRequest(args), lambda _r: None, lambda err: log.warning("%s failed: %s", name, err))
 
-    async def _call(self, name: str, type_name: str, args: dict[str, Any]) -> dict[str, Any]:
+    async def _call(self, name: str, type_name: str, args: dict[str, Any],
+                    timeout: float = CALL_TIMEOUT_S) -> dict[str, Any]:
         self._refuse_if_disconnected(name)
         loop = asyncio.get_running_loop()
         fut: asyncio.Future = loop.create_future()
@@ -271,7 +283,7 @@ class RosRobot(Robot):
             loop.call_soon_threadsafe(lambda: fut.done() or fut.set_exception(RuntimeError(f"{name}: {error}")))
 
         roslibpy.Service(self._ros, name, type_name).call(roslibpy.ServiceRequest(args), done, failed)
-        return await asyncio.wait_for(fut, CALL_TIMEOUT_S)
+        return await asyncio.wait_for(fut, timeout)
 
     def show_emotion(self, name: str) -> None:
         short = name.removeprefix("QT/")
@@ -280,12 +292,47 @@ class RosRobot(Robot):
         self._call_nowait(names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": f"QT/{short}"})
 
     async def say(self, text: str, duration_s: float | None = None) -> SpeechResult:
-        start = time.monotonic()
-        response = await self._call(names.SPEECH_SAY_SERVICE, "qt_robot_interface/speech_say", {"message": text})
-        return SpeechResult(text, bool(response.get("status")), time.monotonic() - start, audible=True)
+        """Answers once the robot has spoken (LuxAI's say blocks until then), after any stop still on its way."""
+        self._refuse_if_disconnected(names.SPEECH_SAY_SERVICE)
+        start, stops = time.monotonic(), self._stops
+        if self._stopping is not None:
+            with contextlib.suppress(Exception):  # a failed stop was logged; the sentence goes out regardless
+                await asyncio.shield(self._stopping)
+            if self._stops != stops:  # stopped (or replaced) before it was sent
+                return SpeechResult(text, False, time.monotonic() - start, audible=True)
+        self._sentences += 1
+        try:
+            response = await self._call(names.SPEECH_SAY_SERVICE, "qt_robot_interface/speech_say",
+                                        {"message": text}, CALL_TIMEOUT_S + (duration_s or 0.0))
+        finally:
+            self._sentences -= 1
+        completed = bool(response.get("status")) and self._stops == stops
+        return SpeechResult(text, completed, time.monotonic() - start, audible=True)
 
     def stop_speech(self) -> None:
-        self._call_nowait(names.SPEECH_STOP_SERVICE, "qt_robot_interface/speech_stop", {})
+        """Sends a stop only while a sentence of ours is being spoken; the next say() waits for its answer."""
+        if self._stopping is not None and not self._stopping.done():
+            self._stops += 1  # the stop on its way cuts what is spoken; a sentence waiting for it is dropped
+            return
+        if not self._sentences:
+            return  # nothing of ours is being spoken: a stop could only cut the sentence that follows
+        self._stops += 1
+        stopping = self._stopping = asyncio.ensure_future(
+            self._call(names.SPEECH_STOP_SERVICE, "qt_robot_interface/speech_stop", {}))
+        stopping.add_done_callback(self._stop_answered)
+
+    def _stop_answered(self, stopping: asyncio.Future) -> None:
+        if self._stopping is stopping:
+            self._stopping = None
+        if not stopping.cancelled() and stopping.exception() is not None:
+            log.warning("%s failed: %s", names.SPEECH_STOP_SERVICE, stopping.exception())
+
+    async def configure_speech(self, language: str, pitch: int, speed: int) -> None:
+        response = await self._call(names.SPEECH_CONFIG_SERVICE, "qt_robot_interface/speech_config",
+                                    {"language": language, "pitch": int(pitch), "speed": int(speed)})
+        if not response.get("status"):
+            raise Refusal(f"{names.SPEECH_CONFIG_SERVICE}: the robot refused language {language!r}, pitch {pitch}, "
+                          f"speed {speed}")
 
     async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
         """Streams the gesture's waypoints as position commands, so recordings the robot does not hold play too."""

@@ -209,6 +209,12 @@ class SimRobot(Robot):
     def remove_camera_subscriber(self) -> None:
         self._standin.stop_camera()
 
+    def add_raw_camera_subscriber(self) -> None:
+        self._standin.start_camera(jpeg=False)
+
+    def remove_raw_camera_subscriber(self) -> None:
+        self._standin.stop_camera(jpeg=False)
+
     def latest_frame(self) -> CameraFrame | None:
         return self._standin.latest_frame()
 

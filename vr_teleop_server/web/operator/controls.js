@@ -2,7 +2,8 @@
 //   grip (held)                 that arm follows (the dead-man; the server reads it from the Joy stream)
 //   right trigger, no menu open take control; again: release it
 //   left trigger, no menu open  push-to-talk while held
-//   right thumbstick click      calibrate (stand in a T-pose: arms straight out to the sides)
+//   right thumbstick click      calibrate (stand in a T-pose: arms straight out to the sides); while holding
+//                               control it also re-centres (where you look becomes straight ahead)
 //   both thumbsticks clicked    emergency stop
 //   X / Y (left), A / B (right) open the menu bound to that button in the menu data (status, speech, commands,
 //                               emotions); the same button again goes back one level, then closes

@@ -19,6 +19,7 @@ const TOPICS = {
 };
 const SERVICES = {
   engage: "/vr_teleop/control/engage", calibrate: "/vr_teleop/control/calibrate",
+  recenter: "/vr_teleop/control/recenter",
   estop: "/vr_teleop/control/estop", select: "/vr_teleop/menu/select", time: "/rosapi/get_time",
   whoami: "/vr_teleop/whoami",
 };
@@ -53,6 +54,8 @@ const state = {
   xr: null, joy: {left: null, right: null}, joySent: {left: 0, right: 0},
   posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], workTimes: [], lastFrameAt: null,
   lastClamped: new Set(),
+  motorFaults: {},                     // motor -> what it reports wrong (a real robot's joints error stream)
+  voice: null,                         // {activity, direction_deg} while the robot's microphone hears a voice
 };
 
 // ---- the scene ----------------------------------------------------------------------------------------------------
@@ -241,6 +244,12 @@ ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (js) => {
 ros.subscribe("/vr_teleop/events", "vr_teleop_msgs/Event", (e) => {
   let detail = {};
   try { detail = e.detail ? JSON.parse(e.detail) : {}; } catch { /* free text */ }
+  if (e.source === "backend") {  // a real robot's own news: its motors' faults, a voice in the room
+    if (e.kind === "motor_error") state.motorFaults[detail.motor] = (detail.faults || []).join(", ");
+    else if (e.kind === "motor_ok") delete state.motorFaults[detail.motor];
+    else if (e.kind === "voice_activity") state.voice = detail.activity ? detail : null;
+    return;
+  }
   if (e.source === "teleop" && /^(head|arms)_(on|off)$/.test(e.kind)) {
     state[e.kind.startsWith("head") ? "headOn" : "armsOn"] = e.kind.endsWith("_on");
   } else if (e.source === "menu" && e.kind === "select") {
@@ -353,14 +362,33 @@ async function toggleControl() {
   }
 }
 
+// The calibrate gesture measures the body (T-pose) and, while we hold control, re-centres: standing square with
+// the arms out, the way the operator faces becomes straight ahead for the robot's head.
 async function calibrate() {
   say("calibrating: hold a T-pose…");
+  const lines = [];
+  let ok = true;
   try {
     const r = await ros.call(SERVICES.calibrate, {});
-    say(`calibrated: ${r.message}`, "ok");
+    if (r.success === false) throw new Error(r.message);
+    lines.push(`calibrated: ${r.message}`);
   } catch (err) {
-    say(`calibration refused: ${err.message}`, "error");
+    ok = false;
+    lines.push(`calibration refused: ${err.message}`);
   }
+  if (holding()) {
+    const zero = headAngles(state.head.quaternion);
+    try {
+      const r = await ros.call(SERVICES.recenter, {});
+      if (r.success === false) throw new Error(r.message);
+      state.zero = zero;
+      lines.push("recentered: straight ahead is where you look now");
+    } catch (err) {
+      ok = false;
+      lines.push(`recentering refused: ${err.message}`);
+    }
+  }
+  say(lines.join("; "), ok ? "ok" : "error");
 }
 
 async function estop() {
@@ -513,6 +541,15 @@ function hudLines() {
   else lines.push({id: "control", text: `no one in control · ${hint} takes control`, level: "info"});
   if (s && !s.robot_connected) {
     lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
+  }
+  const faults = Object.entries(state.motorFaults);
+  if (faults.length) {
+    lines.push({id: "motors", text: `MOTOR FAULT: ${faults.map(([m, f]) => `${m} (${f})`).join(", ")}`,
+                level: "error"});
+  }
+  if (state.voice) {
+    const from = Number.isFinite(state.voice.direction_deg) ? ` (from ${state.voice.direction_deg}°)` : "";
+    lines.push({id: "voice", text: `someone in the room is speaking${from}`, level: "info"});
   }
   if (ros.connected) lines.push(linkLine());
   const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";

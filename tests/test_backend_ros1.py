@@ -1,0 +1,142 @@
+"""The ros backend against a robot-side rosbridge with ROS 1's semantics (ros1_rosbridge.py): LuxAI's real types,
+a type string required on subscribe, every service call answered from its own thread. Each of issue 26's three
+defects has a test here that fails on the backend as it was (an untyped motor-state subscription, a stop sent
+without waiting before every say, speech settings kept local)."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+
+import pytest
+import roslibpy
+from ros1_rosbridge import Ros1QTrobot
+from support import RawClient, RunningServer, Watch, call, wait_for
+
+from client_protocol import names
+from vr_teleop_server.settings import ServerSettings
+
+SAY = names.SPEECH_SAY_SERVICE
+STOP = names.SPEECH_STOP_SERVICE
+
+
+@pytest.fixture(scope="module")
+def robot() -> Iterator[Ros1QTrobot]:
+    fake = Ros1QTrobot()
+    yield fake
+    fake.stop()
+
+
+@pytest.fixture(scope="module")
+def server(robot: Ros1QTrobot, tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
+    tmp = tmp_path_factory.mktemp("ros1")
+    running = RunningServer(ServerSettings(port=0, backend="ros", robot_url=robot.url, gesture_dir=tmp / "g",
+                                           audio_dir=tmp / "a"))
+    yield running
+    running.stop()
+
+
+@pytest.fixture
+def ros(server: RunningServer, robot: Ros1QTrobot) -> Iterator[roslibpy.Ros]:
+    robot.stop_holds_for_next_call = False
+    robot.seconds_per_word = 0.05
+    client = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    client.run(timeout=10)
+    yield client
+    client.close()
+    assert wait_for(lambda: robot.speaking is None, 30)  # the next test starts with a quiet robot
+
+
+def test_the_robot_side_refuses_a_subscription_without_a_type():
+    """What rosbridge 0.11 answers the subscription the backend used to make."""
+    robot = Ros1QTrobot()
+    raw = RawClient(robot.url)
+    try:
+        raw.send({"op": "subscribe", "id": "s1", "topic": names.MOTOR_STATES_TOPIC, "type": ""})
+        status = raw.expect("status", level="error")
+        assert status["msg"] == "subscribe:  is not a valid type string", status
+    finally:
+        raw.close()
+        robot.stop()
+
+
+def test_motor_temperatures_and_voltages_arrive(server: RunningServer, robot: Ros1QTrobot, ros: roslibpy.Ros):
+    motors = Watch(ros, names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus")
+    try:
+        def reported() -> dict[str, tuple[float, float]]:
+            robot.publish(names.MOTOR_STATES_TOPIC, {"name": ["HeadYaw", "RightElbowRoll"],
+                                                     "temperature": [41.5, 38.0], "voltage": [12.1, 11.9]})
+            latest = motors.latest
+            return dict(zip(latest.get("name", []), zip(latest.get("temperature", []), latest.get("voltage", []))))
+
+        assert wait_for(lambda: reported().get("HeadYaw") == (41.5, pytest.approx(12.1)), 15), motors.latest
+        assert reported()["RightElbowRoll"] == (38.0, pytest.approx(11.9))
+        backend = {m.name: m for m in server.server.robot.motor_status()}
+        assert (backend["HeadPitch"].temperature_c, backend["HeadPitch"].voltage_v) == (None, None)  # unknown, not 0
+        assert not [r for r in robot.refusals if r.startswith("subscribe")], robot.refusals
+    finally:
+        motors.close()
+
+
+def test_a_sentence_on_a_quiet_robot_is_said_whole_and_no_stop_is_sent(robot: Ros1QTrobot, ros: roslibpy.Ros):
+    """A stop sent before the sentence could reach the robot after it (each call on its own thread) and cut it:
+    with nothing being spoken, no stop is sent at all. The robot holds any stop until a later call has begun, so
+    a stop sent ahead of this sentence would cut it every time."""
+    robot.stop_holds_for_next_call = True
+    before = len(robot.calls)
+    reply = call(ros, SAY, "qt_robot_interface/speech_say", {"message": "Hello, I am QT"})
+    assert reply["status"] is True, reply
+    sent = robot.calls[before:]
+    assert [name for name, _ in sent] == [SAY], sent
+    said = robot.utterances[-1]
+    assert said.text == "Hello, I am QT" and not said.cut
+
+
+def test_a_new_sentence_waits_for_the_stop_of_the_one_being_spoken(robot: Ros1QTrobot, ros: roslibpy.Ros):
+    robot.stop_holds_for_next_call = True  # the stop runs late unless nothing follows it
+    robot.seconds_per_word = 2.0  # the first sentence is still being spoken when the second comes
+    first = "this first sentence is long enough to be interrupted by the next one"
+    answers: dict[str, dict] = {}
+    speaking = threading.Thread(target=lambda: answers.setdefault(
+        "first", call(ros, SAY, "qt_robot_interface/speech_say", {"message": first})), daemon=True)
+    speaking.start()
+    assert wait_for(lambda: robot.speaking == first, 20)
+    before = len(robot.calls)
+    second = call(ros, SAY, "qt_robot_interface/speech_say", {"message": "Second"})
+    assert second["status"] is True, second
+    speaking.join(20)
+    assert answers["first"]["status"] is False, answers  # cut short, and the caller hears so
+    order = [name for name, _ in robot.calls[before:]]
+    assert order == [STOP, SAY], order  # the stop reached the robot (and was answered) before the sentence
+    by_text = {u.text: u for u in robot.utterances}
+    assert by_text[first].cut and not by_text["Second"].cut
+
+
+def test_stop_talking_stops_the_robot_and_the_next_sentence_is_whole(robot: Ros1QTrobot, ros: roslibpy.Ros):
+    robot.seconds_per_word = 2.0
+    first = "a sentence the operator stops from the menu before it ends"
+    threading.Thread(target=lambda: call(ros, SAY, "qt_robot_interface/speech_say", {"message": first}),
+                     daemon=True).start()
+    assert wait_for(lambda: robot.speaking == first, 20)
+    stopped = call(ros, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": "speech.stop", "args": ""})
+    assert stopped["success"], stopped
+    assert wait_for(lambda: robot.speaking is None, 10)
+    assert {u.text: u for u in robot.utterances}[first].cut
+    robot.stop_holds_for_next_call = True
+    robot.seconds_per_word = 0.05
+    assert call(ros, SAY, "qt_robot_interface/speech_say", {"message": "Still here"})["status"] is True
+    assert not robot.utterances[-1].cut and robot.utterances[-1].text == "Still here"
+
+
+def test_speech_speed_and_voice_reach_the_robot(robot: Ros1QTrobot, ros: roslibpy.Ros):
+    for item, speed in (("speech.slower", 80), ("speech.faster", 120)):
+        reply = call(ros, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": item, "args": ""})
+        assert reply["success"], reply
+        assert robot.speech_config[-1] == {"language": "", "pitch": 0, "speed": speed}, robot.speech_config
+    reply = call(ros, names.SPEECH_CONFIG_SERVICE, "qt_robot_interface/speech_config",
+                 {"language": "en-GB", "pitch": 0, "speed": 100})
+    assert reply["status"] is True, reply
+    assert robot.speech_config[-1] == {"language": "en-GB", "pitch": 0, "speed": 100}
+    assert json.dumps(robot.services_called(names.SPEECH_CONFIG_SERVICE)[-1], sort_keys=True) == \
+        '{"language": "en-GB", "pitch": 0, "speed": 100}'  # exactly LuxAI's three fields on the wire
