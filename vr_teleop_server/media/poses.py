@@ -77,7 +77,8 @@ class PoseChannel:
             try:
                 decoded = pose_frame.decode(message)
             except pose_frame.PoseFrameError as exc:
-                self._refuse(f"{exc}; or send each publish frame as text (JSON)")
+                self._refuse(f"a binary message that is not a pose frame: {exc}; send pose frames "
+                             "(client_protocol/pose_frame.py) or publish frames as text (JSON)")
                 return
             for topic, msg in decoded:  # the frame's messages, each as its JSON publish frame would be
                 await self._take(json.dumps({"op": "publish", "topic": topic, "msg": msg}))
