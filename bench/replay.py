@@ -4,25 +4,39 @@
 `vr-teleop serve --backend sim` running as its own process, camera subscribed as a headset would be. The baseline
 is the first BASE_S seconds of the same session replayed in real time in the same run: the latency ratio is what
 replaying S times faster costs. `--quick` replays the first 60 s instead of the whole session.
+
+`--speed max` replays as `vr-teleop replay --speed max` does without a server: an in-process server on the
+stand-in and a simulated clock (camera off unless `--camera`). Its line says how fast it was served on the wall
+clock, and per CPU second of this process (the figure a busy machine moves least), and its head tracking against
+the real-time baseline's over the same first BASE_S seconds (the issue's bound: within 0.1 degree).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import os
 import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
-from vr_teleop_server.tools.replay import load_steps, report, run_replay
+from vr_teleop_server.cli.replay import speed as parse_speed
+from vr_teleop_server.tools.replay import load_steps, report, run_replay, run_simulated
 from vr_teleop_server.tools.synth import build, write
 
 ROOT = Path(__file__).resolve().parent.parent
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
 BASE_S = 20.0
+
+
+def cpu_seconds() -> float:
+    """CPU seconds of this process and its ended children (the stand-in's render process)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def free_port() -> int:
@@ -34,6 +48,14 @@ def free_port() -> int:
 def replay(steps, url: str, speed: float) -> dict:
     got, elapsed = asyncio.run(run_replay(steps, url, speed, camera=True, progress=False))
     return report(steps, got, elapsed, speed)
+
+
+def simulated(steps, camera: bool) -> tuple[dict, float]:
+    """The report of a simulated replay, and the CPU seconds it took this process (all its threads)."""
+    cpu = cpu_seconds()
+    got, elapsed = run_simulated(steps, camera=camera, progress=False)
+    cpu = cpu_seconds() - cpu
+    return report(steps, got, elapsed, math.inf), cpu
 
 
 def line(name: str, r: dict) -> str:
@@ -48,7 +70,8 @@ def line(name: str, r: dict) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--speed", type=float, nargs="+", default=[5.0, 10.0, 20.0])
+    parser.add_argument("--speed", type=parse_speed, nargs="+", default=[5.0, 10.0, 20.0], metavar="S|max")
+    parser.add_argument("--camera", action="store_true", help="render the camera at --speed max too")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "classroom.mcap"
@@ -69,6 +92,18 @@ def main() -> int:
             base = replay([s for s in steps if s.t < BASE_S], url, 1.0)
             print(line(f"first {BASE_S:g} s at x1", base))
             for speed in args.speed:
+                if math.isinf(speed):
+                    head = [s for s in steps if s.t < BASE_S]
+                    short, _cpu = simulated(head, camera=args.camera)
+                    r, cpu = simulated(steps, camera=args.camera)
+                    print(line(f"{'first 60 s' if args.quick else 'classroom'} at max", r))
+                    real_head = base["tracking_error_deg"]["by_part"]["head"]["mean"]
+                    sim_head = short["tracking_error_deg"]["by_part"]["head"]["mean"]
+                    print(f"{'':<22} simulated clock, camera {'on' if args.camera else 'off'}: served x"
+                          f"{r['speed_served']} on the wall clock, x{r['session_s'] / cpu:.1f} per CPU second "
+                          f"({cpu:.1f} s); first {BASE_S:g} s head tracking mean {sim_head} deg against "
+                          f"{real_head} deg at x1 (difference {abs(sim_head - real_head):.3f} deg)")
+                    continue
                 r = replay(steps, url, speed)
                 print(line(f"{'first 60 s' if args.quick else 'classroom'} at x{speed:g}", r))
                 if base["latency_ms"]["p50"] and r["latency_ms"]["p50"]:

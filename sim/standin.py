@@ -14,6 +14,9 @@ Three kinds of thread touch it:
   pose and joint-state tick never wait for a physics batch: set_targets swaps in a new goal array (the physics
   thread reads whichever is current), and joint_state reads the state the physics thread publishes after each
   batch. Waiting on the batch's lock held the event loop for a millisecond at a time (bench/teleop.py).
+On a simulated clock (simclock; replays and studies at `--speed max`) there is no physics thread: the stand-in
+attaches to the clock, which steps the physics and asks for camera frames (at camera_fps in simulated time,
+while someone watches) in its loop's thread as it advances, so both move in lock-step with simulated time.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import numpy as np
 from robot_models import RobotModel, load_qtrobot
 from robot_models.mjcf import HEAD_CAMERA
 from robot_models.types import CameraFrame, MotorMode
+from simclock import WALL, Clock
 from worker_process.frame_ring import FrameRing
 
 from .face import normalise_emotion
@@ -77,7 +81,8 @@ class StandIn:
     Use as a context manager or call close(). Joint names, limits and caps come from `robot`.
     antialias defaults to 0 (no MSAA): without a GPU, 4x MSAA triples the render time (bench/standin.py:
     about 27 ms against 9 ms a 640x480 frame on 2 loaded cores) and costs the 30 fps target.
-    render_nice: how much lower the render process's CPU priority is than this process's (RenderProcess.NICE).
+    render_nice: how much lower the render process's CPU priority is than this process's (RenderProcess.NICE);
+    none on a simulated clock, where the clock waits for each frame (a niced renderer starves on a busy machine).
     """
 
     FACE_ANIMATION_HZ = 12.0
@@ -101,7 +106,9 @@ class StandIn:
         initial_emotion: str = "neutral",
         ambient_temperature_c: float = 30.0,
         render_nice: int = RenderProcess.NICE,
+        clock: Clock = WALL,
     ) -> None:
+        self.clock = clock
         self.robot = robot or load_qtrobot()
         cam = self.robot.camera
         self.camera_width = int(camera_width or (cam.width if cam else 640))
@@ -112,7 +119,7 @@ class StandIn:
             raise ValueError(f"jpeg_quality must be in 1..100, got {jpeg_quality}")
         self.camera_fps = float(camera_fps)
         self.jpeg_quality = int(jpeg_quality)
-        self.render_nice = int(render_nice)
+        self.render_nice = 0 if clock.simulated else int(render_nice)
         self.scene = scene or build_classroom(
             self.robot, shadows=shadows, antialias=antialias,
             offscreen_size=(max(1280, self.camera_width), max(720, self.camera_height)))
@@ -185,6 +192,9 @@ class StandIn:
         self._ring = FrameRing.create(self.camera_width, self.camera_height)
         self._camera_closed_listeners: list[Callable[[], None]] = []
         self._render_ready = threading.Event()
+        self._frame_requests: collections.deque[tuple[tuple, tuple[float, float, float], Future]] = \
+            collections.deque()  # simulated clock: frames the clock asks for, drawn by the render thread
+        self._next_frame_at = 0.0  # simulated clock: when the next camera frame is due
 
         self._physics_thread = threading.Thread(target=self._physics_loop, name="standin-physics", daemon=True)
         self._render_thread = threading.Thread(target=self._render_loop, name="standin-render", daemon=True)
@@ -195,7 +205,10 @@ class StandIn:
             self.close()
             raise RuntimeError(f"the stand-in's renderer did not start ({self._render_error!r}); MuJoCo needs "
                                "MUJOCO_GL=egl (or osmesa) and a working libEGL on a headless machine")
-        self._physics_thread.start()
+        if clock.simulated:
+            clock.attach(self)  # type: ignore[attr-defined]
+        else:
+            self._physics_thread.start()
 
     # ----------------------------------------------------------------------------------------------- joints
     def set_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
@@ -263,14 +276,15 @@ class StandIn:
 
     def joint_state(self) -> JointSnapshot:
         """The joints as of the physics thread's last batch (at most STEPS_PER_LOCK steps old), with the goals
-        as set; without a physics thread, as of now."""
-        if self._physics_thread.is_alive():
+        as set; on a simulated clock, as of the clock's time; without a physics thread, as of now."""
+        if self._physics_thread.is_alive() or self.clock.simulated:
             q, v, sp, f, (t,) = self._state
         else:
             with self._lock:
                 q, v, sp, f, (t,) = self._capture()
         goal, modes = self._goal, tuple(self._modes)
-        return JointSnapshot(self.names, q, v, tuple(goal.tolist()), sp, f, modes, time.monotonic(), time.time(), t)
+        return JointSnapshot(self.names, q, v, tuple(goal.tolist()), sp, f, modes, self.clock.monotonic(),
+                             self.clock.time(), t)
 
     def joint_positions(self) -> dict[str, float]:
         s = self.joint_state()
@@ -312,12 +326,12 @@ class StandIn:
         if not (math.isfinite(duration_s) and duration_s >= 0):
             raise ValueError(f"speech duration must be a finite number of seconds >= 0, got {duration_s!r}")
         with self._render_cond:
-            self._talking_until = time.monotonic() + duration_s
+            self._talking_until = self.clock.monotonic() + duration_s
             self._face_version += 1
             self._render_cond.notify_all()
 
     def is_talking(self) -> bool:
-        return time.monotonic() < self._talking_until
+        return self.clock.monotonic() < self._talking_until
 
     VOICE_HOLD_S = 0.25  # the mouth closes this long after the last piece of voice
 
@@ -325,14 +339,14 @@ class StandIn:
         """The operator's voice, as the robot plays it (0..1): the mouth opens with it (returns at once)."""
         level = min(1.0, max(0.0, float(level))) if math.isfinite(level) else 0.0
         with self._render_cond:
-            self._voice = (level, time.monotonic())
+            self._voice = (level, self.clock.monotonic())
             self._render_cond.notify_all()
 
     @property
     def voice_level(self) -> float:
         """The voice level the face shows now (0 once the voice has stopped for VOICE_HOLD_S)."""
         level, at = self._voice
-        return level if time.monotonic() - at < self.VOICE_HOLD_S else 0.0
+        return level if self.clock.monotonic() - at < self.VOICE_HOLD_S else 0.0
 
     def face_image(self) -> np.ndarray | None:
         """A copy of the face texture as last uploaded (RGB), or None before the first upload."""
@@ -437,6 +451,8 @@ class StandIn:
     def close(self) -> None:
         """Stop both threads (promptly: they wake on the stop event) and the render process."""
         self._stop.set()
+        if self.clock.simulated:
+            self.clock.detach(self)  # type: ignore[attr-defined]
         with self._render_cond:
             self._render_cond.notify_all()
         with self._frame_cond:
@@ -459,13 +475,12 @@ class StandIn:
 
     # -------------------------------------------------------------------------------------------- internals
     def _physics_loop(self) -> None:
-        m, d = self.model, self.data
+        d = self.data
         t0 = time.monotonic()
         sim0 = d.time
         done = 0
         cost_avg = 0.0
         last_sample = -math.inf
-        thermal_every = 50  # steps between thermal-model updates (0.1 s at 2 ms)
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
@@ -484,19 +499,8 @@ class StandIn:
                 c0 = time.perf_counter()
                 batch = min(due, self.STEPS_PER_LOCK)
                 with self._lock:
-                    for _ in range(batch):
-                        # Rate limit: the setpoint moves toward the goal by at most cap * dt. Joints not ON
-                        # have goal == setpoint (see set_motor_mode), so they stay put here.
-                        delta = np.clip(self._goal - self._setpoint, -self._step_limit, self._step_limit)
-                        self._setpoint += delta
-                        d.ctrl[self._act] = np.radians(self._setpoint)
-                        mujoco.mj_step(m, d)
-                        done += 1
-                        if done % thermal_every == 0:
-                            f = d.actuator_force[self._act]
-                            self._temperature += (self._ambient + self.THERMAL_GAIN * f * f - self._temperature) * (
-                                thermal_every * self.dt / self.THERMAL_TAU_S)
-                    self._steps = done
+                    self._step(batch)
+                    done = self._steps
                     self._state = self._capture()
                     after = time.monotonic()
                     self._lag = max(0.0, (after - t0) - done * self.dt)
@@ -508,6 +512,60 @@ class StandIn:
                 self._step_cost = cost_avg
         except Exception:  # pragma: no cover - logged so a dead physics thread is visible
             log.exception("stand-in physics thread died")
+
+    THERMAL_EVERY = 50  # steps between thermal-model updates (0.1 s at 2 ms)
+
+    def _step(self, n: int) -> None:
+        """n physics steps (the caller holds the lock). Rate limit: the setpoint moves toward the goal by at most
+        cap * dt a step. Joints not ON have goal == setpoint (see set_motor_mode), so they stay put here. While
+        every setpoint has reached its goal the control is constant, and MuJoCo takes the steps in one call."""
+        m, d = self.model, self.data
+        while n > 0:
+            gap = self._goal - self._setpoint
+            if not gap.any():
+                k = min(n, self.THERMAL_EVERY - self._steps % self.THERMAL_EVERY)
+                mujoco.mj_step(m, d, k)
+            else:
+                k = 1
+                self._setpoint += np.clip(gap, -self._step_limit, self._step_limit)
+                d.ctrl[self._act] = np.radians(self._setpoint)
+                mujoco.mj_step(m, d)
+            n -= k
+            self._steps += k
+            if self._steps % self.THERMAL_EVERY == 0:
+                f = d.actuator_force[self._act]
+                self._temperature += (self._ambient + self.THERMAL_GAIN * f * f - self._temperature) * (
+                    self.THERMAL_EVERY * self.dt / self.THERMAL_TAU_S)
+
+    # ---------------------------------------------------------------------- on a simulated clock (simclock)
+    def next_due(self) -> float:
+        """When the camera's next frame is due in simulated time (none while nobody watches)."""
+        return self._next_frame_at if self._camera_subscribers > 0 and self._render_error is None else math.inf
+
+    def advance_to(self, t: float) -> None:
+        """The clock's loop thread: step the physics to simulated time t; draw the camera frame due at t."""
+        if self._stop.is_set():
+            return
+        with self._lock:
+            due = int(math.floor(t / self.dt + 1e-9)) - self._steps
+            if due > 0:
+                self._step(due)
+                self._state = self._capture()
+        if self._camera_subscribers <= 0 or self._render_error is not None:
+            self._next_frame_at = max(self._next_frame_at, t)
+            return
+        if t >= self._next_frame_at:
+            self._next_frame_at = t + 1.0 / self.camera_fps
+            with self._lock:
+                state = (self.data.qpos.copy(), self.data.qvel.copy(), self.data.time)
+            fut: Future = Future()
+            with self._render_cond:
+                self._frame_requests.append((state, (self.clock.monotonic(), self.clock.time(), state[2]), fut))
+                self._render_cond.notify_all()
+            try:
+                fut.result(RenderProcess.START_TIMEOUT_S + 30)
+            except Exception as exc:  # the renderer died: the camera closes, the physics goes on
+                log.error("a simulated-time camera frame failed: %s", exc)
 
     def _warn_behind(self, lag: float, *, resync: bool) -> None:
         now = time.monotonic()
@@ -527,7 +585,7 @@ class StandIn:
         def state() -> tuple[tuple, tuple[float, float, float]]:
             with self._lock:
                 qpos, qvel, sim_time = self.data.qpos.copy(), self.data.qvel.copy(), self.data.time
-                stamps = (time.monotonic(), time.time(), sim_time)
+                stamps = (self.clock.monotonic(), self.clock.time(), sim_time)
             return (qpos, qvel, sim_time), stamps
 
         try:
@@ -536,19 +594,21 @@ class StandIn:
             self._render_ready.set()
             while not self._stop.is_set():
                 with self._render_cond:
-                    now = time.monotonic()
+                    now = self.clock.monotonic()
                     voice = self._voice[0] if now - self._voice[1] < self.VOICE_HOLD_S else None
                     talking = now < self._talking_until or self._emotion == "talking" or voice is not None
                     face_due = (self._face_applied < self._face_version or (talking and now >= next_face_tick)
                                 or (drawn_talking and not talking))  # speech ended: back to the still face
-                    camera_due = self._camera_subscribers > 0 and now >= next_frame
-                    if not (face_due or camera_due or self._snapshots):
+                    camera_due = self._camera_subscribers > 0 and now >= next_frame and not self.clock.simulated
+                    requests = list(self._frame_requests)
+                    self._frame_requests.clear()
+                    if not (face_due or camera_due or self._snapshots or requests):
                         waits = [next_face_tick - now if talking else 1.0]
                         if self._camera_subscribers > 0:
                             waits.append(next_frame - now)
                         if now < self._talking_until:
                             waits.append(self._talking_until - now)
-                        self._render_cond.wait(max(0.0005, min(waits)))
+                        self._render_cond.wait(max(0.0005, min(waits if not self.clock.simulated else [0.05])))
                         continue
                     emotion, version = self._emotion, self._face_version
                     snapshots = list(self._snapshots)
@@ -569,6 +629,14 @@ class StandIn:
                         raise
                     except Exception as exc:  # the caller gets the error, the renderer lives on
                         fut.set_exception(exc)
+                for i, (state, stamps, fut) in enumerate(requests):
+                    try:
+                        self._render_frame(renderer, state, stamps)
+                    except BaseException as exc:
+                        for *_, waiting in requests[i:]:
+                            waiting.set_exception(RuntimeError(f"the stand-in's renderer died: {exc}"))
+                        raise
+                    fut.set_result(None)
                 if camera_due:
                     next_frame = max(next_frame + period, now) if next_frame else now + period
                     self._render_frame(renderer, *state())
@@ -582,10 +650,11 @@ class StandIn:
         finally:
             self._render_ready.set()
             with self._render_cond:
-                for *_, fut in self._snapshots:
+                for *_, fut in [*self._snapshots, *self._frame_requests]:
                     fut.set_exception(RuntimeError("the stand-in is closed" if self._stop.is_set() else
                                                    f"the stand-in's renderer died: {self._render_error}"))
                 self._snapshots.clear()
+                self._frame_requests.clear()
                 self._render_cond.notify_all()
             with self._frame_cond:
                 self._frame_cond.notify_all()

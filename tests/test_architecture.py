@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SERVER = "vr_teleop_server"
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("leaves", ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process")),
+    ("leaves", ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", "simclock")),
     ("core, robot, recording, teleop, media", (
         f"{SERVER}.core", f"{SERVER}.robot", f"{SERVER}.recording", f"{SERVER}.teleop", f"{SERVER}.media",
         f"{SERVER}.questionnaires", SERVER)),  # SERVER: the package's own __init__ (a docstring)
@@ -32,9 +32,10 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     "client_protocol": (),
     "robot_models": ("client_protocol",),
     "menus": ("client_protocol",),
-    "sim": ("client_protocol", "robot_models", "worker_process"),
+    "sim": ("client_protocol", "robot_models", "worker_process", "simclock"),
     "netem": (),
     "worker_process": (),
+    "simclock": (),
     f"{SERVER}.core": ("client_protocol",),
     f"{SERVER}.robot": LEAVES,  # knows nothing of the bus
     f"{SERVER}.teleop": LEAVES,  # pure mapping maths
@@ -42,7 +43,7 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     f"{SERVER}.questionnaires": ("client_protocol",),
     f"{SERVER}.media": LEAVES + (f"{SERVER}.core", f"{SERVER}.robot"),  # never features or the app
 }
-PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", SERVER)
+PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", "simclock", SERVER)
 
 
 @dataclass(frozen=True)

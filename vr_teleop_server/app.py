@@ -10,6 +10,7 @@ from client_protocol import names
 from client_protocol.registry import TypeRegistry
 from menus import load_menus
 from robot_models import load_qtrobot
+from simclock import WALL, Clock
 
 from .core.access import AccessPolicy, Role, is_loopback, tokens_from
 from .core.bus import Bus
@@ -38,8 +39,15 @@ log = logging.getLogger(__name__)
 
 
 class TeleopServer:
-    def __init__(self, settings: ServerSettings) -> None:
+    """`clock`: the server's one clock (simclock). A simulated clock needs the stand-in backend and must be the
+    running loop's (simclock.run), which then also times every sleep and timeout of the server."""
+
+    def __init__(self, settings: ServerSettings, clock: Clock = WALL) -> None:
+        if clock.simulated and settings.backend != "sim":
+            raise ValueError(f"a simulated clock needs the stand-in (backend 'sim'), not {settings.backend!r}: a real "
+                             "robot moves in real time")
         self.settings = settings
+        self.clock = clock
         self.registry = TypeRegistry(time_style=settings.time_style)
         self.bus = Bus(self.registry, reporter=self._report)
         self.model = load_qtrobot()
@@ -156,18 +164,19 @@ class TeleopServer:
             from .robot.backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
 
             self.robot = await SimRobot.create(self.model, camera_width=s.camera_width,
-                                               camera_height=s.camera_height, camera_fps=s.camera_fps)
+                                               camera_height=s.camera_height, camera_fps=s.camera_fps,
+                                               clock=self.clock)
         robot = self.robot
         gestures = GestureLibrary([packaged_gesture_dir()], self.model,
                                   user_dir=s.gesture_dir or default_user_gesture_dir())
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
-        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker)
+        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock)
         self._start(self.luxai)
         self.control = ExplicitControl(
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
-            operator_of=self._operator, operator_online=self._operator_online)
+            operator_of=self._operator, operator_online=self._operator_online, clock=self.clock.monotonic)
         self._start(self.control)
         self._start(OperatorAudioLog(self.bus, audio_dir))
         status = StatusPublisher(self.bus, robot)
@@ -185,7 +194,7 @@ class TeleopServer:
         try:
             if self.settings.record is not None:
                 self.recorder = Recorder(self.settings.record, self.registry, self.settings.record_camera_fps,
-                                         bus=self.bus)
+                                         bus=self.bus, clock=self.clock)
                 self._start(self.recorder)
                 log.info("recording to %s", self.settings.record)
             self.rosapi = RosApi(self.bus)

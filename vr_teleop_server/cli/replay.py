@@ -1,12 +1,26 @@
-"""`vr-teleop replay FILE --server URL [--speed S] [--report R] [--plot P]`."""
+"""`vr-teleop replay FILE [--server URL] [--speed S|max] [--report R] [--plot P]`."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
 import json
+import math
 import sys
 from pathlib import Path
+
+
+def speed(text: str) -> float:
+    """A positive number, or "max" (math.inf)."""
+    if text == "max":
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number or 'max'") from None
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"{text!r}: the speed must be above 0 (or 'max')")
+    return value
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -15,8 +29,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "against a server, as a real rosbridge client, and report latency, "
                                           "tracking error, camera, menu acknowledgements and errors.")
     r.add_argument("file", type=Path)
-    r.add_argument("--server", default="ws://127.0.0.1:9090", metavar="ws://HOST:PORT")
-    r.add_argument("--speed", type=float, default=1.0, help="times faster than recorded (default 1)")
+    r.add_argument("--server", default=None, metavar="ws://HOST:PORT",
+                   help="the server to replay against (default ws://127.0.0.1:9090; with --speed max and no "
+                        "--server, a server of the replay's own on the stand-in and a simulated clock)")
+    r.add_argument("--speed", type=speed, default=1.0, metavar="S|max",
+                   help="times faster than recorded (default 1); max: as fast as the work allows (without "
+                        "--server: on a simulated clock; with --server: each message as soon as the server takes it)")
     r.add_argument("--json", "--report", dest="json", type=Path, default=None, metavar="OUT",
                    help="write the report as JSON here ('-' for stdout, which then holds only the JSON); without "
                         "it the report is printed")
@@ -29,25 +47,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    from ..tools.replay import load_steps, plot, report
+    from ..tools.replay import load_steps, plot, report, run_simulated
     from ..tools.replay import run_replay as replay
 
-    if not args.speed > 0:
-        print("vr-teleop replay: --speed must be above 0", file=sys.stderr)
-        return 2
     try:
         steps, client = load_steps(args.file, args.client)
     except (OSError, ValueError) as exc:
         print(f"vr-teleop replay: {exc}", file=sys.stderr)
         return 2
+    simulated = math.isinf(args.speed) and args.server is None
+    server = "in-process (stand-in, simulated clock)" if simulated else args.server or "ws://127.0.0.1:9090"
     try:
-        got, elapsed = asyncio.run(replay(steps, args.server, args.speed, camera=not args.no_camera,
-                                          progress=not args.quiet))
+        if simulated:
+            got, elapsed = run_simulated(steps, camera=not args.no_camera, progress=not args.quiet)
+        else:
+            got, elapsed = asyncio.run(replay(steps, server, args.speed, camera=not args.no_camera,
+                                              progress=not args.quiet))
     except OSError as exc:
-        print(f"vr-teleop replay: cannot reach {args.server}: {exc}", file=sys.stderr)
+        print(f"vr-teleop replay: cannot reach {server}: {exc}", file=sys.stderr)
         return 1
-    result = {"file": str(args.file), "client": client, "server": args.server, **report(steps, got, elapsed,
-                                                                                          args.speed)}
+    result = {"file": str(args.file), "client": client, "server": server, **report(steps, got, elapsed,
+                                                                                     args.speed)}
     text = json.dumps(result, indent=2)
     if args.json is not None and str(args.json) != "-":
         args.json.write_text(text + "\n")

@@ -1,15 +1,21 @@
-"""`vr-teleop study run FILE (--trial NAME | --all)`: run study trials on the stand-in and compare their metrics."""
+"""`vr-teleop study run FILE (--trial NAME | --all) [--speed max] [--repeat N --seed S]`: run study trials on the
+stand-in and compare their metrics."""
 
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
+import math
 import sys
+import time
 from pathlib import Path
 
+from simclock import WALL, SimulatedClock
+from simclock import run as run_on_clock
+
 from .metrics import summary
-from ..tools.study_runner import run_trial, table
+from .replay import speed as parse_speed
+from ..tools.study_runner import TrialReport, run_trial, stats_table, summarise, table
 from ..study.studyfile import StudyFileError, load_study
 
 
@@ -29,8 +35,33 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="where each trial's session recording (TRIAL.mcap) goes (default: study-recordings)")
     r.add_argument("--json", type=Path, metavar="OUT",
                    help="write every trial's metrics as JSON here ('-' for stdout, which then holds only the JSON)")
-    r.add_argument("--timeout", type=float, default=900.0, metavar="S", help="give up on a trial after S seconds")
+    r.add_argument("--timeout", type=float, default=900.0, metavar="S",
+                   help="give up on a trial after S seconds (simulated seconds at --speed max)")
+    r.add_argument("--speed", type=_speed, default=1.0, metavar="max",
+                   help="1 (default): in real time; max: on a simulated clock, as fast as the work allows")
+    r.add_argument("--repeat", type=_positive, default=None, metavar="N",
+                   help="run each trial N times, with seeds S..S+N-1, and print each metric's mean, SD and 95%% "
+                        "confidence interval beside the table; --json then holds every run")
+    r.add_argument("--seed", type=int, default=None, metavar="S",
+                   help="the simulated people's seed (default: the study file's seed)")
     r.set_defaults(func=run)
+
+
+def _speed(text: str) -> float:
+    value = parse_speed(text)
+    if value not in (1.0, math.inf):
+        raise argparse.ArgumentTypeError("a study runs in real time (1) or as fast as it can (max)")
+    return value
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: at least one run")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,28 +78,50 @@ def run(args: argparse.Namespace) -> int:
     args.record_dir.mkdir(parents=True, exist_ok=True)
     to_stdout = args.json is not None and str(args.json) == "-"
     notes = sys.stderr if to_stdout else sys.stdout  # `--json -`: stdout holds the JSON and nothing else
-    reports = []
+    simulated = math.isinf(args.speed)
+    first = study.seed if args.seed is None else args.seed
+    seeds = list(range(first, first + (args.repeat or 1)))
+    runs: dict[str, list[TrialReport]] = {name: [] for name in names}
     for name in names:
-        print(f"running trial {name} ...", file=notes, flush=True)
+        for seed in seeds:
+            suffix = f"-seed{seed}" if args.repeat is not None else ""
+            print(f"running trial {name}{f' (seed {seed})' if suffix else ''} ...", file=notes, flush=True)
 
-        def progress(elapsed: float, done: int, name: str = name) -> None:
-            print(f"  {name}: {elapsed:5.1f} s, {done} action{'' if done == 1 else 's'} done", file=sys.stderr,
-                  flush=True)
+            def progress(elapsed: float, done: int, name: str = name) -> None:
+                print(f"  {name}: {elapsed:5.1f} s, {done} action{'' if done == 1 else 's'} done", file=sys.stderr,
+                      flush=True)
 
-        report = asyncio.run(run_trial(study, name, record=args.record_dir / f"{name}.mcap", timeout=args.timeout,
-                                       progress=progress))
-        reports.append(report)
-        print(summary(f"{name} ({report.outcome})", report.live), file=notes)
-        print(f"  recording {report.recording}: metrics from it "
-              f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes)
-        for refusal in report.refusals:
-            print(f"  operator command refused: {refusal}", file=notes)
-    if len(reports) > 1:
+            clock = SimulatedClock() if simulated else WALL
+            started = time.perf_counter()
+            report = run_on_clock(run_trial(study, name, record=args.record_dir / f"{name}{suffix}.mcap",
+                                            timeout=args.timeout, progress=progress, seed=seed, clock=clock), clock)
+            wall = time.perf_counter() - started
+            runs[name].append(report)
+            print(summary(f"{name} ({report.outcome})", report.live), file=notes)
+            if simulated:
+                print(f"  {report.live.t1:.1f} s of trial in {wall:.1f} s (x{report.live.t1 / wall:.1f})", file=notes)
+            print(f"  recording {report.recording}: metrics from it "
+                  f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes)
+            for refusal in report.refusals:
+                print(f"  operator command refused: {refusal}", file=notes)
+    reports = [r for name in names for r in runs[name]]
+    if len(names) > 1 or args.repeat is not None:
         print(file=notes)
-        print(table(reports), file=notes)
+        print(table([r for name in names for r in runs[name][:1]] if args.repeat is None else reports), file=notes)
+    if args.repeat is not None:
+        print(file=notes)
+        print(stats_table(runs), file=notes)
     if args.json is not None:
-        text = json.dumps({r.trial: {"outcome": r.outcome, "modules": list(r.modules), **r.live.to_json_dict()}
-                           for r in reports}, indent=2)
+        if args.repeat is None:
+            document = {r.trial: {"outcome": r.outcome, "modules": list(r.modules), **r.live.to_json_dict()}
+                        for r in reports}
+        else:
+            document = {name: {"modules": list(trial_runs[0].modules), "seeds": seeds,
+                               "stats": summarise(trial_runs),
+                               "runs": [{"seed": r.seed, "outcome": r.outcome, **r.live.to_json_dict()}
+                                        for r in trial_runs]}
+                        for name, trial_runs in runs.items()}
+        text = json.dumps(document, indent=2)
         if to_stdout:
             print(text)
         else:

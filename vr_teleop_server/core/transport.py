@@ -13,7 +13,7 @@ import mimetypes
 import re
 import ssl
 import weakref
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from http import HTTPStatus
 from pathlib import Path
 
@@ -116,6 +116,15 @@ class WebSocketTransport:
             code = ws.close_code
             log.info("client disconnected: %s from %s (code %s)", session.name, peer, code)
 
+    def connect_local(self, path: str = "/", peer: str = "in-process") -> LocalConnection:
+        """A connection from inside this process (replays and studies at `--speed max`, on a simulated clock): the
+        same session, login and frames as a WebSocket client's, without a socket. `path` is what a client's URL
+        would say (`/?token=...`)."""
+        session = self._open_session(f"/rosbridge_websocket/client_{next(self._numbers)}", peer, _no_ping)
+        session.apply_login(self.policy.login(path, None))
+        log.info("client connected: %s (%s)", session.name, peer)
+        return LocalConnection(session, self._close_session)
+
     @staticmethod
     async def _write(ws: ServerConnection, session: Session) -> None:
         try:
@@ -147,6 +156,52 @@ async def _send_batch(ws: ServerConnection, session: Session, frames: list[str |
         data = b"".join(ws.protocol.data_to_send())
         if data:
             ws.transport.write(data)
+
+
+class LocalConnection:
+    """An in-process client's end of a session, shaped like a websockets connection: `await send(frame)`, and
+    `async for frame in connection` for what the server sends. Frames in are handled in order by a task of their
+    own, as the socket's handler does; frames out are the session's outbox, as the socket's writer takes them."""
+
+    def __init__(self, session: Session, close_session: Callable[[Session], None]) -> None:
+        self.session = session
+        self._close_session = close_session
+        self._inbox: asyncio.Queue[str | bytes | None] = asyncio.Queue()
+        self._reader = asyncio.ensure_future(self._read())
+        self.closed = False
+
+    async def _read(self) -> None:
+        while (frame := await self._inbox.get()) is not None:
+            await self.session.handle_frame(frame)
+
+    async def send(self, frame: str | bytes) -> None:
+        if self.closed:
+            raise ConnectionError(f"{self.session.name} is closed")
+        self._inbox.put_nowait(frame)
+
+    async def __aiter__(self) -> AsyncIterator[str | bytes]:
+        while not self.closed:
+            for frame in await self.session.next_frames():
+                yield frame
+
+    async def close(self) -> None:
+        """Handles what was sent, then closes the session (as a client's close frame would)."""
+        if self.closed:
+            return
+        self._inbox.put_nowait(None)
+        await asyncio.gather(self._reader, return_exceptions=True)
+        self.closed = True
+        self._close_session(self.session)
+
+    async def __aenter__(self) -> LocalConnection:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+
+async def _no_ping() -> float:
+    return 0.0  # no network between an in-process client and the server
 
 
 def _websockets_logger() -> logging.Logger:

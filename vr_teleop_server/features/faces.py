@@ -12,7 +12,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import time
 from dataclasses import dataclass
 
 import cv2
@@ -127,4 +126,5 @@ class FacePublisher:
                         "detector": self.detector.name,
                         "faces": [{"x": f.x, "y": f.y, "width": f.width, "height": f.height,
                                    "confidence": f.confidence} for f in faces]})
-                await asyncio.sleep(max(0.0, self._period - (time.monotonic() - frame.stamp_monotonic)))
+                age = asyncio.get_running_loop().time() - frame.stamp_monotonic  # stamps are on the loop's clock
+                await asyncio.sleep(max(0.0, self._period - age))

@@ -11,12 +11,12 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
-import time
 from collections.abc import Callable
 from typing import Any
 
 from client_protocol import names
 from client_protocol.errors import Refusal
+from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.tasks import cancel_and_wait
@@ -30,8 +30,9 @@ log = logging.getLogger(__name__)
 
 class LuxaiApi:
     def __init__(self, bus: Bus, robot: Robot, gestures: GestureLibrary, speaker: Speaker,
-                 joint_state_hz: float = 30.0) -> None:
+                 joint_state_hz: float = 30.0, clock: Clock = WALL) -> None:
         self.bus = bus
+        self.clock = clock  # times the gesture recorder's samples
         self.robot = robot
         self.gestures = gestures
         self.speaker = speaker
@@ -280,9 +281,10 @@ class LuxaiApi:
 
     async def _sample(self, wait_s: float, timeout_s: float) -> None:
         await asyncio.sleep(wait_s)
-        end = time.monotonic() + timeout_s if timeout_s else None
-        while self.recorder.recording and (end is None or time.monotonic() < end):
-            self.recorder.sample(self.robot.joint_state(), time.monotonic())
+        clock = self.clock
+        end = clock.monotonic() + timeout_s if timeout_s else None
+        while self.recorder.recording and (end is None or clock.monotonic() < end):
+            self.recorder.sample(self.robot.joint_state(), clock.monotonic())
             await asyncio.sleep(self.recorder.period_s)
         if self.recorder.recording:  # the timeout ended it
             self.stop_recording()
@@ -292,7 +294,7 @@ class LuxaiApi:
         if not self.recorder.recording:
             raise BusError("not recording; start with /qt_robot/gesture/record")
         parts = self.recorder.parts
-        self.recorder.sample(self.robot.joint_state(), time.monotonic())
+        self.recorder.sample(self.robot.joint_state(), self.clock.monotonic())
         try:
             self._recorded = (self.recorder.stop(), parts)
         except ValueError as exc:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -88,7 +87,7 @@ class Motivation:
         self.values = {name: v.initial for name, v in self.config.variables.items()}
         self._levels = {name: self._level(name) for name in self.values}
         self._engaged = False
-        self._last_update = time.monotonic()
+        self._last_update: float | None = None  # the loop's time of the last update
         self._tasks: list[asyncio.Task[None]] = []
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
@@ -130,8 +129,10 @@ class Motivation:
 
     async def _dynamics(self) -> None:
         while True:
+            if self._last_update is None:
+                self._last_update = asyncio.get_running_loop().time()
             await asyncio.sleep(self.config.update_period_s)
-            now = time.monotonic()
+            now = asyncio.get_running_loop().time()
             minutes = (now - self._last_update) / 60.0
             self._last_update = now
             for name, cfg in self.config.variables.items():

@@ -190,10 +190,11 @@ class Speaker:
 
     async def _stream_audio(self, wav: Wav) -> None:
         step = int(CHUNK_S * wav.sample_rate) * wav.channels * wav.sample_width
-        start = time.monotonic()
+        loop = asyncio.get_running_loop()
+        start = loop.time()
         for i, offset in enumerate(range(0, len(wav.pcm), step)):
             due = start + i * CHUNK_S - LEAD_S
-            delay = due - time.monotonic()
+            delay = due - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
             self.bus.publish(names.ROBOT_AUDIO_TOPIC, {"data": wav.pcm[offset:offset + step]})

@@ -9,13 +9,13 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import time
 from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
 from client_protocol import names
 from client_protocol.registry import TypeRegistry
+from simclock import WALL, Clock
 
 from ..core.bus import Bus, Published
 from ..core.tasks import cancel_and_wait
@@ -29,8 +29,11 @@ CHUNK_SIZE = 256 * 1024
 
 
 class Recorder:
-    def __init__(self, path: Path, registry: TypeRegistry, camera_fps: float = 2.0, bus: Bus | None = None) -> None:
-        """`bus`: the bus start() taps; without one, messages come only through write_message (synth)."""
+    def __init__(self, path: Path, registry: TypeRegistry, camera_fps: float = 2.0, bus: Bus | None = None,
+                 clock: Clock = WALL) -> None:
+        """`bus`: the bus start() taps; without one, messages come only through write_message (synth). `clock`
+        stamps the messages (log time: its time(), in nanoseconds)."""
+        self.clock = clock
         self.path = path
         self.bus = bus
         self.registry = registry
@@ -91,7 +94,7 @@ class Recorder:
         return cid
 
     def _write(self, channel: int, data: bytes, time_ns: int | None = None) -> None:
-        now = time.time_ns() if time_ns is None else time_ns
+        now = round(self.clock.time() * 1e9) if time_ns is None else time_ns
         self._seq += 1
         self._writer.add_message(channel, log_time=now, data=data, publish_time=now, sequence=self._seq)
         self._dirty = True
@@ -99,7 +102,7 @@ class Recorder:
 
     def on_published(self, published: Published) -> None:
         if published.topic == names.CAMERA_TOPIC:
-            now = time.monotonic()
+            now = self.clock.monotonic()
             if self.camera_period is None or now - self._last_camera < self.camera_period:
                 return
             self._last_camera = now

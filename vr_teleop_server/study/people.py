@@ -17,6 +17,7 @@ import itertools
 import json
 import random
 import zlib
+from collections.abc import Callable
 from typing import Any
 
 from websockets.asyncio.client import ClientConnection, connect
@@ -30,18 +31,20 @@ BUSY_RETRY_S = 0.3
 
 
 class RosbridgeClient:
-    """Just enough rosbridge v2 for the simulated people: subscribe and call services."""
+    """Just enough rosbridge v2 for the simulated people: subscribe and call services. Over a WebSocket to `url`,
+    or over what `opener()` returns (the server's in-process connection, on a simulated clock)."""
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, opener: Callable[[], Any] | None = None) -> None:
         self.url = url
-        self.ws: ClientConnection | None = None
+        self.opener = opener
+        self.ws: ClientConnection | Any = None
         self._ids = itertools.count(1)
         self._calls: dict[str, asyncio.Future[dict[str, Any]]] = {}
         self._subs: dict[str, list[Any]] = {}
         self._reader: asyncio.Task[None] | None = None
 
     async def connect(self) -> None:
-        self.ws = await connect(self.url, max_size=None)
+        self.ws = self.opener() if self.opener is not None else await connect(self.url, max_size=None)
         self._reader = asyncio.ensure_future(self._read())
 
     async def close(self) -> None:
@@ -86,13 +89,14 @@ class RosbridgeClient:
 
 
 class SimulatedPeople:
-    def __init__(self, url: str, study: Study, trial: str, *, operator: bool, seed: int | None = None) -> None:
+    def __init__(self, url: str, study: Study, trial: str, *, operator: bool, seed: int | None = None,
+                 opener: Callable[[], Any] | None = None) -> None:
         self.study = study
         self.trial = trial
         self.spec = study.trials[trial]
         self.operator = operator
         self.rng = random.Random(seed if seed is not None else study.seed * 1_000_003 + zlib.crc32(trial.encode()))
-        self.client = RosbridgeClient(url)
+        self.client = RosbridgeClient(url, opener)
         self.events: set[str] = set()
         self._changed = asyncio.Event()
         self.refusals: list[str] = []  # commands the server refused for a reason other than "busy"

@@ -9,8 +9,9 @@ the decision module reports the trial completed, preempted or failed (T1), with 
 from __future__ import annotations
 
 import asyncio
-import time
 from dataclasses import dataclass
+
+from simclock import WALL, Clock
 
 from ..core.bus import Bus
 from ..robot.gestures import GestureLibrary
@@ -33,7 +34,7 @@ class TrialResult:
 
 class TrialRuntime:
     def __init__(self, bus: Bus, robot: Robot, study: Study, trial: str,
-                 gestures: GestureLibrary | None = None) -> None:
+                 gestures: GestureLibrary | None = None, clock: Clock = WALL) -> None:
         if trial not in study.trials:
             raise ValueError(f"study {study.study!r} has no trial {trial!r}; trials: {', '.join(study.trials)}")
         self.bus = bus
@@ -43,13 +44,13 @@ class TrialRuntime:
         spec = study.trials[trial]
         self.spec = spec
         self.log = TrialLog(bus, study.study, trial, (spec.perception, spec.decision, spec.motion),
-                            len(study.planned_robot_subtasks()))
-        static = StaticTracker(study.objects)
+                            len(study.planned_robot_subtasks()), clock=clock)
+        static = StaticTracker(study.objects, clock)
         trackers: dict[str, Tracker] = {"static": static}
         if spec.perception == "aruco":
             trackers["aruco"] = ArucoTracker(robot, study.objects)
-        self.perception = Perception(bus, study.objects, trackers, spec.perception)
-        self.static_perception = Perception(bus, study.objects, {"static": static}, "static")
+        self.perception = Perception(bus, study.objects, trackers, spec.perception, clock)
+        self.static_perception = Perception(bus, study.objects, {"static": static}, "static", clock)
         self.actions = ActionModule(robot, self.perception, self.log, study, spec.motion, gestures,
                                     static=self.static_perception)
         self.ctx = DecisionContext(study, self.log, self.actions, frozenset(spec.stalls))
@@ -66,9 +67,10 @@ class TrialRuntime:
         aruco = self.perception.trackers.get("aruco")
         if aruco is not None:
             marked = [n for n, o in self.study.objects.items() if o.marker is not None]
-            deadline = time.monotonic() + sight_timeout
+            loop = asyncio.get_running_loop()
+            deadline = loop.time() + sight_timeout
             while any(aruco.object_pose(n) is None for n in marked):
-                if time.monotonic() > deadline:
+                if loop.time() > deadline:
                     unseen = [n for n in marked if aruco.object_pose(n) is None]
                     raise RuntimeError(f"ArUco perception did not see {', '.join(unseen)} within {sight_timeout:g} s "
                                        "of setup: check the setup's head pose and the markers' ids")

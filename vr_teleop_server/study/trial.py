@@ -18,11 +18,11 @@ import contextlib
 import itertools
 import json
 import logging
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from client_protocol import names
+from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.tasks import cancel_and_wait
@@ -45,8 +45,10 @@ class Running:
 
 
 class TrialLog:
-    def __init__(self, bus: Bus, study: str, trial: str, modules: tuple[str, str, str], planned_subtasks: int) -> None:
+    def __init__(self, bus: Bus, study: str, trial: str, modules: tuple[str, str, str], planned_subtasks: int,
+                 clock: Clock = WALL) -> None:
         self.bus = bus
+        self.clock = clock
         self.study = study
         self.trial = trial
         self.modules = modules
@@ -87,7 +89,7 @@ class TrialLog:
 
     def begin(self) -> None:
         """T0: the trial's clock starts now."""
-        self._t0 = time.monotonic()
+        self._t0 = self.clock.monotonic()
         self.set_state("running")
         self._task = asyncio.ensure_future(self._metrics_loop())
 
@@ -98,7 +100,7 @@ class TrialLog:
     def now(self) -> float:
         if self._t0 is None:
             raise BusError(f"trial {self.trial} has not started")
-        return time.monotonic() - self._t0
+        return self.clock.monotonic() - self._t0
 
     async def finish(self, state: str, message: str = "") -> FluencyResult:
         """T1: running actions stay unfinished (clipped); the final metrics are published and returned."""

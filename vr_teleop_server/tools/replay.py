@@ -14,12 +14,20 @@ What is measured, all from what the server sends back:
 With a `road` (tests and benches: the poses data channel), the operator's /vr/* streams take it while the replayed
 operator holds control (as the issue-21 channel requires) and the WebSocket otherwise.
 The plot shows, per joint, the commanded angles against the measured ones (/qt_robot/joints/state).
+
+At `--speed max` without a server (`run_simulated`), the replay runs against a server of its own on the stand-in,
+on a simulated clock (simclock), through an in-process connection to its transport: the same session, bus and
+teleop code a WebSocket client reaches. The messages go at their recorded times in simulated time, which runs as
+fast as the work allows; every time in the report is simulated, except `replay_s`, `served_s` and the speeds,
+which say how long it took on the wall clock. At `--speed max` against a server (`--server`), each message goes
+as soon as the connection takes it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import math
 import sys
 import time
 from collections import defaultdict
@@ -34,8 +42,12 @@ from websockets.asyncio.client import connect
 
 from client_protocol import names
 from robot_models import load_qtrobot
+from simclock import WALL, Clock, SimulatedClock, loop_clock
+from simclock import run as run_on_clock
 
+from ..app import TeleopServer
 from ..recording.format import read_recording
+from ..settings import ServerSettings
 
 from ..teleop import TeleopError, TeleopMapper, TeleopSettings
 
@@ -123,11 +135,16 @@ class Collected:
     by_road: int = 0  # operator stream messages handed to the road instead of the WebSocket
     # the server's latched /vr_teleop/menus: selectable id -> (command, args)
     menu_items: dict[str, tuple[str, dict[str, Any]]] = field(default_factory=dict)
+    clock: Clock = WALL  # whose times the ones above are
+    wall_started: float = 0.0  # time.perf_counter() when the first message was sent
+    wall_last_command: float = 0.0  # time.perf_counter() when the newest joint command arrived
+    road_calls: int = 0
 
 
 async def _receive(ws: Any, got: Collected) -> None:
+    clock = got.clock
     async for frame in ws:
-        now = time.monotonic()
+        now = clock.monotonic()
         if isinstance(frame, bytes):
             continue
         msg = json.loads(frame)
@@ -137,6 +154,7 @@ async def _receive(ws: Any, got: Collected) -> None:
             if topic in names.COMMAND_TOPIC_PARTS:
                 got.commands[names.COMMAND_TOPIC_PARTS[topic]].append((now, msg["msg"]["data"]))
                 got.last_command = now
+                got.wall_last_command = time.perf_counter()
             elif topic == names.JOINT_STATE_TOPIC:
                 got.joint_states.append((now, dict(zip(msg["msg"]["name"], msg["msg"]["position"]))))
             elif topic == names.MENUS_TOPIC:
@@ -145,7 +163,7 @@ async def _receive(ws: Any, got: Collected) -> None:
             elif topic == names.CAMERA_TOPIC:
                 stamp = msg["msg"]["header"]["stamp"]
                 secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
-                got.camera.append((time.time(), secs))
+                got.camera.append((clock.time(), secs))
         elif op == "service_response":
             values = msg.get("values")
             refused = isinstance(values, dict) and (values.get("success") is False or values.get("status") is False)
@@ -155,11 +173,16 @@ async def _receive(ws: Any, got: Collected) -> None:
 
 
 async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = True,
-                     progress: bool = True, road: PoseRoad | None = None) -> tuple[Collected, float]:
-    got = Collected()
+                     progress: bool = True, road: PoseRoad | None = None,
+                     connection: Callable[[], Any] | None = None) -> tuple[Collected, float]:
+    """Plays the steps at `speed` (math.inf: each as soon as the connection takes it) over a WebSocket to `url`,
+    or over `connection()` (an async context manager shaped like a websockets connection) when given."""
+    clock = loop_clock()
+    got = Collected(clock=clock)
     control: list[tuple[Step, str]] = []  # control calls whose answers are not applied yet, in order sent
     holding = False
-    async with connect(url, max_size=None, compression=None) as ws:
+    opened = connection() if connection is not None else connect(url, max_size=None, compression=None)
+    async with opened as ws:
         subscriptions = [*names.COMMAND_TOPIC_PARTS, names.JOINT_STATE_TOPIC] + ([names.CAMERA_TOPIC] if camera else [])
         for topic in subscriptions:  # every command and joint state: a backlog, not the newest only
             queue = 0 if topic == names.CAMERA_TOPIC else 100_000
@@ -173,14 +196,17 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
         await asyncio.sleep(0.3)  # let the subscriptions settle
         loop = asyncio.get_running_loop()
         t0 = loop.time()
-        got.started = time.monotonic()
+        got.started = clock.monotonic()
+        got.wall_started = time.perf_counter()
         bar = tqdm(total=len(steps), unit="msg", disable=not progress, file=sys.stderr, desc="replay")
         for i, step in enumerate(steps):
             delay = t0 + step.t / speed - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
+            elif math.isinf(speed):
+                await asyncio.sleep(0)  # as fast as the server takes them, the answers read as they come
             if step.kind == "publish":
-                sent = time.monotonic()
+                sent = clock.monotonic()
                 if road is not None and step.topic.startswith("/vr/"):
                     holding = _holding(control, got, holding)
                 if holding and road is not None and step.topic.startswith("/vr/") \
@@ -192,16 +218,16 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                     got.sent_head.append((sent, i))
             else:
                 frame = {**step.payload, "id": f"replay:{i}"}
-                got.calls[frame["id"]] = (step.topic, time.monotonic(), frame.get("args") or {})
+                got.calls[frame["id"]] = (step.topic, clock.monotonic(), frame.get("args") or {})
                 control.append((step, frame["id"]))
                 await ws.send(json.dumps(frame))
             bar.update(1)
         bar.close()
-        elapsed = loop.time() - t0
+        elapsed = time.perf_counter() - got.wall_started
         # Wait for the last answers (a sentence, a gesture) and for the commands a lagging server still owes.
         deadline = loop.time() + DRAIN_S
         while loop.time() < deadline and (len(got.responses) < len(got.calls)
-                                          or time.monotonic() - got.last_command < QUIET_S):
+                                          or clock.monotonic() - got.last_command < QUIET_S):
             await asyncio.sleep(0.05)
         receiver.cancel()
         if road is not None:
@@ -221,14 +247,32 @@ def _holding(control: list[tuple[Step, str]], got: Collected, holding: bool) -> 
 
 async def _call(ws: Any, got: Collected, service: str, args: dict[str, Any], timeout: float = 30.0) -> Any:
     """A service call of the road's (its answer is taken out of got.responses: it is not the session's)."""
-    cid = f"road:{service}:{time.monotonic_ns()}"
+    got.road_calls += 1
+    cid = f"road:{service}:{got.road_calls}"
     await ws.send(json.dumps({"op": "call_service", "id": cid, "service": service, "args": args}))
-    deadline = time.monotonic() + timeout
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
     while cid not in got.responses:
-        if time.monotonic() > deadline:
+        if loop.time() > deadline:
             raise TimeoutError(f"no answer from {service} within {timeout:g} s")
         await asyncio.sleep(0.01)
     return got.responses.pop(cid)[1]
+
+
+def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,
+                  settings: ServerSettings | None = None) -> tuple[Collected, float]:
+    """The replay at `--speed max` without a server: a server of its own on the stand-in and a simulated clock,
+    reached through an in-process connection to its transport. Returns what run_replay returns."""
+    base = settings or ServerSettings(port=0, backend="sim")
+    clock = SimulatedClock()
+
+    async def main() -> tuple[Collected, float]:
+        server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "host": "127.0.0.1"}), clock)
+        async with server:
+            return await run_replay(steps, "", 1.0, camera=camera, progress=progress,
+                                    connection=server.transport.connect_local)
+
+    return run_on_clock(main(), clock)
 
 
 def _responses(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tuple[
@@ -354,9 +398,10 @@ def _tracking(got: Collected, expected: dict[int, dict[str, list[float]]]) -> tu
     return errors, caused, pairing
 
 
-def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
+def _engage_lag(steps: list[Step], got: Collected, poses: int = 180, settings: TeleopSettings | None = None) -> int:
     """How many head poses after the engage call the server engaged (not on the wire: the server runs calls as
-    tasks). The lag whose first offline head commands match the first ones received, in order, wins."""
+    tasks). The lag whose first offline head commands match the first ones received, in order, wins; as in
+    _responses, the server may have sent a few commands first that no pose of the offline mapping causes."""
     received = [c[1] for c in got.commands.get("head", [])]
     engage = next((i for i, step in enumerate(steps) if step.kind == "call" and step.topic == names.ENGAGE_SERVICE),
                   None)
@@ -366,11 +411,12 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180) -> int:
     head = steps[:after[min(poses, len(after)) - 1] + 1] if after else steps
 
     def miss(lag: int) -> float:
-        expected = expected_commands(head, got, engage_lag=lag)
+        expected = expected_commands(head, got, settings, engage_lag=lag)
         firsts = [e["head"] for _i, e in sorted(expected.items()) if "head" in e][: len(received)]
         if not firsts:
             return np.inf
-        return float(np.mean([np.abs(np.array(e) - np.array(r)).max() for e, r in zip(firsts, received)]))
+        return min(float(np.mean([np.abs(np.array(e) - np.array(r)).max() for e, r in zip(firsts, received[skip:])]))
+                   for skip in range(min(ENGAGE_LAGS, len(received))))
 
     return min(range(ENGAGE_LAGS), key=miss)
 
@@ -380,14 +426,18 @@ def _reason(values: Any) -> Any:
     return values.get("message", values) if isinstance(values, dict) else values
 
 
-def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> dict[str, Any]:
+def report(steps: list[Step], got: Collected, elapsed: float, speed: float,
+           settings: TeleopSettings | None = None) -> dict[str, Any]:
+    """`settings`: the server's teleop settings, for the offline mapping (default: the defaults)."""
     duration = steps[-1].t if steps else 0.0
-    lag = _engage_lag(steps, got)
-    expected = expected_commands(steps, got, engage_lag=lag)
+    lag = _engage_lag(steps, got, settings=settings)
+    expected = expected_commands(steps, got, settings, engage_lag=lag)
     errors, caused, pairing = _tracking(got, expected)
     sent_at = {index: sent for sent, index in got.sent_head}
     last = [c[-1][0] for c in got.commands.values() if c]
     served = max(last) - got.started if last else None
+    if got.clock.simulated:  # simulated times in the report; how fast it went is the wall clock's
+        served = got.wall_last_command - got.wall_started if last else None
     lat_ms = np.array([(min(t for t, _v in parts.values()) - sent_at[i]) * 1e3 for i, parts in caused.items()])
     cam_rx = np.array([c[0] for c in got.camera])
     cam_age = np.array([(rx - stamp) * 1e3 for rx, stamp in got.camera])
@@ -405,7 +455,9 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float) -> d
                 "max": round(float(e.max()), 3) if e.size else None}
 
     return {
-        "session_s": round(duration, 2), "replay_s": round(elapsed, 2), "speed_requested": speed,
+        "session_s": round(duration, 2), "replay_s": round(elapsed, 2),
+        "speed_requested": "max" if math.isinf(speed) else speed,
+        "clock": "simulated" if got.clock.simulated else "wall",
         "speed_achieved": round(duration / elapsed, 2) if elapsed > 0 else None,
         # until the last joint command arrived: how fast the server really went through the session
         "served_s": round(served, 2) if served else None,

@@ -1,6 +1,11 @@
 """Run study trials on the stand-in: a server of our own (sim backend, session recording), the trial's modules
 on it, and the simulated participant, operator and experimenter as rosbridge clients. After each trial the
 metrics are recomputed from the recording and compared with the live ones.
+
+On a simulated clock (`--speed max`, simclock) the trial runs as fast as the work allows: the people reach the
+server through in-process connections to its transport, and the camera is rendered in simulated time at the
+rate ArUco perception searches frames. `seed` picks the simulated people's draws (the study's seed by default);
+`--repeat N` runs a trial with seeds S..S+N-1 and summarises each metric (mean, SD, 95% confidence interval).
 """
 
 from __future__ import annotations
@@ -8,12 +13,16 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from simclock import WALL, Clock
+
 from ..app import TeleopServer
 from ..core.tasks import cancel_and_wait
+from ..questionnaires.stats import describe
 from ..settings import ServerSettings
 from ..study.metrics import FluencyResult, compute_metrics, read_trial
 from ..study.people import SimulatedPeople
@@ -32,6 +41,7 @@ class TrialReport:
     recorded: FluencyResult | None
     recording: Path | None
     refusals: tuple[str, ...]
+    seed: int = 0
 
     @property
     def recording_matches(self) -> bool | None:
@@ -52,20 +62,34 @@ def recorded_metrics(path: Path, trial: str) -> FluencyResult:
                            planned_subtasks=data.planned_subtasks)
 
 
+ARUCO_RATE_HZ = 5.0  # the frames a second ArUco perception searches (ArucoTracker's rate)
+
+
+def people_seed(seed: int, trial: str) -> int:
+    """The simulated people's generator seed for a run seed (the study's seed gives what the study file says)."""
+    return seed * 1_000_003 + zlib.crc32(trial.encode())
+
+
 async def run_trial(study: Study, trial: str, *, record: Path | None = None, timeout: float = 900.0,
                     settings: ServerSettings | None = None, progress: Callable[[float, int], None] | None = None,
-                    progress_every_s: float = 5.0) -> TrialReport:
+                    progress_every_s: float = 5.0, seed: int | None = None, clock: Clock = WALL) -> TrialReport:
     """Runs one trial on a server of its own; `progress(elapsed_s, actions_done)` hears how it goes, every
-    `progress_every_s` while it runs and once at its end."""
+    `progress_every_s` while it runs and once at its end. `clock`: the running loop's (simclock.run) when
+    simulated. `timeout` is on that clock."""
     spec = study.trials[trial]
+    seed = study.seed if seed is None else seed
     base = settings or ServerSettings(port=0, backend="sim")
-    server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "record": record,
-                                                  "record_camera_fps": 0.0}))
+    update = {"port": 0, "backend": "sim", "record": record, "record_camera_fps": 0.0}
+    if clock.simulated and spec.perception == "aruco":  # every frame drawn is searched: none drawn in vain
+        update["camera_fps"] = ARUCO_RATE_HZ
+    server = TeleopServer(base.model_copy(update=update), clock)
     await server.start()
     try:
         assert server.robot is not None and server.luxai is not None
-        runtime = TrialRuntime(server.bus, server.robot, study, trial, server.luxai.gestures)
-        people = SimulatedPeople(server.url, study, trial, operator=spec.decision != "scripted")
+        runtime = TrialRuntime(server.bus, server.robot, study, trial, server.luxai.gestures, clock=clock)
+        people = SimulatedPeople(server.url, study, trial, operator=spec.decision != "scripted",
+                                 seed=people_seed(seed, trial),
+                                 opener=server.transport.connect_local if clock.simulated else None)
         try:
             await runtime.prepare()
             await people.connect()
@@ -90,7 +114,7 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
         await server.stop()
     recorded = recorded_metrics(record, trial) if record is not None else None
     return TrialReport(trial, (spec.perception, spec.decision, spec.motion), result.outcome, result.metrics,
-                       recorded, record, tuple(people.refusals))
+                       recorded, record, tuple(people.refusals), seed)
 
 
 async def _report_progress(runtime: TrialRuntime, progress: Callable[[float, int], None], every_s: float) -> None:
@@ -99,6 +123,32 @@ async def _report_progress(runtime: TrialRuntime, progress: Callable[[float, int
         if runtime.log.started:
             counts = runtime.log.snapshot().counts
             progress(runtime.log.now(), counts.human_actions + counts.robot_actions - counts.unfinished)
+
+
+METRICS = ("effectiveness", "efficiency_s", "h_idle", "r_idle", "c_act", "f_del")
+
+
+def summarise(runs: list[TrialReport]) -> dict[str, dict[str, float | int | None]]:
+    """Per metric over the runs of one trial: n, mean, SD and the 95% confidence interval of the mean (t)."""
+    out = {}
+    for key in METRICS:
+        d = describe([r.live.to_json_dict().get(key) for r in runs])
+        out[key] = {"n": d.n, "mean": d.mean, "sd": d.sd, "ci95_low": d.ci95_low, "ci95_high": d.ci95_high}
+    return out
+
+
+def stats_table(runs_by_trial: dict[str, list[TrialReport]]) -> str:
+    """Mean, SD and 95% CI per metric and trial, beside the paper-shaped table."""
+    def f(x: float | None) -> str:
+        return "n/a" if x is None else f"{x:.2f}"
+
+    head = f"{'trial':<20} {'metric':<14} {'n':>3} {'mean':>8} {'SD':>8} {'95% CI':>20}"
+    lines = [head, "-" * len(head)]
+    for i, (trial, runs) in enumerate(runs_by_trial.items(), 1):
+        for key, s in summarise(runs).items():
+            ci = f"[{f(s['ci95_low'])}, {f(s['ci95_high'])}]" if s["ci95_low"] is not None else "n/a"
+            lines.append(f"{f'{i} {trial}':<20} {key:<14} {s['n']:>3} {f(s['mean']):>8} {f(s['sd']):>8} {ci:>20}")
+    return "\n".join(lines)
 
 
 def table(reports: list[TrialReport]) -> str:

@@ -12,7 +12,6 @@ import asyncio
 import itertools
 import logging
 import math
-import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -238,7 +237,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
         """Waits for and returns the frames that may go out now (replies first, then topics, throttles obeyed)."""
         outbox, wake = self.outbox, self._wake
         while True:
-            now = time.monotonic()
+            now = asyncio.get_running_loop().time()  # the clock of the wait below
             frames, wake_at = outbox.take(now)
             if frames:
                 return frames

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -40,7 +39,8 @@ class SimRobot(Robot):
 
     Speech is timed from the text at `words_per_minute` and shown as a talking face; the stand-in makes no
     sound (SpeechResult.audible is False). Construction starts MuJoCo and a GL context and takes a moment:
-    from asyncio, use `await SimRobot.create(...)`.
+    from asyncio, use `await SimRobot.create(...)`. Its time is the stand-in's clock (`clock=`, default the wall
+    clock; a simulated one must be the running loop's, see simclock).
     """
 
     def __init__(self, model: RobotModel | None = None, *, standin: StandIn | None = None,
@@ -118,7 +118,7 @@ class SimRobot(Robot):
         duration = self.speech_duration(text) if duration_s is None else max(0.0, float(duration_s))
         stop = self._speech_stop = asyncio.Event()
         self._standin.speak(duration)
-        t0 = time.monotonic()
+        t0 = self._standin.clock.monotonic()
         completed = False
         try:
             await asyncio.wait_for(stop.wait(), duration)
@@ -129,7 +129,7 @@ class SimRobot(Robot):
                 self._speech_stop = None
                 if not completed:  # stopped or cancelled
                     self._standin.speak(0.0)
-        return SpeechResult(text, completed, time.monotonic() - t0, audible=False)
+        return SpeechResult(text, completed, self._standin.clock.monotonic() - t0, audible=False)
 
     def stop_speech(self) -> None:
         if self._speech_stop is not None:
@@ -178,11 +178,12 @@ class SimRobot(Robot):
         """Wait until the joints reach the last waypoint (or could have, at their caps); the largest error."""
         here = self._standin.joint_positions()
         slowest = max(abs(here[n] - v) / self._model.joint(n).max_velocity for n, v in targets.items())
-        deadline = time.monotonic() + slowest + 1.0
+        clock = self._standin.clock
+        deadline = clock.monotonic() + slowest + 1.0
         while True:
             here = self._standin.joint_positions()
             error = max(abs(here[n] - v) for n, v in targets.items())
-            if error <= SETTLE_TOLERANCE_DEG or time.monotonic() >= deadline:
+            if error <= SETTLE_TOLERANCE_DEG or clock.monotonic() >= deadline:
                 return error
             if await _stopped_within(stop, 0.02):
                 return None

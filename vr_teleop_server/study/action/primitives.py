@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-import time
 from collections.abc import Mapping
 
 import numpy as np
@@ -141,12 +140,13 @@ class ActionModule:
         goal = dict(zip(report.names, report.applied))
         here = self.robot.joint_state().as_dict()
         slowest = max(abs(here[n] - v) / self.model.joint(n).max_velocity for n, v in goal.items())
-        deadline = time.monotonic() + (timeout if timeout is not None else slowest * 1.5 + 1.5)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + (timeout if timeout is not None else slowest * 1.5 + 1.5)
         while True:
             here = self.robot.joint_state().as_dict()
             if max(abs(here[n] - v) for n, v in goal.items()) <= ARRIVAL_TOLERANCE_DEG:
                 return True
-            if time.monotonic() >= deadline:
+            if loop.time() >= deadline:
                 return False
             await asyncio.sleep(0.02)
 

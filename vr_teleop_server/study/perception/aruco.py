@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import time
 from dataclasses import dataclass
 
 import cv2
@@ -106,7 +105,8 @@ class ArucoTracker:
                         found = {}
                     for name, pose in found.items():
                         self._poses[name] = (pose, frame.stamp_monotonic)
-                await asyncio.sleep(max(0.0, self._period - (time.monotonic() - frame.stamp_monotonic)))
+                age = asyncio.get_running_loop().time() - frame.stamp_monotonic  # stamps are on the loop's clock
+                await asyncio.sleep(max(0.0, self._period - age))
 
     def _search(self, jpeg: bytes, angles: dict[str, float]) -> dict[str, np.ndarray]:
         gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import contextlib
-import time
 from typing import Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from client_protocol import names
+from simclock import WALL, Clock
 
 from ...core.bus import SERVER_NODE, Bus, BusError
 
@@ -34,7 +34,9 @@ class Tracker(Protocol):
 class Perception:
     """Trackers by name, the trial's default one, and each object's query points (poses in the object frame)."""
 
-    def __init__(self, bus: Bus, objects: dict[str, ObjectSpec], trackers: dict[str, Tracker], default: str) -> None:
+    def __init__(self, bus: Bus, objects: dict[str, ObjectSpec], trackers: dict[str, Tracker], default: str,
+                 clock: Clock = WALL) -> None:
+        self.clock = clock  # the trackers' stamps' clock
         if default not in trackers:
             raise ValueError(f"default tracker {default!r} is not among {sorted(trackers)}")
         self.bus = bus
@@ -77,7 +79,7 @@ class Perception:
                 raise BusError(f"object {obj!r} has no query point {query_point!r}; it has "
                                f"{', '.join(spec.query_points) or 'none'}")
             pose = pose @ point.matrix()
-        return pose, max(0.0, time.monotonic() - stamp)
+        return pose, max(0.0, self.clock.monotonic() - stamp)
 
     async def _query_service(self, req: object) -> dict[str, object]:
         pose, age = self.query(req.object, req.query_point, req.tracker)  # type: ignore[attr-defined]
