@@ -23,8 +23,17 @@ watchdog's events. Reported per profile and path:
   video frames per second the peer received (counted by their last RTP packet, not decoded).
 `lan` is the baseline: the last columns are ratios against it (each path against its own lan run), same run.
 
+With `--via` the same runs go through the real world's edges (issue 30; netem/edges.py): the replay client behind a
+home NAT, the server behind the school's symmetric NAT with its WebSocket port forwarded, and the media and poses
+channel through coturn in the relay namespace (the delay profile is the link between home and the internet, so a
+relayed path crosses it once). `turn-udp`: the school lets UDP out and every TURN leg is UDP; `turn-tls`: the
+school blocks UDP (TCP out to 80 and 443 only) and the server's leg is TURN over TLS on 443, the client's TURN/UDP.
+Each via's rows are against lan through the same via. `--poses binary`: the data channel's sender packs what is
+pending into one binary pose frame per send (client_protocol/pose_frame.py) instead of a JSON frame per topic.
+
     python bench/wan.py --quick            # the first 60 s of the session, every profile
     python bench/wan.py --profiles lan continent
+    python bench/wan.py --quick --profiles lan continent --paths datachannel --via direct turn-udp turn-tls
 
 Needs root and /dev/net/tun (network namespaces, TUN devices).
 """
@@ -32,7 +41,9 @@ Needs root and /dev/net/tun (network namespaces, TUN devices).
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import json
+import secrets
 import sys
 import tempfile
 from pathlib import Path
@@ -42,20 +53,40 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from netem import Emulator, available, cleanup_leftovers, load_profiles  # noqa: E402
+from netem import EDGES, Emulator, available, cleanup_leftovers, edges_available, load_profiles  # noqa: E402
+from vr_teleop_server.core.certs import make_certificate  # noqa: E402
 from vr_teleop_server.tools.replay import load_steps, report  # noqa: E402
 from vr_teleop_server.tools.synth import build, write  # noqa: E402
 from media_client import ChannelRoad  # noqa: E402
 from wan_support import Observer, intent_errors, pose_latencies, replay_in, serve  # noqa: E402
 
 
-def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> dict:
+VIAS = ("direct", "turn-udp", "turn-tls")
+
+
+def run_profile(name: str, steps, camera_fps: float, channel: bool = False, via: str = "direct",
+                poses: str = "json") -> dict:
     # both paths receive the camera and the robot's audio: the same load on both
-    road = ChannelRoad(video=True, carry=channel, audio=True)
-    with Emulator(name) as net:
-        url = serve(net, "--camera-fps", str(camera_fps))
+    road = ChannelRoad(video=True, carry=channel, audio=True, turn="" if via == "direct" else "udp",
+                       compact=poses == "binary")
+    edges = {} if via == "direct" else {
+        "client_edge": "home",
+        "server_edge": EDGES["school"] if via == "turn-tls" else EDGES["school"].replace(block_udp=False)}
+    with Emulator(name, **edges) as net, tempfile.TemporaryDirectory() as work:
+        extra, env = [], None
+        if via != "direct":
+            secret = secrets.token_hex(16)
+            cert = make_certificate(Path(work), [], [ipaddress.ip_address(net.relay_ip)])
+            net.start_relay(secret, cert.certfile, cert.keyfile, Path(work))
+            first, second = (f"turns:{net.relay_ip}:443?transport=tcp", f"turn:{net.relay_ip}:3478?transport=udp")
+            if via == "turn-udp":
+                first, second = second, first
+            extra = ["--turn-url", first, "--turn-url", second, "--turn-secret", secret]
+            env = {"SSL_CERT_FILE": str(cert.certfile)}  # the server trusts the relay's self-signed certificate
+        url = serve(net, "--camera-fps", str(camera_fps), *extra, env=env)
         observer = Observer(net, url, poses=True)
-        got, elapsed = replay_in(net, steps, url, road=road)
+        public = url.replace(net.server_ip, net.public_ip)  # through the school's forwarded port
+        got, elapsed = replay_in(net, steps, public, road=road)
         seen = observer.stop()
         link = net.stats()
     last_sent = got.sent_head[-1][0]
@@ -84,7 +115,7 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False) -> d
         extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_replaced": road.sender.replaced,
                  "head_failovers": road.sender.failovers,
                  "head_arrival": round(head_arrived / max(head_sent, 1), 3), **extra}
-    return {"profile": name, "path": "datachannel" if channel else "websocket", **extra,
+    return {"profile": name, "via": via, "poses": poses, "path": "datachannel" if channel else "websocket", **extra,
             "session_s": round(steps[-1].t, 1), "holds": len(holds),
             "holds_per_min": round(len(holds) / minutes, 2),
             "threshold_s": [min(thresholds), max(thresholds)] if thresholds else None,
@@ -126,8 +157,8 @@ def _ratio(row: dict | None, base: dict | None, key: str, q: str, digits: int) -
 
 def table(rows: list[dict]) -> str:
     """One line per profile: the WebSocket path, then the data channel (each ratio against its own path on lan)."""
-    ws = {r["profile"]: r for r in rows if r["path"] == "websocket"}
-    dc = {r["profile"]: r for r in rows if r["path"] == "datachannel"}
+    ws = {_label(r): r for r in rows if r["path"] == "websocket"}
+    dc = {_label(r): r for r in rows if r["path"] == "datachannel"}
     head = ("| profile | holds/min | tracking p50 / p95 (deg) | latency p50 / p99 (ms) | data channel: holds/min, "
             "tracking, latency | head poses arrived (DC) | video fps (WS / DC) | tracking p95 vs lan (WS / DC) | "
             "latency p50 vs lan (WS / DC) | glass to glass p50 / p95 (ms, WS / DC) | audio gaps/min, received "
@@ -135,6 +166,8 @@ def table(rows: list[dict]) -> str:
     lines = [head, "|" + "---|" * 13]
     for name in dict.fromkeys([*ws, *dc]):
         w, d = ws.get(name), dc.get(name)
+        via = (w or d)["via"]
+        base = "lan" if via == "direct" else f"lan via {via}"
         cells = [name]
         if w:
             t, lat = w["tracking_deg"], w["latency_ms"]
@@ -148,17 +181,21 @@ def table(rows: list[dict]) -> str:
         else:
             cells += ["-", "-"]
         cells.append(f"{w['video_fps'] if w else '-'} / {d['video_fps'] if d else '-'}")
-        cells += [f"{_ratio(w, ws.get('lan'), 'tracking_deg', 'p95', 2)} / "
-                  f"{_ratio(d, dc.get('lan'), 'tracking_deg', 'p95', 2)}",
-                  f"{_ratio(w, ws.get('lan'), 'latency_ms', 'p50', 1)} / "
-                  f"{_ratio(d, dc.get('lan'), 'latency_ms', 'p50', 1)}",
+        cells += [f"{_ratio(w, ws.get(base), 'tracking_deg', 'p95', 2)} / "
+                  f"{_ratio(d, dc.get(base), 'tracking_deg', 'p95', 2)}",
+                  f"{_ratio(w, ws.get(base), 'latency_ms', 'p50', 1)} / "
+                  f"{_ratio(d, dc.get(base), 'latency_ms', 'p50', 1)}",
                   " / ".join(_media(r, "glass") for r in (w, d)), " / ".join(_media(r, "audio") for r in (w, d)),
                   " / ".join(f"{r['tracking_less_delay_deg']['p50']}-{r['tracking_less_delay_deg']['p95']}"
                              if r else "-" for r in (w, d)),
-                  f"{_ratio(w, ws.get('lan'), 'tracking_less_delay_deg', 'p95', 2)} / "
-                  f"{_ratio(d, dc.get('lan'), 'tracking_less_delay_deg', 'p95', 2)}"]
+                  f"{_ratio(w, ws.get(base), 'tracking_less_delay_deg', 'p95', 2)} / "
+                  f"{_ratio(d, dc.get(base), 'tracking_less_delay_deg', 'p95', 2)}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _label(row: dict) -> str:
+    return row["profile"] if row.get("via", "direct") == "direct" else f"{row['profile']} via {row['via']}"
 
 
 def _media(row: dict | None, what: str) -> str:
@@ -180,9 +217,15 @@ def main() -> int:
                         "while watched: on the data-channel run, whose peer receives it as video)")
     parser.add_argument("--paths", nargs="+", default=["websocket", "datachannel"],
                         choices=["websocket", "datachannel"], help="which roads the poses take (each its own run)")
+    parser.add_argument("--via", nargs="+", default=["direct"], choices=VIAS,
+                        help="direct: the plain link; turn-udp, turn-tls: home and school NATs and the TURN relay "
+                             "(module docstring)")
+    parser.add_argument("--poses", default="json", choices=["json", "binary"],
+                        help="on the data channel: JSON publish frames, or one binary pose frame per send "
+                             "(client_protocol/pose_frame.py)")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args()
-    why = available()
+    why = available() if args.via == ["direct"] else edges_available()
     if why:
         print(f"bench/wan.py: {why}", file=sys.stderr)
         return 2
@@ -194,11 +237,13 @@ def main() -> int:
     if args.quick:
         steps = [s for s in steps if s.t < 60.0]
     rows = []
-    for name in args.profiles:
-        for path in args.paths:
-            row = run_profile(name, steps, args.camera_fps, channel=path == "datachannel")
-            rows.append(row)
-            print(f"{name} {path}: {json.dumps(row)}", flush=True)
+    for via in args.via:
+        for name in args.profiles:
+            for path in args.paths:
+                row = run_profile(name, steps, args.camera_fps, channel=path == "datachannel", via=via,
+                                  poses=args.poses)
+                rows.append(row)
+                print(f"{name} {via} {path}: {json.dumps(row)}", flush=True)
     print()
     print(f"{'First 60 s of the' if args.quick else 'The'} classroom session, per profile, WebSocket path and data "
           "channel (DC):")

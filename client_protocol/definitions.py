@@ -195,6 +195,11 @@ MESSAGES: dict[str, str] = {
         "string type\nstring[] fieldnames\nstring[] fieldtypes\nint32[] fieldarraylen\nstring[] examples\n"
         "string[] constnames\nstring[] constvalues"
     ),
+    "vr_teleop_msgs/IceServer": (
+        "# One entry of RTCConfiguration.iceServers: its URLs (stun:, turn:, turns:) and, for TURN, the\n"
+        "# credentials (coturn's time-limited ones: username EXPIRY:OPERATOR_KEY, credential base64 HMAC-SHA1).\n"
+        "string[] urls\nstring username\nstring credential"
+    ),
 }
 
 SERVICES: dict[str, str] = {
@@ -287,6 +292,12 @@ SERVICES: dict[str, str] = {
         "# peer connection lives as long as the WebSocket. A refusal answers success false with the reason in\n"
         "# message (sdp and type then empty).\n"
         "string sdp\nstring type\n---\nbool success\nstring message\nstring sdp\nstring type"
+    ),
+    "vr_teleop_msgs/IceServers": (
+        "# The ICE servers this connection's peer connection should use, with TURN credentials made for its\n"
+        "# operator, valid until expires (s since 1970; 0 when there is no TURN). Ask again for each new peer\n"
+        "# connection. A refusal answers success false with the reason in message (ice_servers then empty).\n"
+        "---\nbool success\nstring message\nIceServer[] ice_servers\nfloat64 expires"
     ),
     "vr_teleop_msgs/Clock": (
         "# NTP-style clock exchange: the client's send time in (any clock, echoed), the server's wall-clock\n"

@@ -222,11 +222,21 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "as the camera topic. Refusals: success false and the reason in message (malformed SDP, no common "
              "codec, no camera access, a second offer on this connection). A data channel labelled 'poses' "
              "(ordered false, maxRetransmits 0) carries the holder's /vr/* pose and Joy publish frames (README, "
-             "Media); with one in the offer, a media section without a common codec is answered rejected (port 0, "
+             "Media), or binary messages each holding one XR frame's poses and Joy (client_protocol/pose_frame.py: "
+             "fixed layout, versioned, little-endian); with one in the offer, a media section without a common codec is answered rejected (port 0, "
              "success true, the reason in message) instead of refusing the offer.",
              example={"sdp": "v=0\r\no=- 1 1 IN IP4 0.0.0.0\r\ns=-\r\nt=0 0\r\n"
                              "m=video 9 UDP/TLS/RTP/SAVPF 96\r\na=rtpmap:96 VP8/90000\r\na=recvonly\r\n",
                       "type": "offer"}),
+    Endpoint(names.MEDIA_ICE_SERVERS_SERVICE, "vr_teleop_msgs/IceServers", "call",
+             "The ICE servers for your RTCPeerConnection: call it before building each peer connection and pass "
+             "ice_servers (as iceServers: urls, username, credential) to its configuration. With TURN (serve "
+             "--turn-url, --turn-secret) each TURN entry carries fresh time-limited credentials for this "
+             "connection's operator (coturn's use-auth-secret: username EXPIRY:OPERATOR_KEY, credential base64 "
+             "HMAC-SHA1), valid until expires; the server's own peer uses the same servers. Without any, the list "
+             "is empty (host candidates: enough on a LAN). Same access as the offer: a client that may not see "
+             "the camera gets success false and the reason in message. Credentials are left out of recordings and "
+             "logs.", example={}),
     Endpoint(names.CLOCK_SERVICE, "vr_teleop_msgs/Clock", "call",
              "NTP-style clock exchange: offset = ((server_receive - client_send) + (server_send - client_receive))"
              " / 2 puts the server's stamps (camera headers, rtp_render_time) on the client's clock.",

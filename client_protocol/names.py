@@ -111,6 +111,8 @@ def all_names() -> dict[str, str]:
 # ---- media: WebRTC beside the rosbridge stream (vr_teleop_server/media) ----
 MEDIA_OFFER_SERVICE = "/vr_teleop/media/offer"
 CLOCK_SERVICE = "/vr_teleop/clock"
+# The ICE servers (STUN/TURN) and fresh TURN credentials a client uses for its peer connection
+MEDIA_ICE_SERVERS_SERVICE = "/vr_teleop/media/ice_servers"
 TELEMETRY_TOPIC = "/vr_teleop/telemetry"
 # The data channel the operator's poses and Joy take beside the media (label; ordered false, maxRetransmits 0)
 POSES_CHANNEL = "poses"

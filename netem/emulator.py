@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from .edges import LAN_DEV, Edge, edge
 from .model import DIRECTIONS, DirectionParams, Profile, load_profile
 
 NETNS_DIR = Path("/run/netns")
@@ -39,11 +40,30 @@ SERVER_IP = "10.89.0.2"
 CLONE_NEWNET = 0x40000000
 PR_SET_PDEATHSIG = 1
 SIDES = ("client", "server")
+# With edges (edges.py): the routers, the internet between them and the relay, and who holds each TUN end
+EDGE_NAMESPACES = ("client", "home", "internet", "relay", "school", "server")
+EDGE_ADDRESSES = {"client": "10.89.1.2", "home_lan": "10.89.1.1", "home_wan": CLIENT_IP, "internet": SERVER_IP,
+                  "internet_relay": "10.89.2.1", "relay": "10.89.2.2", "internet_school": "10.89.3.1",
+                  "school_wan": "10.89.3.2", "school_lan": "10.89.4.1", "server": "10.89.4.2"}
+WAN_DEV = "wan0"
 T = TypeVar("T")
 
 
 class NetemError(RuntimeError):
     pass
+
+
+def edges_available() -> str | None:
+    """None when the edges (NAT, firewall: nftables) and the relay (coturn) can run here, else why not."""
+    import shutil
+
+    why = available()
+    if why:
+        return why
+    for tool, package in (("nft", "nftables"), ("turnserver", "coturn")):
+        if shutil.which(tool) is None:
+            return f"the emulator's edges need {tool} (Debian's {package}; scripts/install-system-packages.sh)"
+    return None
 
 
 def available() -> str | None:
@@ -106,6 +126,12 @@ def cleanup_leftovers(all_runs: bool = False) -> list[str]:
     return removed
 
 
+def _run_in_ns(ns: str, argv: list[str], stdin: str | None = None) -> None:
+    done = subprocess.run(["ip", "netns", "exec", ns, *argv], input=stdin, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise NetemError(f"{' '.join(argv)} in {ns}: {done.stderr.strip() or done.returncode}")
+
+
 def _die_with_parent() -> None:
     """In the child before exec: SIGTERM when the process that started it dies (even by SIGKILL)."""
     libc = ctypes.CDLL(None, use_errno=True)
@@ -126,18 +152,32 @@ def enter_netns(name: str) -> None:
 
 
 class Emulator:
-    """The two namespaces and the impaired link between them (see the module docstring)."""
+    """The two namespaces and the impaired link between them (see the module docstring); with `client_edge` or
+    `server_edge` (an edges.Edge or its name: "home", "school", "open"), the routers, the internet and a relay
+    namespace around them (edges.py). `server_ip` is the address the server binds; `public_ip` the one clients
+    dial (the school router's, whose forwarded ports reach the server); `relay_ip` the relay's (start_relay)."""
 
     def __init__(self, profile: str | Profile = "lan", *, seed: int | None = None, python: str = sys.executable,
-                 profiles_file: Path | None = None) -> None:
+                 profiles_file: Path | None = None, client_edge: str | Edge | None = None,
+                 server_edge: str | Edge | None = None) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile, profiles_file)
         self.seed = seed
         self.python = python
         run = f"{PREFIX}{os.getpid()}-{secrets.token_hex(3)}"
-        self.netns = {side: f"{run}-{side}" for side in SIDES}
+        self.edges = None
+        if client_edge is not None or server_edge is not None:
+            self.edges = {"home": edge(client_edge or "open"), "school": edge(server_edge or "open")}
+        self.netns = {side: f"{run}-{side}" for side in (EDGE_NAMESPACES if self.edges else SIDES)}
         tag = run.split("-")[-1]
         self.tun = {side: f"vrnt{tag}{side[0]}" for side in SIDES}  # <= 15 characters
         self.client_ip, self.server_ip = CLIENT_IP, SERVER_IP
+        self.public_ip, self.relay_ip = SERVER_IP, None
+        self._tun_ns = {side: self.netns[side] for side in SIDES}  # which namespace holds each TUN end
+        if self.edges:
+            a = EDGE_ADDRESSES
+            self.client_ip, self.server_ip, self.public_ip, self.relay_ip = (a["client"], a["server"],
+                                                                             a["school_wan"], a["relay"])
+            self._tun_ns = {"client": self.netns["home"], "server": self.netns["internet"]}
         self.params = {d: self.profile.direction(d) for d in DIRECTIONS}
         self._forwarder: subprocess.Popen[str] | None = None
         self._procs: list[subprocess.Popen[Any]] = []
@@ -156,10 +196,10 @@ class Emulator:
         self.close()
 
     def start(self) -> None:
-        for side in SIDES:
-            _ip("netns", "add", self.netns[side])
-            _ip("-n", self.netns[side], "link", "set", "lo", "up")
-        spec = {"tun": self.tun, "netns": self.netns, "seed": self.seed,
+        for ns in self.netns.values():
+            _ip("netns", "add", ns)
+            _ip("-n", ns, "link", "set", "lo", "up")
+        spec = {"tun": self.tun, "netns": self._tun_ns, "seed": self.seed,
                 "params": {d: p.to_dict() for d, p in self.params.items()}}
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).parent.parent),
                                                                           os.environ.get("PYTHONPATH")]))}
@@ -172,9 +212,37 @@ class Emulator:
         peers = {"client": (CLIENT_IP, SERVER_IP), "server": (SERVER_IP, CLIENT_IP)}
         for side in SIDES:
             local, peer = peers[side]
-            ns, dev = self.netns[side], self.tun[side]
+            ns, dev = self._tun_ns[side], self.tun[side]
             _ip("-n", ns, "addr", "add", local, "peer", peer, "dev", dev)
             _ip("-n", ns, "link", "set", dev, "txqueuelen", "10000", "up")
+        if self.edges:
+            self._build_edges()
+
+    def _veth(self, a: str, a_dev: str, a_ip: str, b: str, b_dev: str, b_ip: str) -> None:
+        """A /24 link between namespaces a and b (created inside them: nothing in the host's namespace)."""
+        _ip("-n", self.netns[a], "link", "add", a_dev, "type", "veth", "peer", "name", b_dev, "netns", self.netns[b])
+        for ns, dev, addr in ((a, a_dev, a_ip), (b, b_dev, b_ip)):
+            _ip("-n", self.netns[ns], "addr", "add", f"{addr}/24", "dev", dev)
+            _ip("-n", self.netns[ns], "link", "set", dev, "up")
+
+    def _build_edges(self) -> None:
+        a = EDGE_ADDRESSES
+        self._veth("client", LAN_DEV, a["client"], "home", LAN_DEV, a["home_lan"])
+        self._veth("internet", "relay0", a["internet_relay"], "relay", WAN_DEV, a["relay"])
+        self._veth("internet", "school0", a["internet_school"], "school", WAN_DEV, a["school_wan"])
+        self._veth("school", LAN_DEV, a["school_lan"], "server", LAN_DEV, a["server"])
+        routes = {"client": [["default", "via", a["home_lan"]]], "home": [["default", "dev", self.tun["client"]]],
+                  "relay": [["default", "via", a["internet_relay"]]], "school": [["default", "via", a["internet_school"]]],
+                  "server": [["default", "via", a["school_lan"]]],
+                  # the inside networks are routed to their routers, which drop what no mapping or forward lets in
+                  "internet": [["10.89.1.0/24", "dev", self.tun["server"]], ["10.89.4.0/24", "via", a["school_wan"]]]}
+        for ns, entries in routes.items():
+            for route in entries:
+                _ip("-n", self.netns[ns], "route", "add", *route)
+        for router, wan, inside in (("home", self.tun["client"], a["client"]), ("school", WAN_DEV, a["server"])):
+            _run_in_ns(self.netns[router], ["sysctl", "-qw", "net.ipv4.ip_forward=1"])
+            _run_in_ns(self.netns[router], ["nft", "-f", "-"], self.edges[router].ruleset(wan, inside))
+        _run_in_ns(self.netns["internet"], ["sysctl", "-qw", "net.ipv4.ip_forward=1"])
 
     def close(self) -> None:
         """Everything goes, in an order that cannot leave a device or process behind; safe to call twice."""
@@ -199,9 +267,9 @@ class Emulator:
             with contextlib.suppress(OSError):
                 self._forwarder.stdout.close()
             self._forwarder = None
-        for side in SIDES:
-            if (NETNS_DIR / self.netns[side]).exists():
-                _kill_namespace(self.netns[side])
+        for ns in self.netns.values():
+            if (NETNS_DIR / ns).exists():
+                _kill_namespace(ns)
 
     # ---- the link ---------------------------------------------------------------------------------------------
     def _command(self, msg: dict[str, Any]) -> dict[str, Any]:
@@ -237,6 +305,49 @@ class Emulator:
     @property
     def forwarder_pid(self) -> int | None:
         return self._forwarder.pid if self._forwarder is not None else None
+
+    def set_edge(self, router: str, spec: str | Edge) -> None:
+        """Replaces the rule set of the "home" or "school" router (e.g. the school starts letting UDP out)."""
+        if not self.edges or router not in self.edges:
+            raise NetemError(f"no router {router!r}: the edges are home and school (give client_edge/server_edge)")
+        new = edge(spec)
+        wan, inside = ((self.tun["client"], EDGE_ADDRESSES["client"]) if router == "home"
+                       else (WAN_DEV, EDGE_ADDRESSES["server"]))
+        _run_in_ns(self.netns[router], ["nft", "-f", "-"], "flush ruleset\n" + new.ruleset(wan, inside))
+        self.edges[router] = new
+
+    # ---- the relay ----------------------------------------------------------------------------------------------
+    def start_relay(self, secret: str, certfile: Path, keyfile: Path, workdir: Path,
+                    timeout: float = 30.0) -> subprocess.Popen[Any]:
+        """coturn (Debian's turnserver) in the relay namespace with relay.coturn_config; returns once it accepts
+        TCP on 3478 and 443. Its log is workdir/turnserver.log; it is stopped (by its pid) on close()."""
+        from .relay import PORT, TLS_PORT, coturn_config
+
+        if self.relay_ip is None:
+            raise NetemError("a relay needs the edges: give client_edge and/or server_edge")
+        log_file = workdir / "turnserver.log"
+        conf = workdir / "turnserver.conf"
+        conf.write_text(coturn_config(self.relay_ip, secret, certfile, keyfile, log_file))
+        conf.chmod(0o600)
+        proc = self.popen("relay", ["turnserver", "-c", str(conf), "--pidfile", str(workdir / "turnserver.pid")],
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+        def listening() -> bool:
+            import socket
+            for port in (PORT, TLS_PORT):
+                with socket.socket() as s:
+                    s.settimeout(1.0)
+                    if s.connect_ex((self.relay_ip, port)) != 0:
+                        return False
+            return True
+
+        deadline = time.monotonic() + timeout
+        while not self.run_in("relay", listening):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise NetemError(f"coturn did not start in the relay namespace (exit {proc.poll()}): "
+                                 f"{log_file.read_text()[-1500:] if log_file.exists() else 'no log'}")
+            time.sleep(0.1)
+        return proc
 
     # ---- running things inside ----------------------------------------------------------------------------------
     def popen(self, side: str, argv: Sequence[str], **kwargs: Any) -> subprocess.Popen[Any]:

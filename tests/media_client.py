@@ -12,8 +12,10 @@ from typing import Any
 
 import av
 import numpy as np
-from aiortc import MediaStreamTrack, RTCConfiguration, RTCPeerConnection, RTCSessionDescription
+from aiortc import MediaStreamTrack, RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
 from aiortc.mediastreams import MediaStreamError
+
+from client_protocol import pose_frame
 from websockets.asyncio.client import ClientConnection, connect
 
 
@@ -139,8 +141,11 @@ quaternion): about 80% of the bytes, and the channel's congestion window counts 
     STALL_S = 0.1
     DECIMALS = 5
 
-    def __init__(self, channel: Any) -> None:
+    def __init__(self, channel: Any, compact: bool = False) -> None:
+        """`compact`: send what is pending as ONE binary pose frame (client_protocol/pose_frame.py) per send."""
         self.channel = channel
+        self.compact = compact
+        self._pending_msgs: dict[str, dict[str, Any]] = {}  # compact: topic -> newest message
         self.head_taken_at: float | None = None  # when the channel last took a head pose
         self.failovers = 0  # head poses handed back for the WebSocket: the channel was stalled
         channel.bufferedAmountLowThreshold = 0
@@ -164,6 +169,8 @@ quaternion): about 80% of the bytes, and the channel's congestion window counts 
             return False
         if topic in self._pending:
             self.replaced += 1
+        if self.compact:
+            self._pending_msgs[topic] = msg
         self._pending[topic] = json.dumps({"op": "publish", "topic": topic, "msg": _rounded(msg)},
                                           separators=(",", ":"))
         self._pump()
@@ -181,6 +188,16 @@ quaternion): about 80% of the bytes, and the channel's congestion window counts 
         self.channel.send(data)
 
     def _pump(self) -> None:
+        if self.compact:
+            while self._pending and self.open and self.channel.bufferedAmount <= self.channel.bufferedAmountLowThreshold:
+                data = _pose_frame(self._pending_msgs)
+                if self.HEAD in self._pending:
+                    self.head_taken_at = time.monotonic()
+                self._pending.clear()
+                self._pending_msgs.clear()
+                self.channel.send(data)
+                self.sent += 1
+            return
         while self._pending and self.open and self.channel.bufferedAmount <= self.channel.bufferedAmountLowThreshold:
             others = (t for t in self._pending if t != self.HEAD)
             topic = self.HEAD if self.HEAD in self._pending and not self._head_last else next(others, self.HEAD)
@@ -201,16 +218,36 @@ quaternion): about 80% of the bytes, and the channel's congestion window counts 
             await asyncio.sleep(0.02)
 
 
+def _pose_frame(msgs: dict[str, dict[str, Any]]) -> bytes:
+    """The pending messages as one binary pose frame, stamped with the head pose's stamp (else the newest)."""
+    def stamp(msg: dict[str, Any]) -> float:
+        s = msg.get("header", {}).get("stamp", {})
+        return s.get("secs", s.get("sec", 0)) + s.get("nsecs", s.get("nanosec", 0)) / 1e9
+
+    head = msgs.get(PoseSender.HEAD)
+    when = stamp(head) if head is not None else max(stamp(m) for m in msgs.values())
+    poses, joys, unity = {}, {}, True
+    for topic, msg in msgs.items():
+        if topic in pose_frame.POSE_TOPICS:
+            p, q = msg["pose"]["position"], msg["pose"]["orientation"]
+            poses[topic] = (p["x"], p["y"], p["z"], q["x"], q["y"], q["z"], q["w"])
+            unity = msg.get("header", {}).get("frame_id") == pose_frame.UNITY_FRAME
+        elif topic in pose_frame.JOY_TOPICS:
+            joys[topic] = ((list(msg["axes"]) + [0.0] * 4)[:4], (list(msg["buttons"]) + [0] * 4)[:4])
+    return pose_frame.encode(when, poses, joys, unity=unity)
+
+
 class MediaPeer:
     """An aiortc peer that receives the robot's video and audio, may send a microphone track, and with `poses`
     opens the poses data channel (unordered, no retransmissions) before the offer, as the operator page does."""
 
     def __init__(self, video: bool = True, audio: bool = True, mic: MediaStreamTrack | None = None,
-                 video_codec: str | None = None, poses: bool = False) -> None:
-        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=[]))
+                 video_codec: str | None = None, poses: bool = False,
+                 ice_servers: list[RTCIceServer] | None = None, compact: bool = False) -> None:
+        self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice_servers or []))
         self.poses: PoseSender | None = None
         if poses:
-            self.poses = PoseSender(self.pc.createDataChannel("poses", ordered=False, maxRetransmits=0))
+            self.poses = PoseSender(self.pc.createDataChannel("poses", ordered=False, maxRetransmits=0), compact)
         self.frames: list[tuple[float, Any]] = []  # (monotonic receive time, av.VideoFrame)
         self.audio_frames: list[tuple[float, np.ndarray]] = []
         self.keep_frames = 5
@@ -357,15 +394,31 @@ class ChannelRoad:
     decoded: a viewer whose decoding is not this machine's business). With `carry` False the channel is opened but
     nothing is sent on it: the poses stay on the WebSocket beside the same media (a baseline with the same load)."""
 
-    def __init__(self, video: bool = False, carry: bool = True, audio: bool = False) -> None:
+    def __init__(self, video: bool = False, carry: bool = True, audio: bool = False, turn: str = "",
+                 compact: bool = False) -> None:
+        """`turn` ("udp", "tcp" or "tls"): ask the server for its ICE servers and reach the relay that way (aiortc
+        uses one TURN URL, the first: the one of that transport goes first)."""
         self.video = video
+        self.turn = turn
+        self.compact = compact  # the poses as binary pose frames (client_protocol/pose_frame.py)
         self.carry = carry
         self.audio = audio  # also receive the robot's audio (decoded: the bench counts its gaps)
         self.peer: MediaPeer | None = None  # made in open(), on the replay's loop and in its thread's namespace
         self.video_frames: list[tuple[float, int]] = []  # (monotonic time, frames so far) at open and close
 
     async def open(self, call: Any) -> None:
-        self.peer = MediaPeer(video=self.video, audio=self.audio, poses=True)
+        ice = None
+        if self.turn:
+            values = await call("/vr_teleop/media/ice_servers", {})
+            scheme = {"udp": "turn:", "tcp": "turn:", "tls": "turns:"}[self.turn]
+            transport = "transport=udp" if self.turn == "udp" else "transport=tcp"
+
+            def rank(url: str) -> int:
+                return 0 if url.startswith(scheme) and url.endswith(transport) else 1
+
+            ice = [RTCIceServer(urls=sorted(e["urls"], key=rank), username=e["username"] or None,
+                                credential=e["credential"] or None) for e in values.get("ice_servers", [])]
+        self.peer = MediaPeer(video=self.video, audio=self.audio, poses=True, ice_servers=ice, compact=self.compact)
         self.peer.light = True
         pc = self.peer.pc
         await pc.setLocalDescription(await pc.createOffer())

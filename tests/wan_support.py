@@ -36,11 +36,12 @@ TELEMETRY = "/vr_teleop/telemetry"
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def serve(net: Emulator, *extra: str, start_timeout: float = 120.0) -> str:
-    """Starts the server in the server namespace and returns its URL once it listens (the emulator stops it)."""
+def serve(net: Emulator, *extra: str, start_timeout: float = 120.0, env: dict[str, str] | None = None) -> str:
+    """Starts the server in the server namespace and returns its URL once it listens (the emulator stops it);
+    `env`: more environment (SSL_CERT_FILE to trust a self-signed relay)."""
     log = tempfile.NamedTemporaryFile("w+", prefix="wan-serve-", suffix=".log", delete=False)
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])), **(env or {})}
     proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host", net.server_ip,
                                 "--port", str(PORT), "--insecure", "--backend", "sim", "--log-level", "warning",
                                 *extra], stdout=subprocess.PIPE, stderr=log, text=True, env=env, cwd=ROOT)

@@ -234,7 +234,7 @@ class TeleopServer:
         self.media = MediaService(self.bus, self.robot, self.access, lambda: self.sessions,
                                   camera_fps=self.settings.camera_fps, render_line=render_line,
                                   bystander_interval=self.settings.bystander_interval,
-                                  ice_servers=list(self.settings.ice_servers), holds_control=self._holds_control,
+                                  ice=self.settings.ice_config(), holds_control=self._holds_control,
                                   control=lambda connection: self.control.link_view(connection)
                                   if self.control is not None else None)
         self._start(self.media)

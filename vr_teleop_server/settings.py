@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, SecretStr, ValidationInfo, field_validator
 
 from .core.settings import MIB, CoreSettings
+from .media.turn import DEFAULT_TTL_S, IceConfig, check_url
 from .teleop.settings import TeleopSettings
 
 __all__ = ["MIB", "CoreSettings", "ServerSettings"]
@@ -41,6 +42,11 @@ class ServerSettings(CoreSettings):
     motivation_config: Path | None = Field(None, description="motivation variables file; default: the packaged")
     bystander_interval: float = Field(20.0, ge=0, description="seconds between the stand-in's bystanders' lines "
                                                               "in the robot's WebRTC audio (0: none)")
+    turn_urls: tuple[str, ...] = Field((), description="TURN relays for WebRTC (turn:HOST:3478?transport=udp, "
+                                                     "turns:HOST:443?transport=tcp...); need turn_secret")
+    turn_secret: SecretStr | None = Field(None, description="the relay's shared secret (coturn static-auth-secret): "
+                                                            "time-limited TURN credentials are made from it")
+    turn_ttl: float = Field(DEFAULT_TTL_S, gt=0, description="seconds a TURN credential stays valid")
     ice_servers: tuple[str, ...] = Field((), description="STUN servers for WebRTC (stun:HOST:PORT); none on a "
                                                        "LAN, where host candidates reach the client")
     record: Path | None = Field(None, description="record the session to this MCAP file")
@@ -51,6 +57,25 @@ class ServerSettings(CoreSettings):
     spectator_token: str | None = Field(None, description="token of the spectator role")
     insecure: bool = Field(False, description="allow open access (no tokens) on a non-loopback address")
     teleop: TeleopSettings = Field(default_factory=TeleopSettings, description="explicit control (teleop/settings.py)")
+
+    @field_validator("ice_servers", "turn_urls")
+    @classmethod
+    def _urls(cls, urls: tuple[str, ...]) -> tuple[str, ...]:
+        return tuple(check_url(u) for u in urls)
+
+    @field_validator("turn_secret")
+    @classmethod
+    def _secret_with_turn(cls, secret: SecretStr | None, info: ValidationInfo) -> SecretStr | None:
+        # (the error shows the input: it is raised only when there is no secret to show)
+        if (secret is None or not secret.get_secret_value()) and info.data.get("turn_urls"):
+            raise ValueError("the TURN URLs need the relay's shared secret: give --turn-secret (coturn's "
+                             "static-auth-secret) or $VR_TELEOP_TURN_SECRET")
+        return secret
+
+    def ice_config(self) -> IceConfig:
+        """The ICE servers every peer gets (STUN as given, TURN with credentials from the secret)."""
+        secret = self.turn_secret.get_secret_value() if self.turn_secret is not None else ""
+        return IceConfig(urls=(*self.ice_servers, *self.turn_urls), secret=secret, ttl_s=self.turn_ttl)
 
     @property
     def resolved_robot_url(self) -> str:

@@ -22,6 +22,8 @@ from ..core.access import ROLES, generate_tokens
 from ..core.scheduling import short_slice
 from ..teleop import TeleopSettings
 
+TURN_SECRET_ENV = "VR_TELEOP_TURN_SECRET"
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("serve", help="run the rosbridge v2 server",
@@ -73,6 +75,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ice-server", action="append", default=[], metavar="URL",
                    help="a STUN server for WebRTC media, e.g. stun:stun.example.org:3478 (repeatable; "
                         "default none: host candidates, enough on a LAN)")
+    p.add_argument("--turn-url", action="append", default=[], metavar="URL",
+                   help="a TURN relay for WebRTC media (repeatable): turn:HOST:3478?transport=udp, "
+                        "turn:HOST:3478?transport=tcp, turns:HOST:443?transport=tcp. Clients get them with fresh "
+                        "credentials from /vr_teleop/media/ice_servers; the server's own peer uses the first one "
+                        "(put first the one the server can reach: turns:...:443 behind a firewall that blocks UDP)")
+    p.add_argument("--turn-secret", default=None, metavar="SECRET",
+                   help="the relay's shared secret (coturn: use-auth-secret, static-auth-secret=SECRET), or "
+                        "$VR_TELEOP_TURN_SECRET; TURN credentials are made from it, valid for --turn-ttl")
+    p.add_argument("--turn-ttl", type=float, default=defaults.turn_ttl, metavar="S",
+                   help="seconds a TURN credential stays valid (default %(default)s)")
     p.add_argument("--record", type=Path, default=None, metavar="FILE.mcap",
                    help="record every message of the session, both ways, per client, to an MCAP file")
     p.add_argument("--record-camera-fps", type=float, default=defaults.record_camera_fps, metavar="FPS",
@@ -136,7 +148,9 @@ def run(args: argparse.Namespace) -> int:
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,
                                   audio_dir=args.audio_dir, bystander_interval=args.bystander_interval,
-                                  ice_servers=tuple(args.ice_server),
+                                  ice_servers=tuple(args.ice_server), turn_urls=tuple(args.turn_url),
+                                  turn_secret=args.turn_secret or os.environ.get(TURN_SECRET_ENV) or None,
+                                  turn_ttl=args.turn_ttl,
                                   record=args.record,
                                   record_camera_fps=args.record_camera_fps)
     except ValidationError as exc:

@@ -27,7 +27,8 @@ ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
 # What a spectator may call: services that only read.
 READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
 # The media offer is a read, as the camera topic is: a spectator's microphone is not played (media/service.py).
-READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, names.CLOCK_SERVICE,
+READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, names.MEDIA_ICE_SERVERS_SERVICE,
+                      names.CLOCK_SERVICE,
                       names.WHOAMI_SERVICE, names.FILE_SERVER_SERVICE}
 # What only a supervisor may do on top of an operator.
 SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE}

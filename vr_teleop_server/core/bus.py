@@ -85,6 +85,7 @@ class Service:
     known: bool
     owner: str
     provider: Callable[[Any, float], Awaitable[Any]]
+    confidential: bool = False  # its responses carry secrets (credentials): never recorded or logged verbatim
 
 
 class GoalHandle:
@@ -348,11 +349,15 @@ class Bus:
             _CALLER.reset(token)
         return response if isinstance(response, BaseModel) else self.validate_response(service, response)
 
-    def provide(self, name: str, type_name: str, handler: Callable[[Any], Awaitable[Any]]) -> Service:
-        """Registers one of the server's own services; `handler(request)` returns the response values."""
+    def provide(self, name: str, type_name: str, handler: Callable[[Any], Awaitable[Any]], *,
+                confidential: bool = False) -> Service:
+        """Registers one of the server's own services; `handler(request)` returns the response values.
+        `confidential`: the responses carry secrets, which recordings and logs must not keep."""
         async def provider(request: Any, _timeout: float) -> Any:
             return await handler(request)
-        return self.advertise_service(SERVER_NODE, name, type_name, provider)
+        service = self.advertise_service(SERVER_NODE, name, type_name, provider)
+        service.confidential = confidential
+        return service
 
     # ---- actions ------------------------------------------------------------------------------------------------
     def advertise_action(self, owner: str, name: str, type_name: str, provider: ActionProvider) -> Action:

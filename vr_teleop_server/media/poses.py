@@ -13,6 +13,9 @@ are counted for the telemetry and the client hears why in a status on its WebSoc
 Newest wins: unordered delivery may hand over a message after a newer one of its topic; one stamped before the
 newest taken on that topic is dropped and counted (a stamp more than CLOCK_RESET_S behind is a headset clock that
 started over, and is taken).
+
+A binary message is one XR frame's poses and Joy in the compact layout of client_protocol/pose_frame.py: it is
+decoded into the same publish frames, each checked and handed over as above (JSON frames stay accepted).
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from client_protocol import names
+from client_protocol import names, pose_frame
 
 OPERATOR_TOPICS = frozenset({names.HEAD_POSE_TOPIC, *names.CONTROLLER_POSE_TOPICS.values(),
                              *names.JOY_TOPICS.values()})
@@ -70,6 +73,22 @@ class PoseChannel:
         if session.closed:
             return
         self.counts.received += 1
+        if isinstance(message, bytes) and label == names.POSES_CHANNEL:
+            try:
+                decoded = pose_frame.decode(message)
+            except pose_frame.PoseFrameError as exc:
+                self._refuse(f"a binary message that is not a pose frame: {exc}; send pose frames "
+                             "(client_protocol/pose_frame.py) or publish frames as text (JSON)")
+                return
+            for topic, msg in decoded:  # the frame's messages, each as its JSON publish frame would be
+                await self._take(json.dumps({"op": "publish", "topic": topic, "msg": msg}))
+                if session.closed:
+                    return
+            return
+        await self._take(message, label)
+
+    async def _take(self, message: str | bytes, label: str = names.POSES_CHANNEL) -> None:
+        session = self.session
         frame, reason = self._check(message, label)
         if reason:
             self._refuse(reason)

@@ -10,7 +10,12 @@ answered inside the response (success false, message naming the problem and the 
 A "poses" data channel in the offer carries the operator's poses and Joy into the client's own session (poses.py);
 an offer with one is not refused for a media section without a common codec: that section alone is rejected.
 
-Access is the camera topic's: a client that may not subscribe to the head camera gets no media. An operator's or
+/vr_teleop/media/ice_servers hands a client the ICE servers (STUN, TURN with fresh time-limited credentials,
+turn.py) to build its peer connection with; the server's own peer uses the same. Its responses are confidential
+(the session keeps them out of recordings).
+
+Access is the camera topic's, for the offer and the ICE servers: a client that may not subscribe to the head camera
+gets no media. An operator's or
 supervisor's microphone is played on the robot and logged; a spectator's is ignored.
 """
 
@@ -25,7 +30,7 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from aiortc import RTCConfiguration, RTCIceServer, RTCPeerConnection, RTCSessionDescription
+from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
 from aiortc import sdp as aiortc_sdp
 from aiortc.rtcrtpsender import RTCRtpSender
 from aiortc.exceptions import InvalidStateError, OperationError
@@ -39,6 +44,7 @@ from . import link_quality, playout_delay
 from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
 from .poses import PoseChannel
+from .turn import IceConfig
 from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, VideoHub
 
 log = logging.getLogger(__name__)
@@ -84,21 +90,23 @@ class ClientLink:
 
 
 class SessionView:
-    """What the media service reads of a session (duck-typed: name, role, subscriptions, ping)."""
+    """What the media service reads of a session (duck-typed: name, role, operator, subscriptions, ping)."""
 
     name: str
     role: Role | None
+    operator: str
     subscriptions: Mapping[str, Any]
     ping: Callable[[], Awaitable[float]] | None
 
 
 class MediaService:
-    """Provides /vr_teleop/media/offer and /vr_teleop/clock, publishes /vr_teleop/telemetry."""
+    """Provides /vr_teleop/media/offer, /vr_teleop/media/ice_servers and /vr_teleop/clock, publishes
+    /vr_teleop/telemetry."""
 
     def __init__(self, bus: Bus, robot: Robot | None, access: AccessPolicy,
                  sessions: Callable[[], Mapping[str, SessionView]], *, camera_fps: float = 30.0,
                  render_line: Callable[[str], Awaitable[Rendered]] | None = None, bystander_interval: float = 0.0,
-                 ice_servers: list[str] | None = None,
+                 ice: IceConfig | None = None,
                  holds_control: Callable[[str], bool] = lambda _name: False,
                  control: Callable[[str], link_quality.ControlLink | None] = lambda connection: None) -> None:
         self.bus = bus
@@ -107,7 +115,7 @@ class MediaService:
         self.access = access
         self.sessions = sessions
         self.control = control  # the watchdog as a connection's operator meets it (for the link quality)
-        self.ice_servers = list(ice_servers or [])
+        self.ice = ice or IceConfig()
         self.video = VideoHub(robot, camera_fps) if robot is not None else None
         self.audio = AudioMixer(bus, robot=robot, render_line=render_line, bystander_interval=bystander_interval)
         self.peers: dict[str, Peer] = {}
@@ -122,6 +130,8 @@ class MediaService:
     # ---- lifecycle ----------------------------------------------------------------------------------------------
     def start(self) -> None:
         self.bus.provide(names.MEDIA_OFFER_SERVICE, "vr_teleop_msgs/MediaOffer", self._offer)
+        self.bus.provide(names.MEDIA_ICE_SERVERS_SERVICE, "vr_teleop_msgs/IceServers", self._ice_servers,
+                         confidential=True)
         self.bus.provide(names.CLOCK_SERVICE, "vr_teleop_msgs/Clock", self._clock)
         self.bus.declare_topic(names.TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", persistent=True)
         self._pose_token = self.bus.subscribe(MEDIA_OWNER, names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped",
@@ -149,7 +159,7 @@ class MediaService:
         if self._owner_dropped in self.bus.owner_dropped:
             self.bus.owner_dropped.remove(self._owner_dropped)
         self.bus.unsubscribe(names.HEAD_POSE_TOPIC, self._pose_token)
-        for name in (names.MEDIA_OFFER_SERVICE, names.CLOCK_SERVICE):
+        for name in (names.MEDIA_OFFER_SERVICE, names.MEDIA_ICE_SERVERS_SERVICE, names.CLOCK_SERVICE):
             if name in self.bus.services:
                 self.bus.unadvertise_service(SERVER_NODE, name)
         await self.audio.close()
@@ -197,7 +207,7 @@ class MediaService:
         sdp, rejected = request.sdp, []
         if "application" in kinds:  # a media section without a common codec must not cost the poses channel
             sdp, rejected = _without_unusable_media(request.sdp, offer)
-        config = RTCConfiguration(iceServers=[RTCIceServer(url) for url in self.ice_servers])
+        config = RTCConfiguration(iceServers=self.ice.rtc())
         pc = RTCPeerConnection(config)
         peer = self.peers[caller] = Peer(caller, pc)  # reserved before any await: a concurrent offer is refused
         self.peers_created += 1
@@ -221,6 +231,25 @@ class MediaService:
                        f"{' and '.join(r.kind for r in rejected)} rejected (answered with port 0; take the camera "
                        f"from its JPEG topic); the {names.POSES_CHANNEL!r} data channel and the rest are up")
         return {"success": True, "message": message, "sdp": answer_sdp, "type": answer.type}
+
+    async def _ice_servers(self, _request: Any) -> dict[str, Any]:
+        caller = Bus.caller()
+        session = self.sessions().get(caller)
+
+        def refuse(message: str) -> dict[str, Any]:
+            return {"success": False, "message": message, "ice_servers": [], "expires": 0.0}
+
+        if session is None:
+            return refuse(f"{names.MEDIA_ICE_SERVERS_SERVICE} must be called by a client over its rosbridge "
+                          "connection: the credentials are made for its operator")
+        try:
+            self.access.check(session.role, "subscribe", names.CAMERA_TOPIC)
+        except AccessDenied as exc:
+            return refuse(f"no media without camera access: {exc}")
+        servers, expires = self.ice.servers(session.operator or caller)
+        return {"success": True, "message": "" if servers else "no ICE servers configured (host candidates only: "
+                                                                "enough on a LAN)",
+                "ice_servers": servers, "expires": expires}
 
     async def _negotiate(self, peer: Peer, session: SessionView, sdp: str,
                          offer: aiortc_sdp.SessionDescription) -> RTCSessionDescription:

@@ -1,7 +1,8 @@
 // The supervisor's dashboard. It speaks rosbridge v2 to the server that serves it, like any other client:
 // subscriptions, service calls and publishes, with no private back door. Token: the page's #token=... fragment.
 
-import {RenderTimes, ServerClock, cameraMode, createPeerConnection, negotiate, onVideoFrames,
+import {IceErrors, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn, mediaRoute,
+        negotiate, onVideoFrames,
         webRtcMissing} from "./webrtc.js";
 
 class Rosbridge {
@@ -141,11 +142,20 @@ function onVideoFrame(now, meta) {
   renderTimes.whenKnown(meta.rtpTimestamp, (rendered) => showAge(shown - rendered));
 }
 async function useWebRtc() {
-  const pc = camera.pc = createPeerConnection({video: true, audio: true});  // audio: click the video to hear it
+  const ice = await fetchIceServers(ros);  // fresh TURN credentials for every peer connection
+  const pc = camera.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers});  // audio: click the video to hear it
+  const iceErrors = camera.iceErrors = new IceErrors(pc, (text) => logLine($("events"), `camera: ${text}`, "danger"));
   const stream = new MediaStream();
   const video = $("camera-video");
   pc.ontrack = (event) => { stream.addTrack(event.track); video.srcObject = stream; };
-  await negotiate(ros, pc);
+  try {
+    await negotiate(ros, pc);
+  } catch (err) {
+    const relay = iceErrors.summary() || (hasTurn(ice.iceServers) ? "" : "no TURN relay configured on the server");
+    throw new Error(relay && !err.refused ? `${err.message}; ${relay}` : err.message);
+  }
+  camera.route = (await mediaRoute(pc).catch(() => ({route: ""}))).route;
+  if (camera.route) logLine($("events"), `camera: WebRTC, ${camera.route}`);
   if (!renderTimes) {
     renderTimes = new RenderTimes(ros);
     onVideoFrames(video, onVideoFrame);

@@ -211,3 +211,74 @@ export function onVideoFrames(video, callback) {
     video.cancelVideoFrameCallback?.(id);
   };
 }
+
+// ---- ICE servers: STUN and TURN (issue 30) ------------------------------------------------------------------------
+// Behind NATs and a firewall that blocks UDP, media need a TURN relay. The server hands each peer connection its ICE
+// servers with fresh time-limited TURN credentials (/vr_teleop/media/ice_servers); ask before each
+// createPeerConnection. IceErrors collects the relays' refusals (wrong or expired credentials) for the page to
+// show; mediaRoute says from getStats whether the media go direct or through a relay, and over what.
+
+export const ICE_SERVERS_SERVICE = "/vr_teleop/media/ice_servers";
+
+/** {iceServers, expires, message}: the server's ICE servers for RTCPeerConnection. A server without the service or
+ * that refuses it gives none (host candidates only: a LAN), with the reason in message. */
+export async function fetchIceServers(ros) {
+  try {
+    const r = await ros.call(ICE_SERVERS_SERVICE, {});
+    if (!r.success) return {iceServers: [], expires: 0, message: r.message || "the ICE servers were refused"};
+    const iceServers = (r.ice_servers ?? []).map(({urls, username, credential}) =>
+      (username ? {urls, username, credential} : {urls}));
+    return {iceServers, expires: r.expires ?? 0, message: r.message || ""};
+  } catch (err) {
+    return {iceServers: [], expires: 0, message: `${ICE_SERVERS_SERVICE} failed: ${err.message}`};
+  }
+}
+
+/** Whether any of the servers is a TURN relay. */
+export function hasTurn(iceServers) {
+  return iceServers.some((s) => [].concat(s.urls).some((u) => /^turns?:/.test(u)));
+}
+
+/** The TURN relays' answers that mean no relay: 401 (credentials wrong or expired), 403, 437/438, or unreachable
+ * (701), as text, once each. `onRefusal(text)` hears the credential refusals as they come. */
+export class IceErrors {
+  constructor(pc, onRefusal = () => {}) {
+    this.errors = [];
+    this.refused = false;
+    pc.addEventListener("icecandidateerror", (event) => {
+      if (!/^turns?:/.test(event.url ?? "")) return;
+      const auth = [401, 403, 437, 438].includes(event.errorCode);
+      const text = auth
+        ? `the TURN relay ${event.url} refused the credentials (${event.errorCode} ${event.errorText}): wrong or expired`
+        : `the TURN relay ${event.url} failed (${event.errorCode} ${event.errorText})`;
+      if (this.errors.includes(text)) return;
+      this.errors.push(text);
+      if (auth) {
+        this.refused = true;
+        onRefusal(text);
+      }
+    });
+  }
+
+  summary() {
+    return this.errors.join("; ");
+  }
+}
+
+/** How the media travel, from the selected candidate pair: {route: "direct" | "TURN relay (udp|tcp|tls)" |
+ * "the server's TURN relay" | "", local, remote, relayProtocol} ("" while there is no pair yet). */
+export async function mediaRoute(pc) {
+  const stats = await pc.getStats();
+  let pair = null;
+  stats.forEach((s) => {
+    if (s.type === "transport" && s.selectedCandidatePairId) pair = stats.get(s.selectedCandidatePairId) ?? pair;
+  });
+  if (!pair) stats.forEach((s) => { if (s.type === "candidate-pair" && s.nominated && s.state === "succeeded") pair = s; });
+  if (!pair) return {route: "", local: "", remote: "", relayProtocol: ""};
+  const local = stats.get(pair.localCandidateId) ?? {};
+  const remote = stats.get(pair.remoteCandidateId) ?? {};
+  const route = local.candidateType === "relay" ? `TURN relay (${local.relayProtocol ?? "?"})`
+    : remote.candidateType === "relay" ? "the server's TURN relay" : "direct";
+  return {route, local: local.candidateType ?? "", remote: remote.candidateType ?? "",
+          relayProtocol: local.relayProtocol ?? ""};
+}

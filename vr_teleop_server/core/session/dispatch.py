@@ -217,15 +217,19 @@ class Session(TopicOps, ServiceOps, ActionOps):
     def _send(self, frame: dict[str, Any]) -> None:
         self._push(self._dumps(frame))
 
-    def _reply(self, frame: dict[str, Any], compression: str, fragment_size: int | None, msg_id: Any) -> None:
+    def _reply(self, frame: dict[str, Any], compression: str, fragment_size: int | None, msg_id: Any,
+               redacted: str | None = None) -> None:
+        """`redacted`: what the tap (the recording) sees instead of the frame, whose values are secret."""
+        if redacted is not None and self.tap is not None and not self.closed:
+            self.tap(self.name, "out", redacted)
         for piece in encode_for_client(self._dumps(frame), compression, fragment_size,
                                        f"{msg_id if msg_id is not None else 'reply'}:{next(self._ids)}"):
-            self._push(piece)
+            self._push(piece, tap=redacted is None)
 
-    def _push(self, frame: Frame) -> None:
+    def _push(self, frame: Frame, tap: bool = True) -> None:
         if self.closed:
             return
-        if self.tap is not None:
+        if self.tap is not None and tap:
             self.tap(self.name, "out", frame)
         self.outbox.push(frame)
 

@@ -41,9 +41,14 @@ class ServiceOps:
             self._reply(self._with_id({"op": "service_response", "service": op.service, "values": str(exc),
                                        "result": False}, op.id), op.compression, op.fragment_size, op.id)
             return
+        service = self.bus.services.get(op.service)
+        redacted = None
+        if service is not None and service.confidential:  # the recording keeps that it was answered, not what
+            redacted = self._dumps(self._with_id({"op": "service_response", "service": op.service,
+                                                  "values": "***", "result": True}, op.id))
         self._reply(self._with_id({"op": "service_response", "service": op.service,
                                    "values": json_value(response), "result": True}, op.id),
-                    op.compression, op.fragment_size, op.id)
+                    op.compression, op.fragment_size, op.id, redacted=redacted)
 
     def _op_advertise_service(self, op: ops.AdvertiseService) -> None:
         self.bus.advertise_service(self.name, op.service, op.type,

@@ -7,8 +7,8 @@
 
 import * as THREE from "three";
 import {stampSeconds} from "./rosbridge.js";
-import {MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, negotiate, onVideoFrames,
-        webRtcMissing} from "../webrtc.js";
+import {IceErrors, MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn,
+        mediaRoute, negotiate, onVideoFrames, webRtcMissing} from "../webrtc.js";
 
 export const CAMERA_TOPIC = "/camera/color/image_raw/compressed";
 const AGES_KEPT = 2000;
@@ -211,6 +211,8 @@ export class CameraFeed {
     this.jpeg = null;          // JpegCameraSource once fallen back
     this.pc = null;
     this.path = "";            // "WebRTC", "JPEG", or "" while negotiating
+    this.route = "";           // how the WebRTC media travel: "direct", "TURN relay (udp)"... (mediaRoute)
+    this.iceErrors = null;     // the TURN relays' refusals on the newest peer connection (IceErrors)
     this.audioViaWebRtc = false;
     this.generation = 0;       // counts rosbridge connections: a negotiation of an older one is dropped
     this.unlocked = false;
@@ -247,7 +249,10 @@ export class CameraFeed {
 
   async startWebRtc(generation) {
     this.closePeer();
-    const pc = this.pc = createPeerConnection({video: true, audio: true});
+    const ice = await fetchIceServers(this.ros);  // fresh TURN credentials for every peer connection
+    if (generation !== this.generation) return;
+    const pc = this.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers});
+    const iceErrors = this.iceErrors = new IceErrors(pc, (text) => this.onMessage(`camera: ${text}`, "error"));
     const stream = new MediaStream();
     pc.addEventListener("track", (event) => stream.addTrack(event.track));
     try {
@@ -266,13 +271,19 @@ export class CameraFeed {
       this.path = "WebRTC";
       this.setAudio(sends.audio);
       pc.addEventListener("connectionstatechange", () => this.stateChanged(pc, generation));
-      this.onMessage(`camera: WebRTC video${sends.audio ? " and the robot's audio" : ""}`, "ok");
+      this.route = (await mediaRoute(pc).catch(() => ({route: ""}))).route;
+      this.onMessage(`camera: WebRTC video${sends.audio ? " and the robot's audio" : ""}` +
+                     (this.route ? `, ${this.route}` : ""), "ok");
     } catch (err) {
       if (this.pc === pc) this.closePeer();
       else pc.close();
       if (generation !== this.generation || !this.ros.connected) return;  // the next connection negotiates
       const why = err instanceof MediaError && err.refused ? "refused" : "failed";
-      this.useJpeg(`camera: WebRTC ${why} (${err.message}); showing the JPEG topic`);
+      // Why a connection could not be made, when the relay says or there is none to take
+      const relay = iceErrors.summary() || (hasTurn(ice.iceServers) ? "" : "no TURN relay configured on the server " +
+        `(${ice.message || "direct paths only"}), which a NAT or a firewall blocking UDP needs`);
+      const because = relay && (why === "failed" || iceErrors.errors.length) ? `; ${relay}` : "";
+      this.useJpeg(`camera: WebRTC ${why} (${err.message}${because}); showing the JPEG topic`);
     }
   }
 

@@ -1,0 +1,370 @@
+"""From home to school (issue 30): the operator page in Chromium (IWER) behind a home NAT, the server behind a school's
+symmetric NAT and firewall (UDP blocked, TCP out to 80 and 443 only, its WebSocket port forwarded), coturn in a
+relay namespace between them (netem/edges.py, netem/relay.py).
+
+First the edges themselves, with plain sockets: the port-forward, the firewall, and the two NATs' mappings. Then the
+page: it reaches the WebSocket through the forwarded port, gets its ICE servers, and its video, audio and poses
+channel come up through the relay, the server's own peer reaching it over TLS on 443 (the only way out of the
+school); with the school letting UDP out, over TURN/UDP; with no TURN, the page falls back to the JPEG topic and
+rosbridge and says why; wrong credentials are refused by coturn and the HUD says so, and coturn refuses expired
+ones. Nothing is left
+behind (namespaces, processes).
+
+One emulator (the `lan` delay profile: the edges are what is tested; bench/wan.py measures the delay profiles) and
+one relay for the module; a server per configuration. Needs root, /dev/net/tun, nftables and coturn; skipped with
+the reason otherwise.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from netem import EDGES, Edge, Emulator, cleanup_leftovers, edges_available, list_namespaces
+from test_operator_page import INSTALL_HEADSET, IWER
+from vr_teleop_server.core.certs import make_certificate
+from vr_teleop_server.media.turn import credentials
+
+pytestmark = [pytest.mark.skipif(edges_available() is not None, reason=edges_available() or ""),
+              pytest.mark.timeout(600)]
+
+ROOT = Path(__file__).resolve().parent.parent
+PORT = 9090
+SECRET = "home-to-school-shared-secret"
+WAIT_MS = 90_000  # a page, a stand-in, a relay and a renderer on two busy cores
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Emulator, Path, subprocess.Popen]]:
+    """home -> internet -> school, with coturn in the relay namespace (its certificate made by the project's `cert`
+    code for the relay's address)."""
+    cleanup_leftovers()
+    work = tmp_path_factory.mktemp("nat_turn")
+    net = Emulator("lan", client_edge="home", server_edge="school")
+    with net:
+        cert = make_certificate(work, [], [ipaddress.ip_address(net.relay_ip)])
+        relay = net.start_relay(SECRET, cert.certfile, cert.keyfile, work)
+        yield net, cert.certfile, relay
+        names = set(net.netns.values())
+    # nothing left behind: the namespaces, the relay and every process in them
+    assert not names & set(list_namespaces())
+    assert relay.poll() is not None
+
+
+class Server:
+    """`vr-teleop serve` in the server namespace (open access: the page has no token; --insecure lets it bind a
+    non-loopback address nobody but our namespaces reach). The relay's certificate is trusted through
+    SSL_CERT_FILE, as a deployment with a self-signed relay would do."""
+
+    def __init__(self, net: Emulator, cert: Path, *extra: str) -> None:
+        self.log = tempfile.NamedTemporaryFile("w+", prefix="nat-serve-", suffix=".log", delete=False)
+        env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "SSL_CERT_FILE": str(cert),
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        self.proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host",
+                                         net.server_ip, "--port", str(PORT), "--insecure", "--backend", "sim",
+                                         "--bystander-interval", "0", "--log-level", "info", *extra],
+                              stdout=subprocess.PIPE, stderr=self.log, text=True, env=env, cwd=ROOT)
+        ready = threading.Event()
+
+        def wait_line() -> None:
+            for line in self.proc.stdout:
+                if "listening on" in line:
+                    ready.set()
+                    break
+
+        threading.Thread(target=wait_line, daemon=True).start()
+        if not ready.wait(180):
+            self.stop()
+            raise RuntimeError(f"the server did not start: {self.text()[-2000:]}")
+
+    def text(self) -> str:
+        self.log.seek(0)
+        return self.log.read()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(30)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(10)
+        self.proc.stdout.close()
+
+
+def turn_urls(relay_ip: str, first: str) -> list[str]:
+    """The relay's three URLs, `first` (udp or tls) first: the server's own peer (aiortc) uses the first."""
+    urls = {"tls": f"turns:{relay_ip}:443?transport=tcp", "udp": f"turn:{relay_ip}:3478?transport=udp",
+            "tcp": f"turn:{relay_ip}:3478?transport=tcp"}
+    order = [first] + [k for k in urls if k != first]
+    return [arg for k in order for arg in ("--turn-url", urls[k])]
+
+
+def drive(origin: str, take_control: bool, until: str = "") -> dict:
+    """In the client namespace: the operator page until its camera has a path; with `take_control`, in VR and
+    holding control until poses went out; with `until`, also until that holds. Returns what the page says (its
+    HUD message as the camera found its path, and at the end) and counts."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=[
+            "--no-sandbox", "--enable-unsafe-swiftshader", f"--unsafely-treat-insecure-origin-as-secure={origin}"])
+        try:
+            page = browser.new_context(viewport={"width": 800, "height": 500}).new_page()
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.add_init_script(path=str(IWER))
+            page.add_init_script(script=INSTALL_HEADSET)
+            page.goto(f"{origin}/operator#camera=webrtc")
+            page.wait_for_function("window.operator && window.operator.ros.connected && window.operator.state.teleop",
+                                   timeout=WAIT_MS)
+            page.wait_for_function("['WebRTC', 'JPEG'].includes(window.operator.camera.path)", timeout=WAIT_MS)
+            if until:
+                page.wait_for_function(until, timeout=WAIT_MS)
+            out = {"path": page.evaluate("window.operator.camera.path"),
+                   "first_message": page.text_content("#hud-message") or ""}
+            if out["path"] == "WebRTC":
+                page.wait_for_function("window.operator.camera.video.received > 3", timeout=WAIT_MS)
+            if take_control:
+                page.get_by_role("button", name="Enter VR").click()
+                page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                                       timeout=WAIT_MS)
+                page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
+                time.sleep(0.3)
+                page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
+                page.wait_for_function("document.getElementById('hud-control')?.textContent"
+                                       ".startsWith('YOU HAVE CONTROL')", timeout=WAIT_MS)
+                page.evaluate("xrDevice.quaternion.set(0, Math.sin(0.2), 0, Math.cos(0.2))")
+                if out["path"] == "WebRTC":
+                    page.wait_for_function("window.operator.poses.stats().sent > 20", timeout=WAIT_MS)
+                else:
+                    time.sleep(2.0)
+                out["poses"] = page.evaluate("window.operator.poses.stats()")
+            out.update(page.evaluate("""(() => { const c = window.operator.camera; return {
+                route: c.route, audio: c.audioViaWebRtc, video: c.video ? c.video.received : 0,
+                jpeg: c.jpeg ? c.jpeg.received : 0, ice_errors: c.iceErrors ? c.iceErrors.errors : [],
+                message: document.getElementById('hud-message')?.textContent ?? '',
+                numbers: document.getElementById('hud-numbers')?.textContent ?? ''}; })()"""))
+            out["errors"] = errors
+            return out
+        finally:
+            browser.close()
+
+
+class Telemetry:
+    """Every client's telemetry entries, read beside the server (in its namespace) while a page runs."""
+
+    def __init__(self, net: Emulator) -> None:
+        self.entries: list[dict] = []
+        self._stop = threading.Event()
+        self._thread = net.start_in("server", lambda: asyncio.run(self._watch(f"ws://{net.server_ip}:{PORT}")))
+
+    async def _watch(self, url: str) -> None:
+        from websockets.asyncio.client import connect
+
+        async with connect(url, max_size=None) as ws:
+            await ws.send(json.dumps({"op": "subscribe", "topic": "/vr_teleop/telemetry"}))
+            while not self._stop.is_set():
+                try:
+                    msg = json.loads(await asyncio.wait_for(ws.recv(), 0.5))
+                except asyncio.TimeoutError:
+                    continue
+                self.entries.extend(msg.get("msg", {}).get("clients", []))
+
+    def stop(self) -> list[dict]:
+        self._stop.set()
+        self._thread.join(10)
+        return self.entries
+
+
+def relay_log(work_dir: Path) -> str:
+    return (work_dir / "turnserver.log").read_text(errors="replace")
+
+
+# ---- the edges, with plain sockets ----------------------------------------------------------------------------------
+def _connect(host: str, port: int) -> int:
+    with socket.socket() as s:
+        s.settimeout(3.0)
+        return s.connect_ex((host, port))
+
+
+def _udp_echo(port: int, ready: threading.Event, stop: threading.Event) -> None:
+    """Answers each datagram with the address it came from (what a STUN server tells)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("0.0.0.0", port))
+        s.settimeout(0.2)
+        ready.set()
+        while not stop.is_set():
+            try:
+                _data, addr = s.recvfrom(100)
+            except TimeoutError:
+                continue
+            s.sendto(json.dumps(addr).encode(), addr)
+
+
+def _mapped_ports(net: Emulator, side: str, ports: tuple[int, ...]) -> list[int | None]:
+    """From one UDP socket in `side`, the source port the relay namespace saw at each of its echo ports."""
+    def ask() -> list[int | None]:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.settimeout(2.0)
+            seen: list[int | None] = []
+            for port in ports:
+                s.sendto(b"?", (net.relay_ip, port))
+                try:
+                    seen.append(json.loads(s.recvfrom(100)[0])[1])
+                except TimeoutError:
+                    seen.append(None)
+            return seen
+    return net.run_in(side, ask)
+
+
+def test_the_edges_forward_filter_and_map_as_a_home_and_a_school_do(world) -> None:
+    net, _cert, _relay = world
+    stop = threading.Event()
+    threads, ports = [], (40001, 40002)
+    for port in ports:
+        ready = threading.Event()
+        threads.append(net.start_in("relay", _udp_echo, port, ready, stop))
+        assert ready.wait(10)
+    listener = net.popen("server", [sys.executable, "-c", "import socket,time; s=socket.socket(); "
+                                    "s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1); "
+                                    f"s.bind(('{net.server_ip}', {PORT})); s.listen(); time.sleep(600)"])
+    try:
+        deadline = time.monotonic() + 60
+        while net.run_in("server", _connect, net.server_ip, PORT) != 0 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        # the school's forwarded port reaches the server; its own address does not, from outside
+        assert net.run_in("client", _connect, net.public_ip, PORT) == 0
+        assert net.run_in("client", _connect, net.server_ip, PORT) != 0
+        # out of the school: TCP to 443 only, no UDP
+        assert net.run_in("server", _connect, net.relay_ip, 443) == 0
+        assert net.run_in("server", _connect, net.relay_ip, 3478) != 0
+        assert _mapped_ports(net, "server", ports) == [None, None]
+        # home: one socket keeps one outside port whoever it talks to (endpoint-independent mapping)
+        home = _mapped_ports(net, "client", ports)
+        assert None not in home and home[0] == home[1]
+        # school, UDP let out for the test: every destination a new outside port (symmetric)
+        net.set_edge("school", EDGES["school"].replace(block_udp=False))
+        school = _mapped_ports(net, "server", ports)
+        assert None not in school and school[0] != school[1]
+    finally:
+        net.set_edge("school", "school")
+        stop.set()
+        for t in threads:
+            t.join(5)
+        listener.terminate()
+        listener.wait(10)
+
+
+def test_an_edge_refuses_unknown_names() -> None:
+    with pytest.raises(ValueError, match="unknown edge 'office'; known: home, school"):
+        Emulator("lan", client_edge="office")
+    assert isinstance(EDGES["school"], Edge) and EDGES["school"].block_udp and EDGES["school"].forward == (PORT,)
+
+
+# ---- the page -----------------------------------------------------------------------------------------------------
+def test_behind_the_school_firewall_media_and_poses_come_up_through_turn_over_tls(world) -> None:
+    net, cert, _relay = world
+    server = Server(net, cert, *turn_urls(net.relay_ip, "tls"), "--turn-secret", SECRET)
+    watch = Telemetry(net)
+    try:
+        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", True)
+        entries = watch.stop()
+        assert out["path"] == "WebRTC", out
+        assert out["video"] > 3 and out["audio"], out
+        assert "relay" in out["route"] and "relay" in out["first_message"], out  # through the relay, and it says so
+        assert "(WebRTC) via " in out["numbers"] and "relay" in out["numbers"].split("(WebRTC) via ")[1], out
+        # open and carrying (a stall on a busy machine hands poses to rosbridge for a moment: failovers may count)
+        assert out["poses"]["open"] and out["poses"]["sent"] > 20, out
+        # the server: its peer connected, video sent, poses received on the channel
+        assert any(c["rtc_state"] == "connected" and c["dc_received"] > 0 and c["rtc_frames_sent"] > 0
+                   for c in entries), entries[-3:]
+        assert out["errors"] == []
+        log = relay_log(Path(cert).parent)
+        # the server's own allocation came over TLS (nothing else leaves the school) and credentials were accepted
+        assert "vr_teleop_server" in log and "TLS" in log
+        assert SECRET not in server.text()
+    finally:
+        watch.stop()
+        server.stop()
+
+
+def test_with_udp_let_out_media_come_up_through_turn_over_udp(world) -> None:
+    net, cert, _relay = world
+    net.set_edge("school", EDGES["school"].replace(block_udp=False))
+    server = Server(net, cert, *turn_urls(net.relay_ip, "udp"), "--turn-secret", SECRET)
+    try:
+        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", False)
+        assert out["path"] == "WebRTC" and out["video"] > 3 and "relay" in out["route"], out
+    finally:
+        server.stop()
+        net.set_edge("school", "school")
+
+
+def test_without_turn_the_page_falls_back_to_jpeg_and_rosbridge_and_says_why(world) -> None:
+    net, cert, _relay = world
+    server = Server(net, cert)
+    watch = Telemetry(net)
+    try:
+        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", True)
+        entries = watch.stop()
+        assert out["path"] == "JPEG" and out["jpeg"] > 0, out
+        said = out["first_message"]
+        assert "WebRTC failed" in said and "no TURN relay configured" in said and "showing the JPEG topic" in said
+        assert not out["poses"]["open"]  # poses go over rosbridge, and the server gets them there
+        assert any(c["pose_rate"] > 0 for c in entries), entries[-3:]
+        assert all(c["dc_received"] == 0 for c in entries)
+    finally:
+        watch.stop()
+        server.stop()
+
+
+def test_wrong_credentials_are_refused_by_the_relay_and_shown_on_the_hud(world) -> None:
+    net, cert, _relay = world
+    server = Server(net, cert, *turn_urls(net.relay_ip, "tls"), "--turn-secret", "not-the-relays-secret")
+    try:
+        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", False,
+                         "window.operator.camera.iceErrors?.refused")
+        assert out["path"] == "JPEG", out
+        assert any("refused the credentials (401" in e for e in out["ice_errors"]), out
+        assert "refused the credentials" in out["message"], out
+        assert SECRET not in server.text()
+    finally:
+        server.stop()
+
+
+def test_the_relay_takes_fresh_credentials_and_refuses_expired_ones(world) -> None:
+    """coturn's side of the time limit, with aioice's TURN client (what the server's peer uses) from home: a
+    credential made now is allocated a relay address; one that expired ten seconds ago is refused (401)."""
+    from aioice import turn
+    from aioice.stun import TransactionFailed
+
+    net, _cert, _relay = world
+
+    async def allocate(ttl: float) -> str:
+        username, password, _ = credentials(SECRET, "op-test", ttl, time.time())
+        try:
+            transport, _protocol = await turn.create_turn_endpoint(
+                asyncio.DatagramProtocol, server_addr=(net.relay_ip, 3478), username=username, password=password,
+                transport="udp")
+        except TransactionFailed as exc:
+            return str(exc)
+        relayed = transport.get_extra_info("sockname")
+        transport.close()
+        return f"relayed {relayed[0]}"
+
+    assert net.run_in("client", lambda: asyncio.run(allocate(600))) == f"relayed {net.relay_ip}"
+    assert "401" in net.run_in("client", lambda: asyncio.run(allocate(-10)))
