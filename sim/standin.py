@@ -140,6 +140,10 @@ class StandIn:
             raise ValueError("the scene's model lacks a joint or actuator named as in the robot description")
         self._lower = np.array([j.lower for j in self.robot.joints])
         self._upper = np.array([j.upper for j in self.robot.joints])
+        # plain floats and a name index for set_targets, called for every teleop command (numpy costs more there)
+        self._index = {n: i for i, n in enumerate(self.names)}
+        self._lower_deg = [float(v) for v in self._lower]
+        self._upper_deg = [float(v) for v in self._upper]
         self._caps = np.array([j.max_velocity for j in self.robot.joints])
         self._step_limit = self._caps * self.dt
         self._gain = m.actuator_gainprm[self._act, 0].copy()
@@ -214,22 +218,24 @@ class StandIn:
     def set_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
         """Set joint goals in degrees; returns the goals applied after clamping to the joint limits.
         Joints whose motor is not ON ignore the command and are left out of the result."""
-        idx, values = [], []
+        index, lower, upper = self._index, self._lower_deg, self._upper_deg
+        applied = []
         for name, deg in targets.items():
-            self.robot.joint(name)  # KeyError naming the valid joints
+            i = index.get(name)
+            if i is None:
+                self.robot.joint(name)  # KeyError naming the valid joints
+                i = self.names.index(name)
             value = float(deg)
             if not math.isfinite(value):
                 raise ValueError(f"joint {name}: target must be a finite number of degrees, got {deg!r}")
-            idx.append(self.names.index(name))
-            values.append(value)
-        applied = np.clip(np.array(values), self._lower[idx], self._upper[idx]) if idx else np.array([])
+            applied.append((i, min(max(value, lower[i]), upper[i])))
         out = {}
         with self._goal_lock:
             goal = self._goal.copy()
-            for i, v in zip(idx, applied):
+            for i, v in applied:
                 if self._modes[i] is MotorMode.ON:
                     goal[i] = v
-                    out[self.names[i]] = float(v)
+                    out[self.names[i]] = v
             self._goal = goal
         return out
 
