@@ -44,6 +44,7 @@ from .render_process import RenderProcess, RenderProcessError
 from .scene import ClassroomScene, build_classroom
 
 log = logging.getLogger(__name__)
+_RAD_PER_DEG = math.pi / 180.0  # what np.radians multiplies by
 
 
 @dataclass(frozen=True)
@@ -155,6 +156,7 @@ class StandIn:
         self.data.qpos[self._qadr] = np.radians(home)
         self._goal = home.copy()
         self._setpoint = home.copy()
+        self._gap, self._ctrl = np.empty_like(home), np.empty_like(home)  # _step's buffers
         self.data.ctrl[self._act] = np.radians(home)
         self._modes = [MotorMode.ON] * len(self.names)
         mujoco.mj_forward(m, self.data)
@@ -527,14 +529,17 @@ class StandIn:
         every setpoint has reached its goal the control is constant, and MuJoCo takes the steps in one call."""
         m, d = self.model, self.data
         while n > 0:
-            gap = self._goal - self._setpoint
-            if not gap.any():
+            gap = np.subtract(self._goal, self._setpoint, out=self._gap)
+            if not np.count_nonzero(gap):  # (ndarray.any() goes through a Python wrapper: slower)
                 k = min(n, self.THERMAL_EVERY - self._steps % self.THERMAL_EVERY)
                 mujoco.mj_step(m, d, k)
             else:
                 k = 1
-                self._setpoint += np.clip(gap, -self._step_limit, self._step_limit)
-                d.ctrl[self._act] = np.radians(self._setpoint)
+                # np.clip and np.radians, as ufuncs into buffers: their wrappers cost as much as the step itself
+                limit = self._step_limit
+                np.minimum(np.maximum(gap, np.negative(limit, out=self._ctrl), out=gap), limit, out=gap)
+                np.add(self._setpoint, gap, out=self._setpoint)
+                d.ctrl[self._act] = np.multiply(self._setpoint, _RAD_PER_DEG, out=self._ctrl)
                 mujoco.mj_step(m, d)
             n -= k
             self._steps += k
