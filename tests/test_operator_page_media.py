@@ -368,14 +368,16 @@ import {{PoseChannel, STALL_MS, BUFFER_BUDGET}} from {json.dumps(str(module))};
 let t = 0;
 const sent = [];
 const channel = {{readyState: "open", bufferedAmount: 0, bufferedAmountLowThreshold: 0, addEventListener() {{}},
-                  send(frame) {{ sent.push(Buffer.from(frame).toString("base64")); this.bufferedAmount += frame.byteLength; }}}};
+                  send(frame) {{ sent.push(Buffer.from(frame).toString("base64"));
+                                 this.bufferedAmount += frame.byteLength; }}}};
 const pc = {{createDataChannel: () => channel}};
 const poses = new PoseChannel({{now: () => t}});
 poses.attach(pc);
 const head = "/vr/head/pose", left = "/vr/left_controller/pose", right = "/vr/right_controller/pose";
 const leftJoy = "/vr/left_controller/joy", rightJoy = "/vr/right_controller/joy";
 const pose = (secs, x) => ({{header: {{stamp: {{secs, nsecs: 250000000}}, frame_id: "webxr"}},
-                            pose: {{position: {{x, y: -0.2, z: 1.5}}, orientation: {{x: 0, y: 0, z: 0.6, w: 0.8}}}}}});
+                            pose: {{position: {{x, y: -0.2, z: 1.5}},
+                                    orientation: {{x: 0, y: 0, z: 0.6, w: 0.8}}}}}});
 const joy = (secs, buttons) => ({{header: {{stamp: {{secs, nsecs: 0}}, frame_id: "webxr"}},
                                  axes: [0.5, -0.25, 1, 0.125], buttons}});
 const out = {{}};
