@@ -240,6 +240,46 @@ class GestureResult:
 
 
 @dataclass(frozen=True)
+class StreamedWaypoints:
+    """What stream_waypoints sent: how many waypoints, the clamps and ignored joints met, the last targets applied."""
+
+    sent: int
+    clamps: tuple[JointClamp, ...]
+    ignored: tuple[str, ...]
+    last: dict[str, float]
+
+
+async def stopped_within(stop: asyncio.Event, seconds: float) -> bool:
+    """True if `stop` is set within `seconds`, False when the time passes first."""
+    try:
+        await asyncio.wait_for(stop.wait(), seconds)
+        return True
+    except TimeoutError:
+        return stop.is_set()
+
+
+async def stream_waypoints(set_targets: Callable[[Mapping[str, float]], ClampReport], gesture: Gesture,
+                           speed: float, stop: asyncio.Event) -> StreamedWaypoints:
+    """Send each waypoint as joint targets at its time (divided by `speed`) on the running loop's clock, until `stop`.
+
+    The one way a backend plays a gesture it does not hold itself (the server's files and recordings), so every
+    waypoint goes through the backend's clamping and is reported like any command.
+    """
+    loop = asyncio.get_running_loop()
+    start, sent, clamps, ignored, last = loop.time(), 0, [], {}, {}
+    for wp in gesture.waypoints:
+        wait = start + wp.time_s / speed - loop.time()
+        if (wait > 0 and await stopped_within(stop, wait)) or stop.is_set():
+            break
+        report = set_targets(wp.targets)
+        clamps.extend(report.clamped)
+        ignored.update(dict.fromkeys(report.ignored))
+        last.update(zip(report.names, report.applied))
+        sent += 1
+    return StreamedWaypoints(sent, tuple(clamps), tuple(ignored), last)
+
+
+@dataclass(frozen=True)
 class SpeechResult:
     text: str
     completed: bool  # False when stopped early

@@ -55,6 +55,7 @@ from ..interface import (
     clamp_command,
     held_level,
     pcm_level,
+    stream_waypoints,
 )
 
 log = logging.getLogger(__name__)
@@ -585,24 +586,12 @@ class LuxaiRobot(Robot):
         self._refuse_if_disconnected("gesture")
         self.stop_gesture()
         stop = self._gesture = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        start, sent, clamps, ignored = loop.time(), 0, [], {}
-        for wp in gesture.waypoints:
-            wait = start + wp.time_s / speed - loop.time()
-            if wait > 0:
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(stop.wait(), wait)
-            if stop.is_set():
-                break
-            report = self.set_joint_targets(wp.targets)
-            clamps.extend(report.clamped)
-            ignored.update(dict.fromkeys(report.ignored))
-            sent += 1
+        streamed = await stream_waypoints(self.set_joint_targets, gesture, speed, stop)
         if self._gesture is stop:
             self._gesture = None
         stopped = stop.is_set()
-        completed = not stopped and sent == len(gesture.waypoints) and not ignored
-        return GestureResult(gesture.name, completed, stopped, sent, tuple(clamps), tuple(ignored), None)
+        completed = not stopped and streamed.sent == len(gesture.waypoints) and not streamed.ignored
+        return GestureResult(gesture.name, completed, stopped, streamed.sent, streamed.clamps, streamed.ignored, None)
 
     def stop_gesture(self) -> None:
         gesture = self._gesture

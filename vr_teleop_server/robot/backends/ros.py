@@ -47,8 +47,8 @@ from robot_models import RobotModel, load_qtrobot
 
 from ..interface import (
     CameraFrame,
-    FrameMailbox,
     ClampReport,
+    FrameMailbox,
     Gesture,
     GestureResult,
     JointState,
@@ -59,6 +59,7 @@ from ..interface import (
     clamp_command,
     held_level,
     pcm_level,
+    stream_waypoints,
 )
 
 log = logging.getLogger(__name__)
@@ -342,24 +343,12 @@ class RosRobot(Robot):
             raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
         self.stop_gesture()
         stop = self._gesture_stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        start, sent, clamps, ignored = loop.time(), 0, [], {}
-        for wp in gesture.waypoints:
-            wait = start + wp.time_s / speed - loop.time()
-            if wait > 0:
-                with contextlib.suppress(asyncio.TimeoutError):
-                    await asyncio.wait_for(stop.wait(), wait)
-            if stop.is_set():
-                break
-            report = self.set_joint_targets(wp.targets)
-            clamps.extend(report.clamped)
-            ignored.update(dict.fromkeys(report.ignored))
-            sent += 1
+        streamed = await stream_waypoints(self.set_joint_targets, gesture, speed, stop)
         if self._gesture_stop is stop:
             self._gesture_stop = None
         stopped = stop.is_set()
-        completed = not stopped and sent == len(gesture.waypoints) and not ignored
-        return GestureResult(gesture.name, completed, stopped, sent, tuple(clamps), tuple(ignored), None)
+        completed = not stopped and streamed.sent == len(gesture.waypoints) and not streamed.ignored
+        return GestureResult(gesture.name, completed, stopped, streamed.sent, streamed.clamps, streamed.ignored, None)
 
     def stop_gesture(self) -> None:
         if self._gesture_stop is not None:

@@ -17,11 +17,10 @@ from sim import StandIn
 
 from ..interface import (
     CameraFrame,
-    FrameMailbox,
     ClampReport,
+    FrameMailbox,
     Gesture,
     GestureResult,
-    JointClamp,
     JointState,
     MotorMode,
     MotorStatus,
@@ -29,6 +28,8 @@ from ..interface import (
     SpeechResult,
     clamp_command,
     pcm_level,
+    stopped_within,
+    stream_waypoints,
 )
 
 SETTLE_TOLERANCE_DEG = 1.0  # a gesture counts as finished when every joint is this close to its last waypoint
@@ -144,35 +145,20 @@ class SimRobot(Robot):
         stop = self._gesture_stop = asyncio.Event()
         joints = tuple(dict.fromkeys(n for wp in gesture.waypoints for n in wp.targets))
         self._gesture_joints = joints
-        clamps: list[JointClamp] = []
-        ignored: dict[str, None] = {}
-        sent = 0
-        last: dict[str, float] = {}
-        loop = asyncio.get_running_loop()
-        start = loop.time()
         try:
-            for wp in gesture.waypoints:
-                wait = start + wp.time_s / speed - loop.time()
-                if wait > 0 and await _stopped_within(stop, wait):
-                    break
-                if stop.is_set():
-                    break
-                report = self.set_joint_targets(wp.targets)
-                clamps.extend(report.clamped)
-                ignored.update(dict.fromkeys(report.ignored))
-                last.update(zip(report.names, report.applied))
-                sent += 1
+            streamed = await stream_waypoints(self.set_joint_targets, gesture, speed, stop)
             final_error = None
-            if not stop.is_set() and sent == len(gesture.waypoints):
-                final_error = await self._settle(last, stop)
+            if not stop.is_set() and streamed.sent == len(gesture.waypoints):
+                final_error = await self._settle(streamed.last, stop)
         finally:
             if self._gesture_stop is stop:
                 self._gesture_stop = None
                 self._gesture_joints = ()
         stopped = stop.is_set()
-        completed = (not stopped and sent == len(gesture.waypoints) and not ignored
+        completed = (not stopped and streamed.sent == len(gesture.waypoints) and not streamed.ignored
                      and final_error is not None and final_error <= SETTLE_TOLERANCE_DEG)
-        return GestureResult(gesture.name, completed, stopped, sent, tuple(clamps), tuple(ignored), final_error)
+        return GestureResult(gesture.name, completed, stopped, streamed.sent, streamed.clamps, streamed.ignored,
+                             final_error)
 
     async def _settle(self, targets: Mapping[str, float], stop: asyncio.Event) -> float | None:
         """Wait until the joints reach the last waypoint (or could have, at their caps); the largest error."""
@@ -185,7 +171,7 @@ class SimRobot(Robot):
             error = max(abs(here[n] - v) for n, v in targets.items())
             if error <= SETTLE_TOLERANCE_DEG or clock.monotonic() >= deadline:
                 return error
-            if await _stopped_within(stop, 0.02):
+            if await stopped_within(stop, 0.02):
                 return None
 
     def stop_gesture(self) -> None:
@@ -240,10 +226,3 @@ class SimRobot(Robot):
             self._standin.close()
 
 
-async def _stopped_within(stop: asyncio.Event, seconds: float) -> bool:
-    """True if `stop` is set within `seconds`, False when the time passes first."""
-    try:
-        await asyncio.wait_for(stop.wait(), seconds)
-        return True
-    except TimeoutError:
-        return stop.is_set()
