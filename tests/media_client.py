@@ -112,7 +112,7 @@ class Tone(MediaStreamTrack):
 
 
 def _rounded(value: Any) -> Any:
-    """Floats to PoseSender.DECIMALS places, as the page does (pose_channel.js)."""
+    """Floats to PoseSender.DECIMALS places: fewer bytes for the channel's congestion window."""
     if isinstance(value, float):
         return round(value, PoseSender.DECIMALS)
     if isinstance(value, dict):
@@ -128,14 +128,14 @@ class PoseSender:
     channel sends fewer, fresher poses instead of a growing backlog of stale ones. The threshold is 0 here: aiortc
     lowers bufferedAmount, and says so, on this loop as soon as SCTP takes a message, and anything buffered waits for
     the congestion window (measured on continent: a budget of one frame's poses raised the latency p50 by a third).
-    The page's is one frame's poses (pose_channel.js): a browser's events come from its network thread, a task
-    later each, and with 0 the page could send about one pose per event instead of a frame's. The head pose
-    (what the watchdog times and the camera follows) may take every other send; the other topics share the rest,
-    the one that has waited longest first. A stalled channel (no head pose taken for STALL_S while more is buffered
-than it takes: its congestion window full, waiting out a retransmission timer) hands head poses back to the
-caller for the WebSocket until it takes one again. The operator page's sender (web/operator/pose_channel.js) does
-the same. Frames go compact, their floats to DECIMALS places (10 micrometres; a thousandth of a degree in a
-quaternion): about 80% of the bytes, and the channel's congestion window counts bytes."""
+    The page's is about two binary pose frames (pose_channel.js): a browser's events come from its network thread,
+    a task later each. The head pose (what the watchdog times and the camera follows) may take every other send;
+    the other topics share the rest, the one that has waited longest first. A stalled channel (no head pose taken
+    for STALL_S while more is buffered than it takes: its congestion window full, waiting out a retransmission
+    timer) hands head poses back to the caller for the WebSocket until it takes one again, as the operator page's
+    sender (web/operator/pose_channel.js) does; the page sends one binary pose frame per XR frame, as this sender
+    with `compact`. JSON frames go compact, their floats to DECIMALS places (10 micrometres; a thousandth of a
+    degree in a quaternion): about 80% of the bytes, and the channel's congestion window counts bytes."""
 
     HEAD = "/vr/head/pose"
     STALL_S = 0.1

@@ -349,13 +349,17 @@ console.log(JSON.stringify(out));
 
 
 def test_a_stalled_pose_channel_hands_the_head_to_rosbridge_under_node(tmp_path):
-    """pose_channel.js with a stand-in channel, run by Node: while the channel takes frames the head goes there;
-    when it has taken no head pose for STALL_MS and still holds more than its budget, send() answers false for
-    head poses (main.js then publishes them over rosbridge) but keeps the other streams; once it drains, the head
-    goes back to the channel."""
+    """pose_channel.js with a stand-in channel, run by Node: a frame's messages go out at its flush as ONE binary
+    pose frame, which the server's decoder (client_protocol/pose_frame.py) reads back; while the channel is congested
+    nothing goes and each topic keeps its newest; when it has taken no head pose for STALL_MS and still holds more
+    than its budget, send() answers false for head poses (main.js then publishes them over rosbridge) but keeps the
+    other streams; once it drains, the head goes back to the channel."""
+    import base64
     import json
     import subprocess
     from pathlib import Path
+
+    from client_protocol import pose_frame
 
     module = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web" / "operator" / "pose_channel.js"
     script = tmp_path / "check.mjs"
@@ -364,26 +368,37 @@ import {{PoseChannel, STALL_MS, BUFFER_BUDGET}} from {json.dumps(str(module))};
 let t = 0;
 const sent = [];
 const channel = {{readyState: "open", bufferedAmount: 0, bufferedAmountLowThreshold: 0, addEventListener() {{}},
-                  send(frame) {{ sent.push(JSON.parse(frame).topic); this.bufferedAmount += frame.length;
-                                 this.last = frame; }}}};
+                  send(frame) {{ sent.push(Buffer.from(frame).toString("base64"));
+                                 this.bufferedAmount += frame.byteLength; }}}};
 const pc = {{createDataChannel: () => channel}};
 const poses = new PoseChannel({{now: () => t}});
 poses.attach(pc);
-const head = "/vr/head/pose", left = "/vr/left_controller/pose";
+const head = "/vr/head/pose", left = "/vr/left_controller/pose", right = "/vr/right_controller/pose";
+const leftJoy = "/vr/left_controller/joy", rightJoy = "/vr/right_controller/joy";
+const pose = (secs, x) => ({{header: {{stamp: {{secs, nsecs: 250000000}}, frame_id: "webxr"}},
+                            pose: {{position: {{x, y: -0.2, z: 1.5}},
+                                    orientation: {{x: 0, y: 0, z: 0.6, w: 0.8}}}}}});
+const joy = (secs, buttons) => ({{header: {{stamp: {{secs, nsecs: 0}}, frame_id: "webxr"}},
+                                 axes: [0.5, -0.25, 1, 0.125], buttons}});
 const out = {{}};
-channel.bufferedAmount = 0;
-out.flowing = poses.send(head, {{n: 1}});                 // taken at once
+out.frame = [poses.send(head, pose(1700000000, 0.1)), poses.send(left, pose(1700000000, 0.2)),
+             poses.send(right, pose(1700000000, 0.3)), poses.send(leftJoy, joy(1700000000, [1, 0, 1, 0])),
+             poses.send(rightJoy, joy(1700000000, [0, 1, 0, 1]))];
+out.beforeFlush = sent.length;                           // nothing goes before the frame ends
+poses.flush();                                           // the whole frame: one message
 channel.bufferedAmount = BUFFER_BUDGET + 1;              // congested from here on: nothing more is taken
 t += STALL_MS / 2;
-out.congested = poses.send(head, {{n: 2}});               // waits in the channel's place: not yet a stall
+out.congested = poses.send(head, pose(1700000001, 2));   // waits: not yet a stall
+poses.flush();
 t += STALL_MS;
-out.stalled = poses.send(head, {{n: 3}});                 // no head taken for 1.5 x STALL_MS: rosbridge
-out.stalledAgain = poses.send(head, {{n: 4}});
-out.others = poses.send(left, {{n: 5}});                  // the other streams wait for the channel
+out.stalled = poses.send(head, pose(1700000002, 3));     // no head taken for 1.5 x STALL_MS: rosbridge
+out.stalledAgain = poses.send(head, pose(1700000003, 4));
+out.others = [poses.send(left, pose(1700000003, 5)), poses.send(left, pose(1700000004, 6))];  // newest kept
+poses.flush();
 channel.bufferedAmount = 0;                              // it drains
-poses.pump();
-out.drained = poses.send(head, {{n: 6, x: 0.123456789, y: -2.000004, stamp: 1700000000}});
-out.last = channel.last;
+poses.flush();                                           // what waited: the newest left, not the stale heads
+out.drained = poses.send(head, pose(1700000005, 7));
+poses.flush();
 out.sent = sent;
 out.stats = poses.stats();
 console.log(JSON.stringify(out));
@@ -391,26 +406,40 @@ console.log(JSON.stringify(out));
     result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     out = json.loads(result.stdout)
-    assert out["flowing"] and out["congested"] and out["others"] and out["drained"]
+    assert out["frame"] == [True] * 5 and out["beforeFlush"] == 0
+    assert out["congested"] and out["others"] == [True, True] and out["drained"]
     assert not out["stalled"] and not out["stalledAgain"]
-    # the head before the stall, then (drained) the waiting controller, then the head again; never the stale heads
-    assert out["sent"] == ["/vr/head/pose", "/vr/left_controller/pose", "/vr/head/pose"]
-    assert out["stats"]["failovers"] == 2
-    # floats go to 5 places on the channel (fewer bytes for its congestion window); integers stay whole
-    assert json.loads(out["last"])["msg"] == {"n": 6, "x": 0.12346, "y": -2.0, "stamp": 1700000000}
+    frames_sent = [pose_frame.decode(base64.b64decode(b)) for b in out["sent"]]
+    assert [[topic for topic, _ in f] for f in frames_sent] == [
+        list(pose_frame.POSE_TOPICS) + list(pose_frame.JOY_TOPICS), ["/vr/left_controller/pose"], ["/vr/head/pose"]]
+    first = dict(frames_sent[0])
+    head_msg = first["/vr/head/pose"]
+    assert head_msg["header"] == {"seq": 0, "stamp": {"secs": 1700000000, "nsecs": 250000000}, "frame_id": ""}
+    position, orientation = head_msg["pose"]["position"], head_msg["pose"]["orientation"]
+    assert position == pytest.approx({"x": 0.1, "y": -0.2, "z": 1.5}, abs=1e-6)  # float32
+    assert orientation == pytest.approx({"x": 0.0, "y": 0.0, "z": 0.6, "w": 0.8}, abs=1e-6)
+    assert first["/vr/right_controller/pose"]["pose"]["position"]["x"] == pytest.approx(0.3, abs=1e-6)
+    assert first["/vr/left_controller/joy"]["axes"] == [0.5, -0.25, 1.0, 0.125]
+    assert first["/vr/left_controller/joy"]["buttons"] == [1, 0, 1, 0]
+    assert first["/vr/right_controller/joy"]["buttons"] == [0, 1, 0, 1]
+    assert dict(frames_sent[1])["/vr/left_controller/pose"]["pose"]["position"]["x"] == pytest.approx(6.0)
+    assert dict(frames_sent[2])["/vr/head/pose"]["pose"]["position"]["x"] == pytest.approx(7.0)
+    assert out["stats"]["failovers"] == 2 and out["stats"]["replaced"] == 1 and out["stats"]["sent"] == 3
 
 
-def _counts(server: RunningServer) -> tuple[int, int, int]:
-    """(poses received on the holder's data channel, refused there, frames the holder's WebSocket carried: the
-    session's frames_in counts the channel's messages it was handed too)."""
-    def read() -> tuple[int, int, int]:
+def _counts(server: RunningServer) -> tuple[int, int, int, int, int]:
+    """(messages received on the holder's data channel, binary pose frames among them, refused there, publish
+    frames the channel handed to the session, frames the holder's WebSocket carried: the session's frames_in
+    counts the channel's handed frames too)."""
+    def read() -> tuple[int, int, int, int, int]:
         app = server.server
         holder = app.control.holder
         session = next(s for s in app.sessions.values() if s.operator == holder)
         peer = app.media.peers.get(session.name)
         counts = peer.poses.counts if peer is not None and peer.poses is not None else None
-        received, refused = (counts.received, counts.refused) if counts else (0, 0)
-        return received, refused, session.counters["frames_in"] - (received - refused)
+        received, binary, refused, handed = ((counts.received, counts.pose_frames, counts.refused, counts.handed)
+                                             if counts else (0, 0, 0, 0))
+        return received, binary, refused, handed, session.counters["frames_in"] - handed
     return server.call(read)
 
 
@@ -424,16 +453,21 @@ def test_poses_take_the_data_channel_when_webrtc_is_up_and_rosbridge_when_not(br
         take_control(page)  # engaging takes poses over rosbridge: the channel carries the holder's only
         set_head(page, 25.0)
         assert settles(lambda: standin.joint_positions()["HeadYaw"], 25.0, 2.0), standin.joint_positions()
-        channel0, refused0, websocket0 = _counts(media_server)
+        channel0, binary0, refused0, handed0, websocket0 = _counts(media_server)
         frames(page, 60)
-        channel1, refused1, websocket1 = _counts(media_server)
-        # Head, both controllers and Joy every frame on the channel; the WebSocket carries a few calls at most.
-        assert channel1 - channel0 >= 120, (channel0, channel1)
-        assert websocket1 - websocket0 < (channel1 - channel0) / 10, (websocket0, websocket1, channel0, channel1)
+        channel1, binary1, refused1, handed1, websocket1 = _counts(media_server)
+        # One binary pose frame per XR frame (issue 30), each with the head and both controllers (and the Joy when
+        # it changed or is due): nothing else on the channel, and the WebSocket carries a few calls at most.
+        assert channel1 - channel0 == binary1 - binary0 >= 30, (channel0, channel1, binary0, binary1)
+        assert handed1 - handed0 >= 3 * (binary1 - binary0), (handed0, handed1, binary0, binary1)
+        assert websocket1 - websocket0 < (handed1 - handed0) / 10, (websocket0, websocket1, handed0, handed1)
         assert refused1 == refused0 == 0
         set_head(page, -20.0)  # and the robot follows what came over the channel
         assert settles(lambda: standin.joint_positions()["HeadYaw"], -20.0, 2.0), standin.joint_positions()
         assert page.evaluate("window.operator.poses.sent") >= channel1
+        assert page.evaluate("window.operator.poses.failovers") == 0
+        # the telemetry the page reads says the same: its link's data channel counts the frames
+        page.wait_for_function(f"(window.operator.state.link?.dc_received ?? 0) >= {channel1}", timeout=SLOW)
         assert page.errors == []
     finally:
         close_page(page)
@@ -445,9 +479,9 @@ def test_poses_take_the_data_channel_when_webrtc_is_up_and_rosbridge_when_not(br
         take_control(page)
         set_head(page, 15.0)
         assert settles(lambda: standin.joint_positions()["HeadYaw"], 15.0, 2.0), standin.joint_positions()
-        channel0, _, websocket0 = _counts(media_server)
+        channel0, _, _, _, websocket0 = _counts(media_server)
         frames(page, 60)
-        channel1, _, websocket1 = _counts(media_server)
+        channel1, _, _, _, websocket1 = _counts(media_server)
         assert peers(media_server) == 0 and channel1 == channel0 == 0
         assert websocket1 - websocket0 >= 120, (websocket0, websocket1)  # the poses took rosbridge
         assert not page.evaluate("window.operator.poses.open")

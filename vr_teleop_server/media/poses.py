@@ -51,6 +51,8 @@ class ChannelSession(Protocol):
 @dataclass
 class ChannelCounts:
     received: int = 0
+    pose_frames: int = 0  # of the received, binary pose frames decoded (the rest: JSON publish frames or refused)
+    handed: int = 0  # publish frames handed to the session: one per JSON frame, one per pose and Joy of a pose frame
     refused: int = 0
     stale_dropped: int = 0
     last_refusal: str = ""
@@ -80,6 +82,7 @@ class PoseChannel:
                 self._refuse(f"a binary message that is not a pose frame: {exc}; send pose frames "
                              "(client_protocol/pose_frame.py) or publish frames as text (JSON)")
                 return
+            self.counts.pose_frames += 1
             for topic, msg in decoded:  # the frame's messages, each as its JSON publish frame would be
                 await self._take(json.dumps({"op": "publish", "topic": topic, "msg": msg}))
                 if session.closed:
@@ -100,6 +103,7 @@ class PoseChannel:
             self.counts.stale_dropped += 1  # overtaken by a newer one: never replayed
             return
         errors = session.counters.get("errors", 0)
+        self.counts.handed += 1
         await session.handle_frame(message)  # the WebSocket's own path: validation, access, bus, holder rule
         if session.counters.get("errors", 0) != errors:  # it answered with a status error (already sent)
             self.counts.refused += 1

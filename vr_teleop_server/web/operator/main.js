@@ -432,7 +432,8 @@ function othersHold() {
   return !!(s && s.engaged && s.holder && s.holder !== state.me && !state.engaging);
 }
 
-// The poses data channel while we hold control (the server takes poses there from the holder only), else rosbridge.
+// The poses data channel while we hold control (the server takes poses there from the holder only), else rosbridge;
+// the channel sends what it took at the end of the frame.
 function publishStream(topic, msg) {
   return (holding() && poseChannel.send(topic, msg)) || ros.publish(topic, msg);
 }
@@ -622,6 +623,7 @@ renderer.setAnimationLoop((time, frame) => {
   state.frameCount += 1;
   if (frame) xrFrame(frame, now);
   else flatFrame();
+  poseChannel.flush();  // the frame's poses and Joy taken by the channel, as one binary message
   placePanels();
   updateHud();
   renderer.render(scene, camera);
