@@ -44,6 +44,7 @@ from .render_process import RenderProcess, RenderProcessError
 from .scene import ClassroomScene, build_classroom
 
 log = logging.getLogger(__name__)
+_RAD_PER_DEG = math.pi / 180.0  # what np.radians multiplies by
 
 
 @dataclass(frozen=True)
@@ -140,6 +141,10 @@ class StandIn:
             raise ValueError("the scene's model lacks a joint or actuator named as in the robot description")
         self._lower = np.array([j.lower for j in self.robot.joints])
         self._upper = np.array([j.upper for j in self.robot.joints])
+        # plain floats and a name index for set_targets, called for every teleop command (numpy costs more there)
+        self._index = {n: i for i, n in enumerate(self.names)}
+        self._lower_deg = [float(v) for v in self._lower]
+        self._upper_deg = [float(v) for v in self._upper]
         self._caps = np.array([j.max_velocity for j in self.robot.joints])
         self._step_limit = self._caps * self.dt
         self._gain = m.actuator_gainprm[self._act, 0].copy()
@@ -151,6 +156,7 @@ class StandIn:
         self.data.qpos[self._qadr] = np.radians(home)
         self._goal = home.copy()
         self._setpoint = home.copy()
+        self._gap, self._ctrl = np.empty_like(home), np.empty_like(home)  # _step's buffers
         self.data.ctrl[self._act] = np.radians(home)
         self._modes = [MotorMode.ON] * len(self.names)
         mujoco.mj_forward(m, self.data)
@@ -214,22 +220,24 @@ class StandIn:
     def set_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
         """Set joint goals in degrees; returns the goals applied after clamping to the joint limits.
         Joints whose motor is not ON ignore the command and are left out of the result."""
-        idx, values = [], []
+        index, lower, upper = self._index, self._lower_deg, self._upper_deg
+        applied = []
         for name, deg in targets.items():
-            self.robot.joint(name)  # KeyError naming the valid joints
+            i = index.get(name)
+            if i is None:
+                self.robot.joint(name)  # KeyError naming the valid joints
+                i = self.names.index(name)
             value = float(deg)
             if not math.isfinite(value):
                 raise ValueError(f"joint {name}: target must be a finite number of degrees, got {deg!r}")
-            idx.append(self.names.index(name))
-            values.append(value)
-        applied = np.clip(np.array(values), self._lower[idx], self._upper[idx]) if idx else np.array([])
+            applied.append((i, min(max(value, lower[i]), upper[i])))
         out = {}
         with self._goal_lock:
             goal = self._goal.copy()
-            for i, v in zip(idx, applied):
+            for i, v in applied:
                 if self._modes[i] is MotorMode.ON:
                     goal[i] = v
-                    out[self.names[i]] = float(v)
+                    out[self.names[i]] = v
             self._goal = goal
         return out
 
@@ -521,14 +529,17 @@ class StandIn:
         every setpoint has reached its goal the control is constant, and MuJoCo takes the steps in one call."""
         m, d = self.model, self.data
         while n > 0:
-            gap = self._goal - self._setpoint
-            if not gap.any():
+            gap = np.subtract(self._goal, self._setpoint, out=self._gap)
+            if not np.count_nonzero(gap):  # (ndarray.any() goes through a Python wrapper: slower)
                 k = min(n, self.THERMAL_EVERY - self._steps % self.THERMAL_EVERY)
                 mujoco.mj_step(m, d, k)
             else:
                 k = 1
-                self._setpoint += np.clip(gap, -self._step_limit, self._step_limit)
-                d.ctrl[self._act] = np.radians(self._setpoint)
+                # np.clip and np.radians, as ufuncs into buffers: their wrappers cost as much as the step itself
+                limit = self._step_limit
+                np.minimum(np.maximum(gap, np.negative(limit, out=self._ctrl), out=gap), limit, out=gap)
+                np.add(self._setpoint, gap, out=self._setpoint)
+                d.ctrl[self._act] = np.multiply(self._setpoint, _RAD_PER_DEG, out=self._ctrl)
                 mujoco.mj_step(m, d)
             n -= k
             self._steps += k
