@@ -273,3 +273,22 @@ def test_head_and_arms_control_switches(ros):
     finally:
         headset.stop()
         state.close()
+
+
+def test_one_voices_speed_and_pitch_do_not_leak_into_another():
+    """pyttsx3 gives a process one engine and espeak-ng one set of parameters: each voice sets its own per render."""
+    async def durations() -> tuple[float, float, float]:
+        plain, configured = TextToSpeech(), TextToSpeech()
+        try:
+            before = (await plain.render("Well done!")).duration_s
+            await configured.configure(speed=60, pitch=80)
+            slow = (await configured.render("Well done!")).duration_s
+            after = (await plain.render("Well done!")).duration_s
+            return before, slow, after
+        finally:
+            plain.close()
+            configured.close()
+
+    before, slow, after = asyncio.run(durations())
+    assert slow > 1.3 * before  # 60% of normal speed takes longer
+    assert abs(after - before) < 0.005  # the other voice's settings did not carry over

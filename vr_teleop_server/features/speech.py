@@ -23,6 +23,7 @@ import logging
 import os
 import re
 import tempfile
+import threading
 import time
 import wave
 from concurrent.futures import ThreadPoolExecutor
@@ -40,6 +41,10 @@ log = logging.getLogger(__name__)
 CHUNK_S = 0.1  # audio per chunk sent to the headset
 LEAD_S = 0.3  # how far ahead of real time chunks are sent, so the headset's player never starves
 NORMAL_SPEED = 100  # LuxAI's speech speed is a percentage of normal
+ESPEAK_RATE = 200  # words a minute: pyttsx3's espeak driver's normal rate
+ESPEAK_PITCH = 50  # espeak-ng's normal pitch (0..100)
+# espeak-ng keeps one set of parameters per process and pyttsx3 one engine: renders take turns.
+ESPEAK_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -65,16 +70,20 @@ class TextToSpeech:
     def __init__(self) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tts")
         self._engine: Any = None
-        self._normal_rate = 175
         self._voices: list[Any] = []
+        # This instance's voice, applied before each render: pyttsx3 hands every caller in a process the same
+        # engine, and espeak-ng's parameters are process-wide, so another instance's configure must not leak in.
+        self._voice: str | None = None  # None: the engine's default voice, as found at first use
+        self._pitch = ESPEAK_PITCH
+        self._rate = ESPEAK_RATE
 
     def _engine_ready(self) -> Any:
         if self._engine is None:
             import pyttsx3
 
             self._engine = pyttsx3.init()
-            self._normal_rate = int(self._engine.getProperty("rate"))
             self._voices = list(self._engine.getProperty("voices"))
+            self._voice = self._voice or self._engine.getProperty("voice")
         return self._engine
 
     def _voice_for(self, language: str) -> str:
@@ -89,20 +98,23 @@ class TextToSpeech:
         raise ValueError(f"no voice for language {language!r}; espeak-ng offers e.g. en, en-gb, en-us, fr, de, nl")
 
     def _configure(self, language: str, pitch: int, speed: int) -> None:
-        engine = self._engine_ready()
+        self._engine_ready()
         if language:
-            engine.setProperty("voice", self._voice_for(language))
+            self._voice = self._voice_for(language)
         if pitch:
-            engine.setProperty("pitch", pitch)
+            self._pitch = pitch
         if speed:
-            engine.setProperty("rate", max(40, round(self._normal_rate * speed / NORMAL_SPEED)))
+            self._rate = max(40, round(ESPEAK_RATE * speed / NORMAL_SPEED))
 
     def _render(self, text: str) -> Wav:
         engine = self._engine_ready()
         fd, path = tempfile.mkstemp(suffix=".wav", prefix="vr-teleop-tts-")
         os.close(fd)
         try:
-            with contextlib.redirect_stdout(io.StringIO()):  # the espeak driver prints each file it saves
+            with ESPEAK_LOCK, contextlib.redirect_stdout(io.StringIO()):  # the driver prints each file it saves
+                engine.setProperty("voice", self._voice)
+                engine.setProperty("pitch", self._pitch)
+                engine.setProperty("rate", self._rate)
                 engine.save_to_file(text, path)
                 engine.runAndWait()
             return Wav.parse(Path(path).read_bytes())
