@@ -80,6 +80,7 @@ class ArucoTracker:
         self._max_head_speed = max_head_speed
         self._poses: dict[str, tuple[np.ndarray, float]] = {}
         self._task: asyncio.Task[None] | None = None
+        self._last: tuple[bytes, list[MarkerSighting]] = (b"", [])  # the last image searched, what it showed
         self.frames_searched = 0
 
     def object_pose(self, obj: str) -> tuple[np.ndarray, float] | None:
@@ -109,14 +110,18 @@ class ArucoTracker:
                 await asyncio.sleep(max(0.0, self._period - age))
 
     def _search(self, jpeg: bytes, angles: dict[str, float]) -> dict[str, np.ndarray]:
-        gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            return {}
-        self.frames_searched += 1
-        k = camera_matrix(self.model, gray.shape[1], gray.shape[0])
+        """Markers seen in the frame, placed with the joint state read with it. The same image as the last one
+        (a still camera on a still scene) shows the same markers: they are not searched for again."""
+        if jpeg != self._last[0]:
+            gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+            if gray is None:
+                return {}
+            self.frames_searched += 1
+            k = camera_matrix(self.model, gray.shape[1], gray.shape[0])
+            self._last = (jpeg, detect_markers(gray, k, self._sizes))
         base_from_camera = forward_kinematics(self.model, {**self.model.home_pose(), **angles})["camera"]
         out = {}
-        for s in detect_markers(gray, k, self._sizes):
+        for s in self._last[1]:
             name, object_in_marker = self._by_marker[s.id]
             out[name] = base_from_camera @ s.camera_from_marker @ object_in_marker
         return out
