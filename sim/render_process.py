@@ -58,7 +58,7 @@ class RenderProcess(WorkerProcess):
     def frame(self, state: tuple, quality: int | None, seq: int = 0) -> tuple[bytes, int, int, float, float]:
         """The head camera at the given joint state, drawn into the ring's slot for frame `seq` (when there is a
         ring and seq > 0), and as a JPEG when `quality` is given (b"" otherwise): (jpeg, width, height,
-        render_ms, encode_ms)."""
+        render_ms, encode_ms); render_ms is 0 for a frame reused (`reuse_unchanged`)."""
         return self.call(("frame", state, quality, seq))
 
     def snapshot(self, state: tuple, camera: str, width: int, height: int) -> np.ndarray:
@@ -135,10 +135,11 @@ class _Worker:
 
         self.set_state(state)
         r = self.renderer(self.width, self.height)
-        c0 = time.perf_counter()
         key = None if self.visible is None else self.visible.key(self.data)
         out = self.ring.begin(seq) if self.ring is not None and seq > 0 else None
-        if self.last is not None and key == self.last[0]:  # the same view: the same picture
+        c0 = time.perf_counter()
+        reused = self.last is not None and key == self.last[0]  # the same view: the same picture
+        if reused:
             rgb = self.last[1]
             if out is not None:
                 out[...] = rgb
@@ -148,7 +149,7 @@ class _Worker:
             self.last = None if key is None else (key, rgb.copy(), {})
         if out is not None:
             self.ring.commit(seq)
-        c1 = time.perf_counter()
+        c1 = c0 if reused else time.perf_counter()
         jpeg = b""
         if quality is not None:
             jpeg = self.last[2].get(quality, b"") if self.last is not None else b""
