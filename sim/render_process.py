@@ -194,8 +194,8 @@ class VisibleScene:
     (a frustum widened by a margin, so the test errs toward "in view"), its index, pose, size and colour; geoms
     without a bound (planes) are always in it. A geom that leaves the view was in the last key, one that enters
     is in this one, so any change in view changes the key. That holds only where a geom out of view changes no
-    pixel: without shadows, reflections or sites and tendons drawn (`of` returns None otherwise), with a face
-    texture that has not changed (the worker forgets its last frame when it uploads one).
+    pixel: without shadows, reflections, lights on moving bodies, or sites and tendons drawn (`of` returns None
+    otherwise), with a face texture that has not changed (the worker forgets its last frame when it uploads one).
     """
 
     MARGIN = 1.25  # on the frustum's half-angles' tangents and on the bounding radii
@@ -216,7 +216,8 @@ class VisibleScene:
 
         from robot_models.mjcf import HEAD_CAMERA
 
-        if (model.light_castshadow.any() or (model.nmat and model.mat_reflectance.max() > 0) or model.ntendon
+        if (model.light_castshadow.any() or (model.light_bodyid != 0).any()  # a light that moves lights anew
+                or (model.nmat and model.mat_reflectance.max() > 0) or model.ntendon
                 or model.nskin or getattr(model, "nflex", 0) or (model.nsite and (model.site_group < 3).any())):
             return None
         cam = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, HEAD_CAMERA)
