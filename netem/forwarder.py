@@ -5,6 +5,7 @@ Run by netem.emulator as `python -m netem.forwarder SPEC_JSON`. It prints one JS
 (`{"ready": true}`), then answers JSON commands read from stdin, one a line:
     {"cmd": "set", "direction": "up" | "down" | "both", "params": {...}}   replace the impairment (all keys)
     {"cmd": "stats"}                                                         counters per direction
+The spec's optional "link" (per direction) is the client edge's own link, stacked with "params" (edges.py).
 It exits when stdin closes (so it dies with whoever started it; its TUN devices vanish with it: they are not
 persistent) or on SIGTERM.
 
@@ -26,7 +27,7 @@ import subprocess
 import sys
 from typing import Any
 
-from .model import DIRECTIONS, Direction, DirectionParams
+from .model import DIRECTIONS, Direction, DirectionParams, Stacked
 
 TUNSETIFF = 0x400454CA
 IFF_TUN = 0x0001
@@ -49,10 +50,18 @@ def open_tun(name: str) -> int:
 
 
 class Forwarder:
-    def __init__(self, fds: dict[str, tuple[int, int]], params: dict[str, DirectionParams], seed: int | None) -> None:
-        """fds: direction -> (read from, write to)."""
+    def __init__(self, fds: dict[str, tuple[int, int]], params: dict[str, DirectionParams], seed: int | None,
+                 link: dict[str, DirectionParams] | None = None) -> None:
+        """fds: direction -> (read from, write to); params: the delay profile's (changed by `set`); link: the
+        client edge's own link (edges.py), fixed, crossed before the profile going up and after it coming down."""
         self.fds = fds
         self.dirs = {d: Direction(params[d], None if seed is None else seed + i) for i, d in enumerate(DIRECTIONS)}
+        self.links = {d: Direction(link[d], None if seed is None else seed + 10 + i)
+                      for i, d in enumerate(DIRECTIONS)} if link else {}
+        self.paths: dict[str, Direction | Stacked] = dict(self.dirs)
+        if self.links:
+            self.paths = {"up": Stacked(self.links["up"], self.dirs["up"]),
+                          "down": Stacked(self.dirs["down"], self.links["down"])}
         self.write_errors = 0
         self.not_ipv4 = 0
         self._late: list[float] = []  # how late each timed write ran (s), since the last stats
@@ -65,7 +74,7 @@ class Forwarder:
 
     def _readable(self, loop: asyncio.AbstractEventLoop, d: str) -> None:
         src, dst = self.fds[d]
-        model = self.dirs[d]
+        model = self.paths[d]
         for _ in range(READ_BATCH):
             try:
                 packet = os.read(src, MAX_PACKET)
@@ -116,6 +125,7 @@ class Forwarder:
                 return round(late[min(len(late) - 1, int(q * len(late)))] * 1e3, 3) if late else None
 
             return {"ok": True, "stats": {d: m.counters.to_dict() for d, m in self.dirs.items()},
+                    "link": {d: m.counters.to_dict() for d, m in self.links.items()},
                     "write_errors": self.write_errors, "not_ipv4": self.not_ipv4,
                     "late_ms": {"n": len(late), "p50": pct(0.5), "p99": pct(0.99)}}
         return {"ok": False, "error": f"unknown command {cmd!r}; use set or stats"}
@@ -134,8 +144,10 @@ async def _serve(spec: dict[str, Any]) -> None:
     for side in ("client", "server"):
         subprocess.run(["ip", "link", "set", "dev", spec["tun"][side], "netns", spec["netns"][side]], check=True)
     params = {d: DirectionParams.from_dict(spec["params"][d], d) for d in DIRECTIONS}
+    link = {d: DirectionParams.from_dict(spec["link"][d], f"link.{d}") for d in DIRECTIONS} if spec.get("link") \
+        else None
     fwd = Forwarder({"up": (tuns["client"], tuns["server"]), "down": (tuns["server"], tuns["client"])},
-                    params, spec.get("seed"))
+                    params, spec.get("seed"), link)
     fwd.start(loop)
     stop = asyncio.Event()
     loop.add_signal_handler(signal.SIGTERM, stop.set)
