@@ -9,7 +9,8 @@ The spec's optional "link" (per direction) is the client edge's own link, stacke
 It exits when stdin closes (so it dies with whoever started it; its TUN devices vanish with it: they are not
 persistent) or on SIGTERM.
 
-Timing: the link's delays are timers on this process's event loop, so how late a busy host wakes it is added to
+Timing: the link's delays are one timer per direction on this process's event loop (packets wait in a queue
+ordered by delivery time, then arrival), so how late a busy host wakes it is added to
 every packet's delay. It asks for real-time scheduling (SCHED_FIFO, low priority: it sleeps except to move
 packets, and the kernel keeps 5% of each second for everyone else), else nice -10, and reports its own lateness
 (`late_ms` in stats) so a measurement can tell the link from the host.
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import fcntl
+import heapq
 import json
 import os
 import signal
@@ -66,6 +68,10 @@ class Forwarder:
         self.not_ipv4 = 0
         self._late: list[float] = []  # how late each timed write ran (s), since the last stats
         self._loop: asyncio.AbstractEventLoop | None = None
+        # per direction: (delivery time, arrival number, packet, whether it waited) in delivery order; one timer
+        self._queues: dict[str, list[tuple[float, int, bytes, bool]]] = {d: [] for d in DIRECTIONS}
+        self._timers: dict[str, asyncio.TimerHandle | None] = {d: None for d in DIRECTIONS}
+        self._seq = 0
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
@@ -73,13 +79,14 @@ class Forwarder:
             loop.add_reader(src, self._readable, loop, d)
 
     def _readable(self, loop: asyncio.AbstractEventLoop, d: str) -> None:
-        src, dst = self.fds[d]
+        src, _dst = self.fds[d]
         model = self.paths[d]
+        queue = self._queues[d]
         for _ in range(READ_BATCH):
             try:
                 packet = os.read(src, MAX_PACKET)
             except BlockingIOError:
-                return
+                break
             if not packet or packet[0] >> 4 != 4:
                 self.not_ipv4 += 1  # IPv6 router solicitations and the like: the link is IPv4 only
                 continue
@@ -87,15 +94,25 @@ class Forwarder:
             when = model.admit(len(packet), now)
             if when is None:
                 continue
-            if when <= now:
-                self._write(dst, packet)
-            else:
-                loop.call_at(when, self._timed_write, dst, packet, when)
+            self._seq += 1
+            heapq.heappush(queue, (when, self._seq, packet, when > now))
+        self._deliver(d)
 
-    def _timed_write(self, fd: int, packet: bytes, when: float) -> None:
-        if len(self._late) < 1_000_000:
-            self._late.append(self._loop.time() - when)
-        self._write(fd, packet)
+    def _deliver(self, d: str) -> None:
+        """Writes every packet of direction `d` that is due, in order of delivery time and, at equal times, of
+        arrival (a link that keeps order bunches packets up to the same time: they must leave in the order they
+        came, which separate timers at equal times do not guarantee), then sets one timer for the next."""
+        queue, (_src, dst) = self._queues[d], self.fds[d]
+        timer = self._timers[d]
+        if timer is not None:
+            timer.cancel()
+        now = self._loop.time()
+        while queue and queue[0][0] <= now:
+            when, _seq, packet, timed = heapq.heappop(queue)
+            if timed and len(self._late) < 1_000_000:
+                self._late.append(now - when)
+            self._write(dst, packet)
+        self._timers[d] = self._loop.call_at(queue[0][0], self._deliver, d) if queue else None
 
     def _write(self, fd: int, packet: bytes) -> None:
         try:

@@ -151,6 +151,7 @@ class PoseSender:
         channel.bufferedAmountLowThreshold = 0
         self._pending: dict[str, str] = {}
         self.sent = 0
+        self.head_sent = 0  # sends that carried a head pose
         self.replaced = 0  # frames overtaken by a newer one of their topic before the channel could take them
         self.sent_at: dict[str, list[tuple[float, str]]] = {}  # with `keep_sent`: topic -> (send time, frame)
         self.keep_sent = False
@@ -193,6 +194,7 @@ class PoseSender:
                 data = _pose_frame(self._pending_msgs)
                 if self.HEAD in self._pending:
                     self.head_taken_at = time.monotonic()
+                    self.head_sent += 1
                 self._pending.clear()
                 self._pending_msgs.clear()
                 self.channel.send(data)
@@ -207,6 +209,7 @@ class PoseSender:
             self.sent += 1
             if topic == self.HEAD:
                 self.head_taken_at = time.monotonic()
+                self.head_sent += 1
             if self.keep_sent:
                 self.sent_at.setdefault(topic, []).append((time.monotonic(), frame))
 
