@@ -135,7 +135,7 @@ class PoseSender:
     timer) hands head poses back to the caller for the WebSocket until it takes one again, as the operator page's
     sender (web/operator/pose_channel.js) does; the page sends one binary pose frame per XR frame, as this sender
     with `compact`: it flushes once the caller's current run of sends is over (call_soon: the replay sends one XR
-    frame's messages without yielding), so a frame's head, controllers and Joy go as one message, half the packets
+    frame's messages without yielding) or when a topic comes again (the next frame began), so a frame's head, controllers and Joy go as one message, half the packets
     of a head-first frame and a second for the rest (measured on continent: SCTP's window at 2% loss carries fewer
     than two packets per XR frame). JSON frames go compact, their floats to DECIMALS places (10 micrometres; a thousandth of a
     degree in a quaternion): about 80% of the bytes, and the channel's congestion window counts bytes."""
@@ -172,6 +172,8 @@ class PoseSender:
             self._pending.pop(self.HEAD, None)
             self.failovers += 1
             return False
+        if self.compact and topic in self._pending:
+            self._pump()  # a topic again: the next XR frame began (a late caller sends frames back to back)
         if topic in self._pending:
             self.replaced += 1
         if self.compact:
