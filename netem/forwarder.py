@@ -79,7 +79,7 @@ class Forwarder:
             loop.add_reader(src, self._readable, loop, d)
 
     def _readable(self, loop: asyncio.AbstractEventLoop, d: str) -> None:
-        src, _dst = self.fds[d]
+        src = self.fds[d][0]
         model = self.paths[d]
         queue = self._queues[d]
         for _ in range(READ_BATCH):
