@@ -16,7 +16,7 @@ import pytest
 from media_client import MediaPeer, Rosbridge
 from support import RunningServer
 from test_datachannel import HEAD_POSE, engage_over_websocket, head_pose, release, whoami
-from vr_teleop_server.media.media_loop import THREAD_NAME
+from vr_teleop_server.media.media_loop import THREAD_NAME, MediaLoop
 from vr_teleop_server.settings import ServerSettings
 
 pytestmark = pytest.mark.timeout(300)
@@ -104,3 +104,28 @@ async def test_the_peers_run_on_the_media_loop_poses_reach_the_session_in_order_
     finally:
         if not stopped:
             server.stop()
+
+
+async def test_the_media_loop_runs_work_in_its_thread_and_shutdown_cancels_what_is_left() -> None:
+    media = MediaLoop()
+    media.setup()
+    thread = media.thread
+    assert thread is not None and thread.is_alive() and thread is not threading.current_thread()
+    unwound = threading.Event()
+
+    async def where() -> threading.Thread:
+        return threading.current_thread()
+
+    async def forever() -> None:
+        try:
+            await asyncio.sleep(3600)
+        finally:
+            unwound.set()
+
+    assert await media.run(where()) is thread
+    assert media.loop is not None
+    asyncio.run_coroutine_threadsafe(forever(), media.loop)
+    await media.shutdown()
+    assert unwound.is_set() and not thread.is_alive()
+    with pytest.raises(RuntimeError, match="not running"):
+        await media.run(where())

@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
+import ctypes
 import logging
 import threading
 from collections.abc import Callable, Coroutine
@@ -59,6 +60,8 @@ class MediaLoop:
         ended = self._ended = concurrent.futures.Future()
 
         def main() -> None:
+            with contextlib.suppress(Exception):  # Linux: the name `top -H` and /proc show (prctl PR_SET_NAME)
+                ctypes.CDLL(None).prctl(15, THREAD_NAME.encode(), 0, 0, 0)
             asyncio.set_event_loop(loop)
             loop.call_soon(ready.set)
             try:
@@ -79,11 +82,6 @@ class MediaLoop:
             coro.close()
             raise RuntimeError("the media loop is not running (MediaLoop.setup not called, or shut down)")
         return await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(coro, self.loop))
-
-    def call(self, fn: Callable[..., Any], *args: Any) -> None:
-        """`fn(*args)` on the media loop, in call order."""
-        if self.loop is not None:
-            call_on(self.loop, fn, *args)
 
     async def shutdown(self) -> None:
         """Cancels the tasks left on the media loop, lets them unwind, stops the loop and joins the thread."""

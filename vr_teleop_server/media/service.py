@@ -228,8 +228,8 @@ class MediaService:
         peer = self.peers[caller] = Peer(caller)  # reserved before any await: a concurrent offer is refused
         self.peers_created += 1
         try:
-            answer = await self.media_loop.run(self._negotiate(peer, session, self._may_speak(session.role), config, sdp,
-                                                               offer))
+            answer = await self.media_loop.run(self._negotiate(peer, session, self._may_speak(session.role), config,
+                                                               sdp, offer))
         except _Refusal as exc:
             await self._close_peer(caller)
             return self._refuse(str(exc))
@@ -499,9 +499,9 @@ class MediaService:
             "frame_rtp_timestamps": [], "frame_render_times": [], "operator_voice_level": 0.0,
             "dc_received": 0, "dc_refused": 0, "dc_stale_dropped": 0, "dc_last_refusal": ""}
         if peer is not None:
-            entry.update(rtc_state=peer.pc.connectionState if peer.pc is not None else "new", rtc_rtt=peer.rtt, rtc_jitter=peer.jitter,
-                         rtc_packets_lost=peer.packets_lost, rtc_fraction_lost=peer.fraction_lost,
-                         rtc_bitrate=peer.bitrate)
+            entry.update(rtc_state=peer.pc.connectionState if peer.pc is not None else "new", rtc_rtt=peer.rtt,
+                         rtc_jitter=peer.jitter, rtc_packets_lost=peer.packets_lost,
+                         rtc_fraction_lost=peer.fraction_lost, rtc_bitrate=peer.bitrate)
             video = peer.video
             if video is not None:
                 sent += video.frames_sent

@@ -7,7 +7,10 @@ its number in the stand-in's frame ring (shared memory the renderer draws into),
 the camera makes no JPEG for WebRTC viewers (`live_frames(jpeg=False)`); a camera that delivers JPEG anyway (a
 real robot's) sends that; each peer's
 `CameraTrack` hands the sender already-encoded packets, which aiortc only packetizes (`Encoder.pack`), so the
-per-peer cost is the RTP packetization alone. If the encoder process dies, the next frame starts another.
+per-peer cost is the RTP packetization alone. If the encoder process dies, the next frame starts another. The hub
+lives on the server's loop (it reads the robot); the tracks live with their peer connections on the media loop
+(media_loop.py): the hub hands each encoded frame to each track's loop, and the tracks' calls back (attach, detach,
+keyframe requests) come to the hub's.
 
 Frames come from `Robot.live_frames()` only while some track is attached, newest first: while one frame is being
 encoded, the camera's mailbox keeps only the newest one, so the encoder never works through a backlog. An
