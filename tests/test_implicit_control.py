@@ -276,7 +276,7 @@ def test_head_and_arms_control_switches(ros):
 
 
 def test_one_voices_speed_and_pitch_do_not_leak_into_another():
-    """pyttsx3 gives a process one engine and espeak-ng one set of parameters: each voice sets its own per render."""
+    """espeak-ng's library keeps one set of parameters per process: each render runs its own espeak-ng with its own."""
     async def durations() -> tuple[float, float, float]:
         plain, configured = TextToSpeech(), TextToSpeech()
         try:
@@ -292,3 +292,26 @@ def test_one_voices_speed_and_pitch_do_not_leak_into_another():
     before, slow, after = asyncio.run(durations())
     assert slow > 1.3 * before  # 60% of normal speed takes longer
     assert abs(after - before) < 0.005  # the other voice's settings did not carry over
+
+
+def test_voices_render_whole_long_texts_side_by_side():
+    """Each render is its own espeak-ng: a long text comes back whole, in its own voice, while another voice renders
+    (pyttsx3's espeak driver, used before, could return before the WAV was written)."""
+    sentence = "The class counts to ten together, and then the robot says well done to everyone."
+
+    async def durations() -> tuple[float, list[float], list[float]]:
+        plain, slow = TextToSpeech(), TextToSpeech()
+        try:
+            await slow.configure(speed=60)
+            one = (await plain.render(sentence)).duration_s
+            alone = [(await tts.render(" ".join([sentence] * 6))).duration_s for tts in (plain, slow)]
+            together = await asyncio.gather(*(tts.render(" ".join([sentence] * 6)) for tts in (plain, slow)))
+            return one, alone, [wav.duration_s for wav in together]
+        finally:
+            plain.close()
+            slow.close()
+
+    one, alone, together = asyncio.run(durations())
+    assert alone[0] > 5 * one  # all six sentences were said
+    assert alone[1] > 1.3 * alone[0]  # the slow voice stayed slow
+    assert all(abs(a - b) < 0.005 for a, b in zip(alone, together))  # side by side as when alone
