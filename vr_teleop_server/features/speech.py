@@ -117,8 +117,11 @@ class TextToSpeech:
 
     def _render(self, text: str) -> Wav:
         voice = ("-v", self._voice) if self._voice else ()
-        return Wav.parse(self._espeak("--stdin", "--stdout", *voice, "-p", str(self._pitch), "-s", str(self._rate),
-                                      text=text))
+        out = self._espeak("--stdin", "--stdout", *voice, "-p", str(self._pitch), "-s", str(self._rate), text=text)
+        try:
+            return Wav.parse(out)
+        except (wave.Error, EOFError) as exc:
+            raise RuntimeError(f"espeak-ng's output is not a WAV ({exc or 'empty'})") from None
 
     async def configure(self, language: str = "", pitch: int = 0, speed: int = 0) -> None:
         await asyncio.get_running_loop().run_in_executor(self._executor, self._configure, language, pitch, speed)
