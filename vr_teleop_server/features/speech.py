@@ -41,6 +41,9 @@ NORMAL_SPEED = 100  # LuxAI's speech speed is a percentage of normal
 ESPEAK = "espeak-ng"
 ESPEAK_RATE = 200  # words a minute at LuxAI's speed 100 (what the server used with pyttsx3; espeak-ng's own is 175)
 ESPEAK_PITCH = 50  # espeak-ng's normal pitch (0..99)
+# espeak-ng's default voice (British English), named by its file: a voice named by language costs a search of every
+# voice file, about 50 ms a render
+ESPEAK_VOICE = "gmw/en"
 ESPEAK_TIMEOUT_S = 30.0  # espeak-ng renders far faster than real time: a render this long is a hung process
 # a row of `espeak-ng --voices`: Pty, Language, Age/Gender, VoiceName, File, Other Languages
 VOICE_ROW = re.compile(r"\s*\d+\s+(?P<language>\S+)\s+\S+\s+\S+\s+(?P<file>\S+)")
@@ -74,7 +77,7 @@ class TextToSpeech:
     def __init__(self) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tts")
         self._voices: list[tuple[str, str]] | None = None  # (voice file, language), as espeak-ng lists them
-        self._voice: str | None = None  # None: espeak-ng's default voice
+        self._voice = ESPEAK_VOICE  # a voice file, as _voice_for finds them
         self._pitch = ESPEAK_PITCH
         self._rate = ESPEAK_RATE
 
@@ -116,8 +119,8 @@ class TextToSpeech:
             self._rate = max(40, round(ESPEAK_RATE * speed / NORMAL_SPEED))
 
     def _render(self, text: str) -> Wav:
-        voice = ("-v", self._voice) if self._voice else ()
-        out = self._espeak("--stdin", "--stdout", *voice, "-p", str(self._pitch), "-s", str(self._rate), text=text)
+        out = self._espeak("--stdin", "--stdout", "-v", self._voice, "-p", str(self._pitch), "-s", str(self._rate),
+                           text=text)
         try:
             return Wav.parse(out)
         except (wave.Error, EOFError) as exc:
