@@ -90,7 +90,7 @@ class TextToSpeech:
         except subprocess.TimeoutExpired:
             raise RuntimeError(f"espeak-ng took over {ESPEAK_TIMEOUT_S:g} s") from None
         if done.returncode != 0:
-            raise RuntimeError(f"espeak-ng failed ({done.returncode}): {done.stderr.decode(errors='replace')}")
+            raise RuntimeError(f"espeak-ng failed ({done.returncode}): {done.stderr.decode(errors='replace').strip()}")
         return done.stdout
 
     def _voice_list(self) -> list[tuple[str, str]]:
@@ -122,7 +122,7 @@ class TextToSpeech:
         out = self._espeak("--stdin", "--stdout", "-v", self._voice, "-p", str(self._pitch), "-s", str(self._rate),
                            text=text)
         try:
-            return Wav.parse(out)
+            return Wav.parse(out)  # a streamed WAV: its header gives no length, and wave reads the frames there are
         except (wave.Error, EOFError) as exc:
             raise RuntimeError(f"espeak-ng's output is not a WAV ({exc or 'empty'})") from None
 
