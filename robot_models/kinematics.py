@@ -203,40 +203,66 @@ class ArmSolver:
         Three joints and an analytic Jacobian make this a few 3x3 solves (Cramer's rule); scipy's bounded
         least_squares gives the same answers but costs milliseconds per call in overhead.
         """
-        lo, hi = self.lower, self.upper
-        l1, l2 = self.l1, self.l2
-        q = self.clip(q0)
-        h = self.hand_local(*q)
-        r = (h[0] - p[0], h[1] - p[1], h[2] - p[2])
-        cost = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        lo0, lo1, lo2 = self.lower
+        hi0, hi1, hi2 = self.upper
+        l1, l2, offset = self.l1, self.l2, self.offset
+        px, py, pz = p
+        cos, sin = math.cos, math.sin
+        # Scalars throughout (3x3 sums written out, the solve by Cramer's rule, hand_local and clip inlined): in
+        # lists and comprehensions each iteration cost several times its arithmetic, and the replay at --speed max
+        # runs this a few thousand times a minute of session.
+        q1, q2, q3 = self.clip(q0)
+        u = offset + l1 * cos(q2) + l2 * cos(q2 + q3)
+        v = l1 * sin(q2) + l2 * sin(q2 + q3)
+        r0, r1, r2 = -v * cos(q1) - px, u - py, v * sin(q1) - pz
+        cost = r0 * r0 + r1 * r1 + r2 * r2
         damping = 1e-3
         for _ in range(iterations):
-            q1, q2, q3 = q
-            c1, s1 = math.cos(q1), math.sin(q1)
-            s2, c2, s23, c23 = math.sin(q2), math.cos(q2), math.sin(q2 + q3), math.cos(q2 + q3)
+            c1, s1 = cos(q1), sin(q1)
+            s2, c2, s23, c23 = sin(q2), cos(q2), sin(q2 + q3), cos(q2 + q3)
             v = l1 * s2 + l2 * s23
             a, b = l1 * c2 + l2 * c23, l2 * c23
-            cols = ((v * s1, 0.0, v * c1), (-a * c1, -v, a * s1), (-b * c1, -l2 * s23, b * s1))  # Jacobian columns
-            grad = [c[0] * r[0] + c[1] * r[1] + c[2] * r[2] for c in cols]
+            # Jacobian columns j0, j1, j2
+            j00, j01, j02 = v * s1, 0.0, v * c1
+            j10, j11, j12 = -a * c1, -v, a * s1
+            j20, j21, j22 = -b * c1, -l2 * s23, b * s1
+            g0 = j00 * r0 + j01 * r1 + j02 * r2
+            g1 = j10 * r0 + j11 * r1 + j12 * r2
+            g2 = j20 * r0 + j21 * r1 + j22 * r2
             # Joints at a bound that the gradient pushes further out cannot move: drop them from this step.
-            free = [not ((q[i] <= lo[i] + 1e-12 and grad[i] > 0) or (q[i] >= hi[i] - 1e-12 and grad[i] < 0))
-                    for i in range(3)]
-            if not any(free):
+            f0 = not ((q1 <= lo0 + 1e-12 and g0 > 0) or (q1 >= hi0 - 1e-12 and g0 < 0))
+            f1 = not ((q2 <= lo1 + 1e-12 and g1 > 0) or (q2 >= hi1 - 1e-12 and g1 < 0))
+            f2 = not ((q3 <= lo2 + 1e-12 and g2 > 0) or (q3 >= hi2 - 1e-12 and g2 < 0))
+            if not (f0 or f1 or f2):
                 break
-            m = [[(ci[0] * cj[0] + ci[1] * cj[1] + ci[2] * cj[2]) if free[i] and free[j] else float(i == j)
-                  for j, cj in enumerate(cols)] for i, ci in enumerate(cols)]
-            rhs = [-grad[i] if free[i] else 0.0 for i in range(3)]
-            for i in range(3):
-                if free[i]:
-                    m[i][i] += damping
-            step = _solve3(m, rhs)
-            trial = self.clip((q1 + step[0], q2 + step[1], q3 + step[2]))
-            h = self.hand_local(*trial)
-            r_trial = (h[0] - p[0], h[1] - p[1], h[2] - p[2])
-            cost_trial = r_trial[0] * r_trial[0] + r_trial[1] * r_trial[1] + r_trial[2] * r_trial[2]
+            # The damped normal equations, rows and columns of fixed joints replaced by the identity's.
+            m00 = (j00 * j00 + j01 * j01 + j02 * j02) + damping if f0 else 1.0
+            m11 = (j10 * j10 + j11 * j11 + j12 * j12) + damping if f1 else 1.0
+            m22 = (j20 * j20 + j21 * j21 + j22 * j22) + damping if f2 else 1.0
+            m01 = (j00 * j10 + j01 * j11 + j02 * j12) if f0 and f1 else 0.0
+            m10 = (j10 * j00 + j11 * j01 + j12 * j02) if f0 and f1 else 0.0
+            m02 = (j00 * j20 + j01 * j21 + j02 * j22) if f0 and f2 else 0.0
+            m20 = (j20 * j00 + j21 * j01 + j22 * j02) if f0 and f2 else 0.0
+            m12 = (j10 * j20 + j11 * j21 + j12 * j22) if f1 and f2 else 0.0
+            m21 = (j20 * j10 + j21 * j11 + j22 * j12) if f1 and f2 else 0.0
+            b0, b1, b2 = -g0 if f0 else 0.0, -g1 if f1 else 0.0, -g2 if f2 else 0.0
+            e_i = m11 * m22 - m12 * m21
+            d_i = m10 * m22 - m12 * m20
+            d_h = m10 * m21 - m11 * m20
+            det = m00 * e_i - m01 * d_i + m02 * d_h
+            t1 = q1 + (b0 * e_i - m01 * (b1 * m22 - m12 * b2) + m02 * (b1 * m21 - m11 * b2)) / det
+            t2 = q2 + (m00 * (b1 * m22 - m12 * b2) - b0 * d_i + m02 * (m10 * b2 - b1 * m20)) / det
+            t3 = q3 + (m00 * (m11 * b2 - b1 * m21) - m01 * (m10 * b2 - b1 * m20) + b0 * d_h) / det
+            t1 = min(max(t1, lo0), hi0)
+            t2 = min(max(t2, lo1), hi1)
+            t3 = min(max(t3, lo2), hi2)
+            u = offset + l1 * cos(t2) + l2 * cos(t2 + t3)
+            v = l1 * sin(t2) + l2 * sin(t2 + t3)
+            rt0, rt1, rt2 = -v * cos(t1) - px, u - py, v * sin(t1) - pz
+            cost_trial = rt0 * rt0 + rt1 * rt1 + rt2 * rt2
             if cost_trial < cost:
                 converged = cost - cost_trial < 1e-14
-                q, r, cost = trial, r_trial, cost_trial
+                q1, q2, q3, r0, r1, r2, cost = t1, t2, t3, rt0, rt1, rt2, cost_trial
                 damping = max(damping / 3, 1e-9)
                 if converged:
                     break
@@ -244,7 +270,7 @@ class ArmSolver:
                 damping *= 4
                 if damping > 1e6:
                     break
-        return q
+        return (q1, q2, q3)
 
     # ----- the solve ----------------------------------------------------------------------------------------------
     def closed_form(self, candidates: list[tuple[float, float, float]], goal: tuple[float, float, float],
@@ -289,16 +315,6 @@ class ArmSolver:
         lo, hi = self._lo_deg, self._hi_deg
         angles = tuple(min(max(math.degrees(best[i]), lo[i]), hi[i]) for i in range(3))
         return (angles[0], angles[1], angles[2]), self._miss(best, p)
-
-
-def _solve3(m: list[list[float]], b: list[float]) -> tuple[float, float, float]:
-    """x with m x = b for a 3x3 m, by Cramer's rule (m is positive definite here: damped normal equations)."""
-    (a, bb, c), (d, e, f), (g, h, i) = m
-    det = a * (e * i - f * h) - bb * (d * i - f * g) + c * (d * h - e * g)
-    x0 = b[0] * (e * i - f * h) - bb * (b[1] * i - f * b[2]) + c * (b[1] * h - e * b[2])
-    x1 = a * (b[1] * i - f * b[2]) - b[0] * (d * i - f * g) + c * (d * b[2] - b[1] * g)
-    x2 = a * (e * b[2] - b[1] * h) - bb * (d * b[2] - b[1] * g) + b[0] * (d * h - e * g)
-    return (x0 / det, x1 / det, x2 / det)
 
 
 def arm_ik(

@@ -254,6 +254,31 @@ def test_binary_json_frames_are_accepted_like_ros_sharp_sends_them(client):
     assert client.expect("publish")["msg"]["data"] == "cbor in"
 
 
+def test_binary_pose_frames_publish_like_their_json_frames_and_bad_ones_are_named(client_factory):
+    """A pose frame (client_protocol/pose_frame.py) on the WebSocket publishes each of its messages as the JSON
+    publish frame would; one that is not a pose frame of this version gets a status naming why, and the
+    connection goes on."""
+    from client_protocol import pose_frame
+
+    sub, pub = client_factory(), client_factory()
+    for topic in ("/vr/head/pose", "/vr/left_controller/joy"):
+        sub.send({"op": "subscribe", "topic": topic, "type": "geometry_msgs/PoseStamped" if "pose" in topic
+                  else "sensor_msgs/Joy"})
+    sub.alive()
+    pub.send_raw(pose_frame.encode(10.5, poses={"/vr/head/pose": (0.25, 1.5, 0.125, 0.0, 0.0, 0.0, 1.0)},
+                                   joys={"/vr/left_controller/joy": ((0.5, -0.25, 1.0, 0.0), (1, 0, 0, 1))}))
+    head = sub.expect("publish", topic="/vr/head/pose")["msg"]
+    assert head["header"]["frame_id"] == "unity_left_handed" and head["header"]["stamp"] == {"secs": 10,
+                                                                                              "nsecs": 500000000}
+    assert head["pose"]["position"] == {"x": 0.25, "y": 1.5, "z": 0.125}
+    joy = sub.expect("publish", topic="/vr/left_controller/joy")["msg"]
+    assert joy["axes"] == [0.5, -0.25, 1.0, 0.0] and joy["buttons"] == [1, 0, 0, 1]
+    pub.send_raw(b"VP\x02" + bytes(9))
+    assert "pose frame version 2" in pub.expect("status", level="error")["msg"]
+    pub.send({"op": "publish", "topic": "/vr/head/pose", "msg": POSE})  # still up
+    assert sub.expect("publish", topic="/vr/head/pose")["msg"] == POSE
+
+
 def test_service_call_with_list_and_dict_args(client_factory):
     provider, caller = client_factory(), client_factory()
     provider.send({"op": "advertise_service", "service": "/set_mode", "type": "std_srvs/SetBool"})

@@ -160,24 +160,22 @@ async def _send_batch(ws: ServerConnection, session: Session, frames: list[str |
 
 class LocalConnection:
     """An in-process client's end of a session, shaped like a websockets connection: `await send(frame)`, and
-    `async for frame in connection` for what the server sends. Frames in are handled in order by a task of their
-    own, as the socket's handler does; frames out are the session's outbox, as the socket's writer takes them."""
+    `async for frame in connection` for what the server sends. Frames in are handled in order, as the socket's
+    handler does, but in the sender's task: `send` returns once the session has handled the frame (its handlers
+    never wait on the client), which spares a queue and a turn of the loop per frame. Frames out are the session's
+    outbox, as the socket's writer takes them."""
 
     def __init__(self, session: Session, close_session: Callable[[Session], None]) -> None:
         self.session = session
         self._close_session = close_session
-        self._inbox: asyncio.Queue[str | bytes | None] = asyncio.Queue()
-        self._reader = asyncio.ensure_future(self._read())
+        self._order = asyncio.Lock()  # senders in several tasks: one frame at a time, in the order they came
         self.closed = False
-
-    async def _read(self) -> None:
-        while (frame := await self._inbox.get()) is not None:
-            await self.session.handle_frame(frame)
 
     async def send(self, frame: str | bytes) -> None:
         if self.closed:
             raise ConnectionError(f"{self.session.name} is closed")
-        self._inbox.put_nowait(frame)
+        async with self._order:
+            await self.session.handle_frame(frame)
 
     async def __aiter__(self) -> AsyncIterator[str | bytes]:
         while not self.closed:
@@ -185,13 +183,12 @@ class LocalConnection:
                 yield frame
 
     async def close(self) -> None:
-        """Handles what was sent, then closes the session (as a client's close frame would)."""
+        """Closes the session (as a client's close frame would), after the frame being handled, if any."""
         if self.closed:
             return
-        self._inbox.put_nowait(None)
-        await asyncio.gather(self._reader, return_exceptions=True)
-        self.closed = True
-        self._close_session(self.session)
+        async with self._order:
+            self.closed = True
+            self._close_session(self.session)
 
     async def __aenter__(self) -> LocalConnection:
         return self

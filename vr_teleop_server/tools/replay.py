@@ -17,10 +17,11 @@ The plot shows, per joint, the commanded angles against the measured ones (/qt_r
 
 At `--speed max` without a server (`run_simulated`), the replay runs against a server of its own on the stand-in,
 on a simulated clock (simclock), through an in-process connection to its transport: the same session, bus and
-teleop code a WebSocket client reaches. The messages go at their recorded times in simulated time, which runs as
-fast as the work allows; every time in the report is simulated, except `replay_s`, `served_s` and the speeds,
-which say how long it took on the wall clock. At `--speed max` against a server (`--server`), each message goes
-as soon as the connection takes it.
+teleop code a WebSocket client reaches. Poses and Joy go as binary pose frames (client_protocol/pose_frame.py:
+float32, as a headset's), which the session takes as it takes their JSON publish frames. The messages go at their
+recorded times in simulated time, which runs as fast as the work allows; every time in the report is simulated,
+except `replay_s`, `served_s` and the speeds, which say how long it took on the wall clock. At `--speed max`
+against a server (`--server`), each message goes as soon as the connection takes it.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import struct
 import sys
 import time
 from collections import defaultdict
@@ -40,7 +42,7 @@ import numpy as np
 from tqdm import tqdm
 from websockets.asyncio.client import connect
 
-from client_protocol import names
+from client_protocol import names, pose_frame
 from robot_models import load_qtrobot
 from simclock import WALL, Clock, SimulatedClock, loop_clock
 from simclock import run as run_on_clock
@@ -109,6 +111,27 @@ def _current_frame_id(msg: Any) -> Any:
     return msg
 
 
+def _as_pose_frame(topic: str, msg: dict[str, Any]) -> bytes | None:
+    """A pose or Joy message as a one-message binary pose frame (client_protocol/pose_frame.py), or None when the
+    layout cannot say what the message says (another frame id, more axes or buttons, another topic)."""
+    try:
+        header = msg["header"]
+        stamp = header["stamp"]
+        t = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
+        frame_id = header.get("frame_id", "")
+        if topic in pose_frame.POSE_TOPICS and frame_id in ("", pose_frame.UNITY_FRAME):
+            p, o = msg["pose"]["position"], msg["pose"]["orientation"]
+            return pose_frame.encode(t, poses={topic: (p["x"], p["y"], p["z"], o["x"], o["y"], o["z"], o["w"])},
+                                     unity=frame_id == pose_frame.UNITY_FRAME)
+        axes, buttons = msg["axes"], msg["buttons"]
+        if topic in pose_frame.JOY_TOPICS and frame_id == "" and len(axes) == 4 and len(buttons) == 4 \
+                and all(b in (0, 1) for b in buttons):
+            return pose_frame.encode(t, joys={topic: (axes, buttons)})
+    except (KeyError, TypeError, AttributeError, struct.error):
+        pass
+    return None
+
+
 class PoseRoad(Protocol):
     """Another way for the operator's streams than the WebSocket, opened on the replay's connection (`call` makes
     a service call over it and returns the response's values)."""
@@ -174,9 +197,12 @@ async def _receive(ws: Any, got: Collected) -> None:
 
 async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = True,
                      progress: bool = True, road: PoseRoad | None = None,
-                     connection: Callable[[], Any] | None = None) -> tuple[Collected, float]:
+                     connection: Callable[[], Any] | None = None,
+                     pose_frames: bool = False) -> tuple[Collected, float]:
     """Plays the steps at `speed` (math.inf: each as soon as the connection takes it) over a WebSocket to `url`,
-    or over `connection()` (an async context manager shaped like a websockets connection) when given."""
+    or over `connection()` (an async context manager shaped like a websockets connection) when given.
+    `pose_frames`: poses and Joy go as binary pose frames where the layout carries them (a server of ours only:
+    float32 values, as a headset's pose frames have), the rest as JSON."""
     clock = loop_clock()
     got = Collected(clock=clock)
     control: list[tuple[Step, str]] = []  # control calls whose answers are not applied yet, in order sent
@@ -212,6 +238,8 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                 if holding and road is not None and step.topic.startswith("/vr/") \
                         and road.send(step.topic, step.payload):
                     got.by_road += 1
+                elif pose_frames and (binary := _as_pose_frame(step.topic, step.payload)) is not None:
+                    await ws.send(binary)
                 else:
                     await ws.send(json.dumps({"op": "publish", "topic": step.topic, "msg": step.payload}))
                 if step.topic == names.HEAD_POSE_TOPIC:
@@ -270,7 +298,7 @@ def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,
         server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "host": "127.0.0.1"}), clock)
         async with server:
             return await run_replay(steps, "", 1.0, camera=camera, progress=progress,
-                                    connection=server.transport.connect_local)
+                                    connection=server.transport.connect_local, pose_frames=True)
 
     return run_on_clock(main(), clock)
 

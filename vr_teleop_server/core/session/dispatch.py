@@ -17,7 +17,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from client_protocol import ops
+from client_protocol import ops, pose_frame
 from client_protocol.registry import describe_validation_error
 
 from ..access import AccessDenied, AccessPolicy, Login, Role
@@ -29,7 +29,7 @@ from .fragments import Reassembly
 from .outbox import Frame, Outbox
 from .protocol import ProtocolError, json_value
 from .services import ServiceOps
-from .topics import TopicOps, TopicSubscription, _well_formed_publish
+from .topics import TopicOps, TopicSubscription, _PublishOp, _well_formed_publish
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +116,9 @@ class Session(TopicOps, ServiceOps, ActionOps):
                                  f"{self.settings.max_message_size} bytes: send it in pieces with the 'fragment' op, "
                                  f"or start the server with a larger --max-message-size")
             return
+        if isinstance(frame, bytes) and frame[:2] == pose_frame.MAGIC:  # CBOR's 22-byte string: never an op
+            await self._pose_frame(frame)
+            return
         try:
             raw = decode_frame(frame)
         except FrameError as exc:
@@ -142,6 +145,22 @@ class Session(TopicOps, ServiceOps, ActionOps):
         except ValidationError as exc:
             self.status("error", f"{name}: {describe_validation_error(exc)}", msg_id)
             return
+        await self._dispatch(name, op, msg_id, learn_style=True)
+
+    async def _pose_frame(self, frame: bytes) -> None:
+        """A binary pose frame (client_protocol/pose_frame.py, as the poses data channel takes them): each of its
+        poses and Joy goes the way its JSON publish frame would (access, the bus's typed validation, the holder
+        rule), without the JSON. Its stamps' style is the decoder's, not the client's: none is learned from it."""
+        try:
+            messages = pose_frame.decode(frame)
+        except pose_frame.PoseFrameError as exc:
+            self.status("error", f"{exc}; a binary frame is a pose frame, CBOR or UTF-8 JSON")
+            return
+        for topic, msg in messages:
+            await self._dispatch("publish", _PublishOp(topic, msg, False, None), None, learn_style=False)
+
+    async def _dispatch(self, name: str, op: Any, msg_id: Any, *, learn_style: bool) -> None:
+        """An op whose envelope is valid: the access policy, then its handler; errors become status replies."""
         try:
             if not self.policy.open:  # getattr on a model that lacks the field raises inside pydantic: costly
                 fields = op.__dict__
@@ -151,7 +170,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
             if name == "call_service":  # answered too, so that a client that ignores status (ROS#) can read it
                 self._answer_refused_call(op, f"refused: {exc}")
             return
-        if not self._style_learned and name == "publish":
+        if learn_style and not self._style_learned and name == "publish":
             self._learn_time_style(op.msg)
         try:
             result = self._handlers[name](op)
