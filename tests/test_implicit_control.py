@@ -256,9 +256,12 @@ def test_operator_voice_is_logged_as_a_wav(sim_server, ros):
         files = sorted(audio_dir.glob("operator-*.wav"))
         if not files:
             return b""
-        with wave.open(str(files[-1])) as w:  # readable while the server still writes it
-            return w.readframes(w.getnframes())
-    assert wait_for(lambda: logged() == tone, 5)
+        try:
+            with wave.open(str(files[-1])) as w:  # readable while the server still writes it
+                return w.readframes(w.getnframes())
+        except (EOFError, wave.Error):  # caught between the file's creation and its first header
+            return b""
+    assert wait_for(lambda: logged() == tone, 30)  # a generous bound: the server's loop is slow on a loaded machine
 
 
 def test_head_and_arms_control_switches(ros):
