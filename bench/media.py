@@ -15,7 +15,9 @@ Figures:
   the encoder's bitrate;
 - speech text in to first audio sample (RMS above the floor) out at an aiortc peer, p50;
 - pose round trip p99 with 5 WebRTC viewers against none (the control stream must not suffer: within 1.2x),
-  over `--rounds` alternating rounds (the machine's load drifts; more rounds, steadier figures).
+  over `--rounds` alternating rounds (the machine's load drifts; more rounds, steadier figures); beside it, the
+  share of a core the server's loop thread uses meanwhile, with 5 viewers against none (the peers' own work runs
+  on the media loop's thread since issue 29, so the loop's share should hardly move; less noisy than a p99).
 
 Servers run as subprocesses (`vr-teleop serve --backend sim`), as in bench/suite.py.
 
@@ -417,6 +419,26 @@ async def json_viewer(url: str, seconds: float) -> list[float]:
     return [frames / seconds]
 
 
+def loop_cpu(pid: int) -> float | None:
+    """CPU seconds used so far by a process's main thread (the server's event loop), None where /proc has none."""
+    try:
+        with open(f"/proc/{pid}/task/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+
+
+def with_loop_cpu(pid: int, shares: list[float], run):
+    """run()'s result; appends the share of a core the server's loop thread used meanwhile to `shares`."""
+    c0, t0 = loop_cpu(pid), time.monotonic()
+    result = run()
+    c1 = loop_cpu(pid)
+    if c0 is not None and c1 is not None:
+        shares.append((c1 - c0) / (time.monotonic() - t0))
+    return result
+
+
 def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
     """Alternating rounds, latencies pooled per condition (the machine's load drifts): no viewers; one JSON camera
     subscriber (the stand-in renders, which on 2 cores with software GL costs the control stream as much as any
@@ -432,16 +454,20 @@ def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
     five: list[float] = []
     five_default: list[float] = []
     rates: list[float] = []
+    none_cpu: list[float] = []  # the server's loop thread, share of a core while the poses are measured
+    five_cpu: list[float] = []
     try:
         for _ in range(rounds):
-            none += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            none += with_loop_cpu(server.pid, none_cpu, lambda: asyncio.run(
+                roundtrip.latency(server.url, True, seconds, 90.0, samples=True)))
             watcher = spawn_viewers(server.url, 1, seconds + 8, json_topic=True, server=server)
             time.sleep(5)
             camera += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
             watcher.communicate()
             watchers = spawn_viewers(server.url, 5, 2 * seconds + 20, server=server)
             time.sleep(15)  # the five negotiate and reach steady video
-            five += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
+            five += with_loop_cpu(server.pid, five_cpu, lambda: asyncio.run(
+                roundtrip.latency(server.url, True, seconds, 90.0, samples=True)))
             if loop_short:
                 short_slice(0, tid=server.pid)
                 five_default += asyncio.run(roundtrip.latency(server.url, True, seconds, 90.0, samples=True))
@@ -462,6 +488,9 @@ def control_rows(seconds: float, rounds: int = 2) -> list[Row]:
     else:
         print("bench/media.py: the server's loop has no short slice here (Linux >= 6.12 needed): the rows above "
               "are at the default slice", file=sys.stderr)
+    if none_cpu and five_cpu:  # since the media loop (issue 29) the peers' packets are another thread's work
+        rows.append(Row("server loop thread CPU, 5 WebRTC viewers", 100 * float(np.mean(five_cpu)),
+                        100 * float(np.mean(none_cpu)), "no viewers", "% core"))
     return rows + [Row("(the viewers' fps meanwhile, mean)", float(np.mean(rates)), None, "-", "fps", "higher")]
 
 

@@ -53,6 +53,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
+from client_protocol.names import ENGAGE_SERVICE  # noqa: E402
 from netem import EDGES, Emulator, available, cleanup_leftovers, edges_available, load_profiles  # noqa: E402
 from vr_teleop_server.core.certs import make_certificate  # noqa: E402
 from vr_teleop_server.tools.replay import load_steps, report  # noqa: E402
@@ -112,9 +113,14 @@ def run_profile(name: str, steps, camera_fps: float, channel: bool = False, via:
     if channel:
         head_sent = sum(1 for t, _i in got.sent_head if t > start)
         head_arrived = sum(1 for t, _s in seen.poses if t > start)
-        extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_replaced": road.sender.replaced,
+        extra = {"by_channel": got.by_road, "channel_sent": road.sender.sent, "channel_head_sent": road.sender.head_sent,
+                 "server_channel": seen.channel, "channel_replaced": road.sender.replaced,
                  "head_failovers": road.sender.failovers,
                  "head_arrival": round(head_arrived / max(head_sent, 1), 3), **extra}
+    # the engage calls' answers: a session that never engaged says why here
+    engage_answers = [(ok, values) for i, (topic, _t, _a) in got.calls.items() if topic == ENGAGE_SERVICE
+                      for ok, values, _rt in [got.responses.get(i, (False, "no answer", 0.0))]]
+    extra["engage"] = [ok if ok else str(values)[:300] for ok, values in engage_answers]
     return {"profile": name, "via": via, "poses": poses, "path": "datachannel" if channel else "websocket", **extra,
             "session_s": round(steps[-1].t, 1), "holds": len(holds),
             "holds_per_min": round(len(holds) / minutes, 2),

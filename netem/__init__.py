@@ -7,8 +7,8 @@ A leaf package: it imports nothing of the server's."""
 from .edges import EDGES, Edge
 from .emulator import (CLIENT_IP, SERVER_IP, Emulator, NetemError, available, cleanup_leftovers, edges_available,
                        enter_netns, list_namespaces)
-from .model import DIRECTIONS, Direction, DirectionParams, Profile, load_profile, load_profiles
+from .model import DIRECTIONS, Direction, DirectionParams, Profile, Stacked, load_profile, load_profiles
 
 __all__ = ["CLIENT_IP", "DIRECTIONS", "Direction", "DirectionParams", "EDGES", "Edge", "Emulator", "NetemError",
-           "Profile", "SERVER_IP", "available", "cleanup_leftovers", "edges_available", "enter_netns",
+           "Profile", "SERVER_IP", "Stacked", "available", "cleanup_leftovers", "edges_available", "enter_netns",
            "list_namespaces", "load_profile", "load_profiles"]

@@ -16,6 +16,9 @@ path through the relay crosses it once, as a relay near the school would. Router
 - Firewall: outgoing UDP dropped (`block_udp`), outgoing TCP only to `tcp_ports` (None: any); replies always pass.
 - Port-forward: TCP to the router's outside address on each of `forward` goes to the inside host (the school's IT
   opening the server's WebSocket port).
+- Link: the inside LAN's own impairment, a profile of profiles.yaml (`home`: `wifi`, a domestic Wi-Fi's delay,
+  jitter, bursty loss and rate). Only the client's edge has one: the forwarder stacks it with the delay profile
+  (Wi-Fi then WAN on the way up, WAN then Wi-Fi down), since every packet of the client crosses both.
 
 Addresses (all 10.89.x, inside our namespaces only): client 10.89.1.2 behind home 10.89.1.1 / 10.89.0.1; internet
 10.89.0.2, 10.89.2.1, 10.89.3.1; relay 10.89.2.2; school 10.89.3.2 / 10.89.4.1; server 10.89.4.2.
@@ -40,6 +43,7 @@ class Edge:
     block_udp: bool = False
     tcp_ports: tuple[int, ...] | None = None  # outgoing TCP allowed only to these ports; None: any
     forward: tuple[int, ...] = ()  # TCP ports forwarded to the inside host
+    link: str | None = None  # a profile (profiles.yaml) for the inside LAN's own link, stacked with the WAN's
     doc: str = ""
 
     def replace(self, **changes: object) -> Edge:
@@ -66,8 +70,9 @@ class Edge:
 
 
 EDGES = MappingProxyType({
-    "home": Edge(nat="cone", doc="a home router: NAT (endpoint-independent mapping, port-restricted filtering), "
-                                 "nothing blocked"),
+    "home": Edge(nat="cone", link="wifi",
+                 doc="a home router: NAT (endpoint-independent mapping, port-restricted filtering), nothing "
+                     "blocked; the teacher on its Wi-Fi (the `wifi` profile, stacked with the delay profile)"),
     "school": Edge(nat="symmetric", block_udp=True, tcp_ports=(80, 443), forward=(9090,),
                    doc="a school: symmetric NAT, outgoing UDP blocked, TCP out only to 80 and 443, the "
                        "server's WebSocket port (9090) forwarded to it"),

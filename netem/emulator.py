@@ -179,6 +179,13 @@ class Emulator:
                                                                              a["school_wan"], a["relay"])
             self._tun_ns = {"client": self.netns["home"], "server": self.netns["internet"]}
         self.params = {d: self.profile.direction(d) for d in DIRECTIONS}
+        self.link: Profile | None = None  # the client edge's own link, stacked with the profile (edges.py)
+        if self.edges:
+            if self.edges["school"].link:
+                raise ValueError("only the client's edge can have a link of its own (server_edge "
+                                 f"{self.edges['school'].link!r}): the relay's path does not cross the school's")
+            if self.edges["home"].link:
+                self.link = load_profile(self.edges["home"].link, profiles_file)
         self._forwarder: subprocess.Popen[str] | None = None
         self._procs: list[subprocess.Popen[Any]] = []
         self._lock = threading.Lock()  # one command at a time on the forwarder's pipe
@@ -200,7 +207,8 @@ class Emulator:
             _ip("netns", "add", ns)
             _ip("-n", ns, "link", "set", "lo", "up")
         spec = {"tun": self.tun, "netns": self._tun_ns, "seed": self.seed,
-                "params": {d: p.to_dict() for d, p in self.params.items()}}
+                "params": {d: p.to_dict() for d, p in self.params.items()},
+                "link": {d: self.link.direction(d).to_dict() for d in DIRECTIONS} if self.link else None}
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).parent.parent),
                                                                           os.environ.get("PYTHONPATH")]))}
         self._forwarder = subprocess.Popen([self.python, "-m", "netem.forwarder", json.dumps(spec)],
@@ -299,7 +307,8 @@ class Emulator:
             self.params[d] = params
 
     def stats(self) -> dict[str, Any]:
-        """Per direction: packets, delivered, lost, queue_dropped, cut, reordered."""
+        """Per direction ("stats": the profile's; "link": the client edge's own link, if any): packets, delivered,
+        lost, queue_dropped, cut, reordered."""
         return self._command({"cmd": "stats"})
 
     @property

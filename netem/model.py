@@ -194,3 +194,16 @@ class Direction:
             self._last_delivery = t
         c.delivered += 1
         return t
+
+
+class Stacked:
+    """Two links one after the other in one direction (a home's Wi-Fi, then the delay profile's WAN): a packet
+    leaves the first when it says and arrives at the second then, so their delays, queues and losses add up as on
+    a real path. Either may drop it."""
+
+    def __init__(self, first: Direction, second: Direction) -> None:
+        self.first, self.second = first, second
+
+    def admit(self, size: int, now: float) -> float | None:
+        t = self.first.admit(size, now)
+        return None if t is None else self.second.admit(size, t)

@@ -92,6 +92,12 @@ class StandIn:
     THERMAL_TAU_S = 120.0
     MAX_LAG_S = 0.25  # beyond this the physics loop drops its backlog instead of sprinting to catch up
     WARN_LAG_S = 0.05
+    # The render process holds nothing to save: closing, it gets this long to exit, then is killed. At nice +10 on a
+    # busy machine its orderly exit took 4.5 s or more (0.5 s idle), which outlasted the 5 s close() used to wait.
+    RENDER_EXIT_S = 1.0
+    # What close() waits for the render thread: one call in flight (the worker is killed past its reply timeout),
+    # then the worker's exit; the physics thread wakes on the stop event at once.
+    STOP_TIMEOUT_S = RenderProcess.REPLY_TIMEOUT_S + RENDER_EXIT_S + 5.0
 
     def __init__(
         self,
@@ -467,9 +473,9 @@ class StandIn:
             self._frame_cond.notify_all()
         for t in (self._physics_thread, self._render_thread):
             if t.is_alive() and t is not threading.current_thread():
-                t.join(timeout=5.0)
+                t.join(timeout=self.STOP_TIMEOUT_S)
                 if t.is_alive():
-                    log.error("stand-in thread %s did not stop within 5 s", t.name)
+                    log.error("stand-in thread %s did not stop within %g s", t.name, self.STOP_TIMEOUT_S)
 
     @property
     def closed(self) -> bool:
@@ -672,7 +678,7 @@ class StandIn:
                 self._frame_cond.notify_all()
                 closed_listeners = self._camera_closed_listeners
             if renderer is not None:
-                renderer.close()
+                renderer.close(self.RENDER_EXIT_S)
             self._ring.close()
             for callback in closed_listeners:
                 try:

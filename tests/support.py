@@ -37,6 +37,9 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 5.0) -> bool:
     return False
 
 
+START_TIMEOUT_S = 90
+
+
 class RunningServer:
     """A TeleopServer served from a background thread, so that blocking clients (roslibpy, sync websockets)
     can talk to it from the test's thread."""
@@ -62,8 +65,10 @@ class RunningServer:
 
         self.thread = threading.Thread(target=run, name="test-server", daemon=True)
         self.thread.start()
-        if not started.wait(30):
-            raise RuntimeError("server did not start within 30 s")
+        # The server's own start-up bounds its waits (the stand-in's render process: RenderProcess.START_TIMEOUT_S,
+        # 60 s on a loaded machine) and fails with the reason: past those plus slack it hung.
+        if not started.wait(START_TIMEOUT_S):
+            raise RuntimeError(f"server did not start within {START_TIMEOUT_S} s")
         if self._error is not None:
             raise self._error
 

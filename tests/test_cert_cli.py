@@ -7,6 +7,7 @@ import ipaddress
 import json
 import socket
 import ssl
+import urllib.error
 import urllib.request
 
 from cryptography import x509
@@ -46,5 +47,38 @@ def test_cert_names_the_machine_and_serve_speaks_https_and_wss(tmp_path, capsys)
             ws.send(json.dumps({"op": "call_service", "id": "t", "service": "/rosapi/get_time", "args": {}}))
             reply = json.loads(ws.recv(timeout=10))
             assert reply["op"] == "service_response" and reply["result"] is True
+    finally:
+        server.stop()
+
+
+def test_cert_with_a_local_authority_is_trusted_by_whoever_trusts_the_authority(tmp_path, capsys):
+    """`--ca DIR`: the authority is made once, then reused; a client trusting only the authority accepts the
+    server's certificate (what a `turns:` relay needs: browsers accept no self-signed one there)."""
+    ca_dir, out, again = tmp_path / "ca", tmp_path / "server", tmp_path / "relay"
+    assert main(["cert", "--out", str(out), "--ca", str(ca_dir)]) == 0
+    assert "install it on the clients" in capsys.readouterr().out
+    authority = ca_dir / "vr-teleop-ca.crt"
+    assert (ca_dir / "vr-teleop-ca.key").stat().st_mode & 0o077 == 0
+    assert main(["cert", "--out", str(again), "--ca", str(ca_dir), "--ip", "10.1.2.3"]) == 0
+    assert "install it on the clients" not in capsys.readouterr().out  # the same authority, not a new one
+    ca = x509.load_pem_x509_certificate(authority.read_bytes())
+    for directory in (out, again):
+        cert = x509.load_pem_x509_certificate((directory / "vr-teleop.crt").read_bytes())
+        assert cert.issuer == ca.subject and cert.issuer != cert.subject
+        cert.verify_directly_issued_by(ca)
+    assert ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
+
+    server = RunningServer(ServerSettings(port=0, backend="none", certfile=out / "vr-teleop.crt",
+                                          keyfile=out / "vr-teleop.key"))
+    try:
+        trust = ssl.create_default_context(cafile=str(authority))  # the authority only, not the server's own
+        with urllib.request.urlopen(f"https://127.0.0.1:{server.port}/operator", context=trust) as r:
+            assert r.status == 200
+        untrusting = ssl.create_default_context(cafile=str(out / "vr-teleop.crt"))
+        try:
+            urllib.request.urlopen(f"https://127.0.0.1:{server.port}/operator", context=untrusting)
+            raise AssertionError("a certificate signed by an authority is not self-signed: trusting it alone fails")
+        except urllib.error.URLError as exc:
+            assert "certificate verify failed" in str(exc)
     finally:
         server.stop()

@@ -56,7 +56,7 @@ def test_selected_emotion_changes_the_face(sim_server, ros):
     standin = sim_server.server.robot.standin
     reply = select(ros, "emotion.sad")
     assert reply["success"] and standin.emotion == "sad"
-    assert standin.wait_face(5)
+    assert standin.wait_face(30)  # drawn by the render process, at a low priority on a loaded machine
     face = standin.face_image()
     np.testing.assert_array_equal(face, draw_face("sad", face.shape[1], face.shape[0]))
     topic = roslibpy.Topic(ros, "/vr_teleop/menu/selection", "std_msgs/String")
@@ -175,10 +175,18 @@ def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_serve
         messages = js.messages[first:]
     played = np.array([(m["header"]["stamp"]["secs"] + m["header"]["stamp"]["nsecs"] * 1e-9 - t0,
                         dict(zip(m["name"], m["position"]))["HeadYaw"]) for m in messages])
-    # Allow the playback a constant start delay (the first command, the joint-state rate, and whatever a loaded
-    # machine adds); find the best one. It never leads: the search starts at 0.
+    # The replay is the recording after a start delay (the menu call, the first command, the joint-state rate, and
+    # whatever a loaded machine adds, unbounded): measured where the head first leaves its start, in both, then
+    # refined around that. It never leads.
+    def onset(track: np.ndarray) -> float:
+        moving = np.abs(track[:, 1] - recorded[0, 1]) > 2.0
+        assert moving.any(), "the head never left its start"
+        return float(track[np.argmax(moving), 0])
+
+    start_delay = onset(played) - onset(recorded)
+    assert start_delay > -0.05, start_delay
     errors = []
-    for lag in np.arange(0.0, 1.0, 0.01):
+    for lag in np.arange(max(0.0, start_delay - 0.5), start_delay + 0.5, 0.01):
         want = np.interp(played[:, 0] - lag, recorded[:, 0], recorded[:, 1])
         inside = (played[:, 0] - lag >= 0) & (played[:, 0] - lag <= recorded[-1, 0])
         errors.append(float(np.sqrt(np.mean((played[inside, 1] - want[inside]) ** 2))))
@@ -248,9 +256,12 @@ def test_operator_voice_is_logged_as_a_wav(sim_server, ros):
         files = sorted(audio_dir.glob("operator-*.wav"))
         if not files:
             return b""
-        with wave.open(str(files[-1])) as w:  # readable while the server still writes it
-            return w.readframes(w.getnframes())
-    assert wait_for(lambda: logged() == tone, 5)
+        try:
+            with wave.open(str(files[-1])) as w:  # readable while the server still writes it
+                return w.readframes(w.getnframes())
+        except (EOFError, wave.Error):  # caught between the file's creation and its first header
+            return b""
+    assert wait_for(lambda: logged() == tone, 30)  # a generous bound: the server's loop is slow on a loaded machine
 
 
 def test_head_and_arms_control_switches(ros):
@@ -276,7 +287,7 @@ def test_head_and_arms_control_switches(ros):
 
 
 def test_one_voices_speed_and_pitch_do_not_leak_into_another():
-    """pyttsx3 gives a process one engine and espeak-ng one set of parameters: each voice sets its own per render."""
+    """espeak-ng's library keeps one set of parameters per process: each render runs its own espeak-ng with its own."""
     async def durations() -> tuple[float, float, float]:
         plain, configured = TextToSpeech(), TextToSpeech()
         try:
@@ -292,3 +303,26 @@ def test_one_voices_speed_and_pitch_do_not_leak_into_another():
     before, slow, after = asyncio.run(durations())
     assert slow > 1.3 * before  # 60% of normal speed takes longer
     assert abs(after - before) < 0.005  # the other voice's settings did not carry over
+
+
+def test_voices_render_whole_long_texts_side_by_side():
+    """Each render is its own espeak-ng: a long text comes back whole, in its own voice, while another voice renders
+    (pyttsx3's espeak driver, used before, could return before the WAV was written)."""
+    sentence = "The class counts to ten together, and then the robot says well done to everyone."
+
+    async def durations() -> tuple[float, list[float], list[float]]:
+        plain, slow = TextToSpeech(), TextToSpeech()
+        try:
+            await slow.configure(speed=60)
+            one = (await plain.render(sentence)).duration_s
+            alone = [(await tts.render(" ".join([sentence] * 6))).duration_s for tts in (plain, slow)]
+            together = await asyncio.gather(*(tts.render(" ".join([sentence] * 6)) for tts in (plain, slow)))
+            return one, alone, [wav.duration_s for wav in together]
+        finally:
+            plain.close()
+            slow.close()
+
+    one, alone, together = asyncio.run(durations())
+    assert alone[0] > 5 * one  # all six sentences were said
+    assert alone[1] > 1.3 * alone[0]  # the slow voice stayed slow
+    assert all(abs(a - b) < 0.005 for a, b in zip(alone, together))  # side by side as when alone

@@ -20,9 +20,11 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import json
+import math
 import os
 import shutil
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -35,13 +37,17 @@ import pytest
 
 from netem import EDGES, Edge, Emulator, cleanup_leftovers, edges_available, list_namespaces
 from test_operator_page import INSTALL_HEADSET, IWER
-from vr_teleop_server.core.certs import make_certificate
+from vr_teleop_server.core.certs import make_authority, make_certificate
 from vr_teleop_server.media.turn import credentials
 
 pytestmark = [pytest.mark.skipif(edges_available() is not None, reason=edges_available() or ""),
               pytest.mark.timeout(600)]
 
 ROOT = Path(__file__).resolve().parent.parent
+needs_certutil = pytest.mark.skipif(shutil.which("certutil") is None, reason="a browser trusting the relay's "
+                                    "authority needs certutil (Debian's libnss3-tools; scripts/install-system-packages.sh)")
+needs_faketime = pytest.mark.skipif(shutil.which("faketime") is None, reason="a server clock behind needs faketime "
+                                    "(Debian's faketime; scripts/install-system-packages.sh)")
 PORT = 9090
 SECRET = "home-to-school-shared-secret"
 WAIT_MS = 90_000  # a page, a stand-in, a relay and a renderer on two busy cores
@@ -49,15 +55,18 @@ WAIT_MS = 90_000  # a page, a stand-in, a relay and a renderer on two busy cores
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Emulator, Path, subprocess.Popen]]:
-    """home -> internet -> school, with coturn in the relay namespace (its certificate made by the project's `cert`
-    code for the relay's address)."""
+    """home -> internet -> school, with coturn in the relay namespace. Its certificate, for the relay's address, is
+    signed by a local authority made by the project's `cert` code, which the server (SSL_CERT_FILE) and the
+    browser (browser_home) trust, as a school's IT installs its authority on its machines and headsets. The
+    fixture yields the authority's certificate; the relay's log is beside it."""
     cleanup_leftovers()
     work = tmp_path_factory.mktemp("nat_turn")
     net = Emulator("lan", client_edge="home", server_edge="school")
     with net:
-        cert = make_certificate(work, [], [ipaddress.ip_address(net.relay_ip)])
+        authority = make_authority(work)
+        cert = make_certificate(work, [], [ipaddress.ip_address(net.relay_ip)], authority=authority)
         relay = net.start_relay(SECRET, cert.certfile, cert.keyfile, work)
-        yield net, cert.certfile, relay
+        yield net, authority.certfile, relay
         names = set(net.netns.values())
     # nothing left behind: the namespaces, the relay and every process in them
     assert not names & set(list_namespaces())
@@ -66,14 +75,19 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Emulator, 
 
 class Server:
     """`vr-teleop serve` in the server namespace (open access: the page has no token; --insecure lets it bind a
-    non-loopback address nobody but our namespaces reach). The relay's certificate is trusted through
-    SSL_CERT_FILE, as a deployment with a self-signed relay would do."""
+    non-loopback address nobody but our namespaces reach). The authority that signed the relay's certificate is
+    trusted through SSL_CERT_FILE."""
 
-    def __init__(self, net: Emulator, cert: Path, *extra: str) -> None:
+    def __init__(self, net: Emulator, cert: Path, *extra: str, clock_behind: str = "") -> None:
+        """`clock_behind` (faketime's offset, e.g. "1h"): the server's wall clock runs that much behind everyone
+        else's (Debian's faketime), as a server whose clock was never set does; its monotonic clock is left
+        alone."""
         self.log = tempfile.NamedTemporaryFile("w+", prefix="nat-serve-", suffix=".log", delete=False)
         env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "SSL_CERT_FILE": str(cert),
-               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-        self.proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host",
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+               "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
+        faketime = ["faketime", "-m", "-f", f"-{clock_behind}"] if clock_behind else []
+        self.proc = net.popen("server", [*faketime, sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host",
                                          net.server_ip, "--port", str(PORT), "--insecure", "--backend", "sim",
                                          "--bystander-interval", "0", "--log-level", "info", *extra],
                               stdout=subprocess.PIPE, stderr=self.log, text=True, env=env, cwd=ROOT)
@@ -113,14 +127,30 @@ def turn_urls(relay_ip: str, first: str) -> list[str]:
     return [arg for k in order for arg in ("--turn-url", urls[k])]
 
 
-def drive(origin: str, take_control: bool, until: str = "") -> dict:
+def browser_home(authority: Path) -> Path:
+    """A HOME for Chromium whose NSS database (~/.pki/nssdb, where Chromium on Linux keeps the user's trusted
+    authorities) trusts `authority` for TLS servers: `certutil` (Debian's libnss3-tools), as an IT department
+    would install its authority. Without it Chromium refuses the relay's `turns:` certificate (ICE error 701)."""
+    home = authority.parent / "browser-home"
+    nssdb = home / ".pki" / "nssdb"
+    if not nssdb.exists():
+        nssdb.mkdir(parents=True)
+        for args in (["-N", "--empty-password"], ["-A", "-t", "C,,", "-n", "vr-teleop test authority", "-i",
+                                                   str(authority)]):
+            subprocess.run(["certutil", "-d", f"sql:{nssdb}", *args], check=True, capture_output=True)
+    return home
+
+
+def drive(origin: str, take_control: bool, until: str = "", home: Path | None = None) -> dict:
     """In the client namespace: the operator page until its camera has a path; with `take_control`, in VR and
-    holding control until poses went out; with `until`, also until that holds. Returns what the page says (its
-    HUD message as the camera found its path, and at the end) and counts."""
+    holding control until poses went out; with `until`, also until that holds. `home`: the browser's HOME
+    (browser_home). Returns what the page says (its HUD message as the camera found its path, and at the end) and
+    counts."""
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=[
+        env = {**os.environ, "HOME": str(home)} if home else None
+        browser = p.chromium.launch(executable_path=shutil.which("chromium"), env=env, args=[
             "--no-sandbox", "--enable-unsafe-swiftshader", f"--unsafely-treat-insecure-origin-as-secure={origin}"])
         try:
             page = browser.new_context(viewport={"width": 800, "height": 500}).new_page()
@@ -150,6 +180,8 @@ def drive(origin: str, take_control: bool, until: str = "") -> dict:
                 page.evaluate("xrDevice.quaternion.set(0, Math.sin(0.2), 0, Math.cos(0.2))")
                 if out["path"] == "WebRTC":
                     page.wait_for_function("window.operator.poses.stats().sent > 20", timeout=WAIT_MS)
+                    # until the server's telemetry (every 0.5 s) says its channel received them
+                    page.wait_for_function("(window.operator.state.link?.dc_received ?? 0) > 0", timeout=WAIT_MS)
                 else:
                     time.sleep(2.0)
                 out["poses"] = page.evaluate("window.operator.poses.stats()")
@@ -269,6 +301,43 @@ def test_the_edges_forward_filter_and_map_as_a_home_and_a_school_do(world) -> No
         listener.wait(10)
 
 
+def test_the_home_edge_adds_its_wi_fi_to_the_delay_profile(world) -> None:
+    """Client to relay crosses home's Wi-Fi (the `wifi` profile) and the delay profile (`lan` here): their delays
+    add up, and every probe lost was lost by one of the two."""
+    from test_netem import _echo_server, _jitter, _probe
+
+    net, _cert, _relay = world
+    wifi = net.link
+    assert wifi is not None and wifi.name == "wifi" and EDGES["home"].link == "wifi"
+    before = net.stats()
+    seen: set[int] = set()
+    echo = net.start_in("relay", _echo_server, net.relay_ip, 7003, seen, 2.0)
+    time.sleep(0.2)
+    n = 400
+    rtt = net.run_in("client", _probe, net.relay_ip, 7003, n, 0.01, 1.0)
+    echo.join()
+    after = net.stats()
+    rtts_ms = [v * 1e3 for v in rtt.values()]
+    # the forwarder is crossed twice, each time as late as the host woke it (it measures that itself)
+    link_ms = statistics.median(rtts_ms) - 2 * after["late_ms"]["p50"]
+    figures = (link_ms, _jitter(rtts_ms), after["late_ms"])
+    assert link_ms == pytest.approx(net.profile.rtt_ms + wifi.rtt_ms, rel=0.15), figures
+    assert _jitter(rtts_ms) == pytest.approx(math.hypot(net.profile.rtt_jitter_ms, wifi.rtt_jitter_ms), rel=0.25), \
+        figures
+
+    def lost(direction: str) -> int:
+        return sum(s[direction]["lost"] + s[direction]["queue_dropped"] - b[direction]["lost"]
+                   - b[direction]["queue_dropped"]
+                   for s, b in ((after["stats"], before["stats"]), (after["link"], before["link"])))
+    assert after["link"]["up"]["packets"] - before["link"]["up"]["packets"] >= n
+    assert n - len(seen) == lost("up") and len(seen) - len(rtt) == lost("down")
+
+
+def test_only_the_client_edge_has_a_link_of_its_own() -> None:
+    with pytest.raises(ValueError, match="only the client's edge can have a link of its own"):
+        Emulator("lan", client_edge="home", server_edge=EDGES["school"].replace(link="wifi"))
+
+
 def test_an_edge_refuses_unknown_names() -> None:
     with pytest.raises(ValueError, match="unknown edge 'office'; known: home, school"):
         Emulator("lan", client_edge="office")
@@ -276,30 +345,37 @@ def test_an_edge_refuses_unknown_names() -> None:
 
 
 # ---- the page -----------------------------------------------------------------------------------------------------
-def test_behind_the_school_firewall_media_and_poses_come_up_through_turn_over_tls(world) -> None:
-    net, cert, _relay = world
-    server = Server(net, cert, *turn_urls(net.relay_ip, "tls"), "--turn-secret", SECRET)
+@needs_certutil
+def test_with_udp_blocked_at_both_ends_media_and_poses_come_up_through_turn_over_tls_on_443(world) -> None:
+    """Home lets out only TCP to 443 and to the school's forwarded port, the school only TCP to 80 and 443: the
+    page's leg and the server's both reach the relay over TLS on 443, the browser trusting the relay's
+    certificate through the authority installed in its NSS database."""
+    net, authority, _relay = world
+    net.set_edge("home", EDGES["home"].replace(block_udp=True, tcp_ports=(443, PORT)))
+    server = Server(net, authority, *turn_urls(net.relay_ip, "tls"), "--turn-secret", SECRET)
     watch = Telemetry(net)
     try:
-        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", True)
+        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", True, "", browser_home(authority))
         entries = watch.stop()
         assert out["path"] == "WebRTC", out
         assert out["video"] > 3 and out["audio"], out
-        assert "relay" in out["route"] and "relay" in out["first_message"], out  # through the relay, and it says so
-        assert "(WebRTC) via " in out["numbers"] and "relay" in out["numbers"].split("(WebRTC) via ")[1], out
+        # the page's own candidate is a relay reached over TLS, and the HUD says so
+        assert out["route"] == "TURN relay (tls)" and "TURN relay (tls)" in out["first_message"], out
+        assert "(WebRTC) via TURN relay (tls)" in out["numbers"], out
         # open and carrying (a stall on a busy machine hands poses to rosbridge for a moment: failovers may count)
         assert out["poses"]["open"] and out["poses"]["sent"] > 20, out
         # the server: its peer connected, video sent, poses received on the channel
         assert any(c["rtc_state"] == "connected" and c["dc_received"] > 0 and c["rtc_frames_sent"] > 0
                    for c in entries), entries[-3:]
-        assert out["errors"] == []
-        log = relay_log(Path(cert).parent)
-        # the server's own allocation came over TLS (nothing else leaves the school) and credentials were accepted
+        assert out["errors"] == [] and out["ice_errors"] == [], out
+        log = relay_log(Path(authority).parent)
+        # the server's allocation came over TLS too (nothing else leaves the school) and credentials were accepted
         assert "vr_teleop_server" in log and "TLS" in log
         assert SECRET not in server.text()
     finally:
         watch.stop()
         server.stop()
+        net.set_edge("home", "home")
 
 
 def test_with_udp_let_out_media_come_up_through_turn_over_udp(world) -> None:
@@ -339,8 +415,26 @@ def test_wrong_credentials_are_refused_by_the_relay_and_shown_on_the_hud(world) 
         out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", False,
                          "window.operator.camera.iceErrors?.refused")
         assert out["path"] == "JPEG", out
-        assert any("refused the credentials (401" in e for e in out["ice_errors"]), out
+        assert any("refused the credentials (401" in e and "wrong or expired" in e for e in out["ice_errors"]), out
         assert "refused the credentials" in out["message"], out
+        assert SECRET not in server.text()
+    finally:
+        server.stop()
+
+
+@needs_faketime
+def test_expired_credentials_are_refused_by_the_relay_and_the_hud_says_they_expired(world) -> None:
+    """A server whose clock is an hour behind issues credentials valid for 10 minutes of its time: already expired
+    for the relay (and the page), which refuses them; the page tells that from a wrong secret."""
+    net, cert, _relay = world
+    server = Server(net, cert, *turn_urls(net.relay_ip, "udp"), "--turn-secret", SECRET, "--turn-ttl", "600",
+                    clock_behind="1h")
+    try:
+        out = net.run_in("client", drive, f"http://{net.public_ip}:{PORT}", False,
+                         "window.operator.camera.iceErrors?.refused")
+        assert out["path"] == "JPEG", out
+        assert any("refused the credentials (401" in e and "expired at" in e for e in out["ice_errors"]), out
+        assert "refused the credentials" in out["message"] and "expired at" in out["message"], out
         assert SECRET not in server.text()
     finally:
         server.stop()

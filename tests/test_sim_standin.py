@@ -123,7 +123,12 @@ def test_camera_streams_only_while_watched_and_changes_when_the_head_turns(stand
         assert first.width == 640 and first.height == 480
         standin.set_targets({"HeadYaw": 30.0})
         assert wait_until(lambda: abs(standin.joint_positions()["HeadYaw"] - 30.0) < 0.5, 30.0)
-        turned = standin.wait_frame(standin.latest_frame().seq, timeout=30.0)
+        there = time.monotonic()
+        # A frame drawn from the state as the head got there: one in flight then may show it before it turned.
+        turned = standin.latest_frame()
+        while turned.stamp_monotonic < there:
+            turned = standin.wait_frame(turned.seq, timeout=30.0)
+            assert turned is not None
         assert turned.seq > first.seq and turned.stamp_monotonic > first.stamp_monotonic
         diff = np.abs(decode(turned).astype(int) - image.astype(int)).mean()
         assert diff > 10, diff
@@ -172,13 +177,13 @@ def face_region(img: np.ndarray) -> np.ndarray:
 
 def test_face_texture_follows_emotion_and_speech(standin):
     standin.set_emotion("neutral")
-    assert standin.wait_face()
+    assert standin.wait_face(30.0)  # drawn by the render process, at a low priority on a loaded machine
     neutral = standin.face_image()
     np.testing.assert_array_equal(neutral, draw_face("neutral", neutral.shape[1], neutral.shape[0]))
     neutral_view = standin.snapshot(OVERVIEW_CAMERA)
     standin.set_emotion("QT/surprise")
     assert standin.emotion == "surprise"
-    assert standin.wait_face()
+    assert standin.wait_face(30.0)  # drawn by the render process, at a low priority on a loaded machine
     surprise = standin.face_image()
     assert np.abs(surprise.astype(int) - neutral.astype(int)).mean() > 5
     surprise_view = standin.snapshot(OVERVIEW_CAMERA)
@@ -188,15 +193,18 @@ def test_face_texture_follows_emotion_and_speech(standin):
         standin.set_emotion("ecstatic")
 
     standin.set_emotion("neutral")
-    standin.speak(0.6)
+    standin.speak(600.0)  # ended below, once the mouth was seen moving (however slowly a loaded machine draws it)
     assert standin.is_talking()
-    frames = []
-    for _ in range(5):
-        time.sleep(0.09)
-        frames.append(standin.face_image())
-    assert any(np.abs(a.astype(int) - b.astype(int)).sum() > 0 for a, b in zip(frames, frames[1:])), \
-        "the mouth does not move while talking"
-    assert wait_until(lambda: not standin.is_talking(), 30.0)
+    talking: list[np.ndarray] = []  # distinct faces drawn while talking
+
+    def mouth_moved() -> bool:
+        face = standin.face_image()
+        if not np.array_equal(face, neutral) and not any(np.array_equal(face, f) for f in talking):
+            talking.append(face)
+        return len(talking) >= 2
+    assert wait_until(mouth_moved, 30.0), "the mouth does not move while talking"
+    standin.speak(0.0)
+    assert not standin.is_talking()
     assert wait_until(lambda: np.array_equal(standin.face_image(), neutral), 30.0), "face did not settle after speech"
 
 
@@ -290,7 +298,7 @@ def test_close_stops_threads_and_the_render_process_promptly():
     assert not any(t.startswith("llvmpipe") for t in threads), threads  # one thread renders: a core left free
     ring = s.frame_ring.fd
     assert is_ring(ring) and holds_ring(worker.pid), "camera frames go through the shared frame ring"
-    s.close()  # joins each thread for up to 5 s (logging an error past that), so a thread alive now did not stop
+    s.close()  # joins each thread for as long as a render call and the worker's exit may take: alive now is hung
     assert not s._physics_thread.is_alive() and not s._render_thread.is_alive()
     assert not worker.is_running(), "the render process outlived the stand-in"
     assert not is_ring(ring), "the frame ring outlived the stand-in"

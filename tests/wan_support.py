@@ -68,6 +68,7 @@ class Observed:
     events: list[tuple[float, dict[str, Any]]] = field(default_factory=list)  # receive time, event (detail parsed)
     poses: list[tuple[float, float]] = field(default_factory=list)  # receive time, header stamp (s) of head poses
     render_times: dict[int, float] = field(default_factory=dict)  # video RTP timestamp -> render time (telemetry)
+    channel: dict[str, int] = field(default_factory=dict)  # the newest telemetry's poses-channel counts (dc_*)
 
     def kinds(self) -> list[str]:
         return [e["kind"] for _t, e in self.events]
@@ -108,6 +109,8 @@ class Observer:
                 self.got.poses.append((t, value))
             elif kind == "frames":
                 self.got.render_times.update((rtp, render) for rtp, render in value)
+            elif kind == "channel":
+                self.got.channel = value
             else:
                 self.got.events.append((t, value))
         self._out.close()
@@ -147,8 +150,13 @@ async def _observe(url: str, poses: bool) -> None:
                 line = ["pose", now, stamp.get("secs", stamp.get("sec", 0))
                         + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9]
             elif msg["topic"] == TELEMETRY:
-                line = ["frames", now, [[rtp, render] for c in msg["msg"]["clients"]
+                clients = msg["msg"]["clients"]
+                line = ["frames", now, [[rtp, render] for c in clients
                                         for rtp, render in zip(c["frame_rtp_timestamps"], c["frame_render_times"])]]
+                counts = {k: sum(c.get(k, 0) for c in clients) for k in ("dc_received", "dc_refused",
+                                                                           "dc_stale_dropped")}
+                if counts["dc_received"]:
+                    print(json.dumps(["channel", now, counts]), file=out)
             elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
                 event = dict(msg["msg"])
                 try:

@@ -1,5 +1,7 @@
 """`vr-teleop cert --out DIR`: a self-signed certificate and key for https:// and wss:// on the classroom LAN
-(WebXR and the microphone need a secure context)."""
+(WebXR and the microphone need a secure context). With `--ca DIR`, signed by a local authority instead (made there
+the first time), whose certificate a school installs once on its headsets and browsers: what a `turns:` relay
+needs, since browsers accept no self-signed certificate there."""
 
 from __future__ import annotations
 
@@ -8,7 +10,8 @@ import ipaddress
 import sys
 from pathlib import Path
 
-from ..core.certs import lan_addresses, machine_names, make_certificate
+from ..core.certs import CA_CERT_NAME, CA_KEY_NAME, Authority, lan_addresses, machine_names, make_authority, \
+    make_certificate
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,6 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="a further IP address to include (repeatable), e.g. the router's forwarded address")
     p.add_argument("--days", type=int, default=397, help="validity in days (at most 398; default 397)")
     p.add_argument("--force", action="store_true", help="replace existing files")
+    p.add_argument("--ca", type=Path, default=None, metavar="DIR",
+                   help=f"sign with the local authority in DIR ({CA_CERT_NAME}, {CA_KEY_NAME}; made there if "
+                        "absent) instead of self-signing; install its certificate on the clients")
     p.set_defaults(func=run)
 
 
@@ -36,7 +42,14 @@ def run(args: argparse.Namespace) -> int:
     names += [n for n in args.name if n not in names]
     addresses += [a for a in extra if a not in addresses]
     try:
-        cert = make_certificate(args.out, names, addresses, days=args.days, force=args.force)
+        authority = None
+        if args.ca is not None:
+            authority = Authority(args.ca / CA_CERT_NAME, args.ca / CA_KEY_NAME)
+            if not authority.certfile.exists():
+                authority = make_authority(args.ca)
+                print(f"wrote the authority {authority.certfile} (install it on the clients) and its key "
+                      f"{authority.keyfile} (keep it private)")
+        cert = make_certificate(args.out, names, addresses, days=args.days, force=args.force, authority=authority)
     except (OSError, ValueError) as exc:
         print(f"vr-teleop cert: {exc}", file=sys.stderr)
         return 1

@@ -1,9 +1,13 @@
-"""A self-signed TLS certificate for the machine's names and addresses.
+"""A TLS certificate for the machine's names and addresses: self-signed, or signed by a local authority.
 
 WebXR and the microphone exist only in a secure context, so a headset on the classroom LAN must reach the server
 over https:// and wss://. A certificate that names every host name and IP address the machine answers to (as
 subject alternative names: browsers ignore the common name) lets `serve --certfile --keyfile` serve both on one
 port; the headset's browser is told once to accept it.
+
+Some clients cannot be told to accept one certificate: Chromium refuses a self-signed `turns:` relay outright. For
+those, `make_authority` makes a local certificate authority (what a school's IT installs once on its headsets and
+browsers), and `make_certificate(..., authority=...)` signs the server's or the relay's certificate with it.
 """
 
 from __future__ import annotations
@@ -24,6 +28,9 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 IPAddress = ipaddress.IPv4Address | ipaddress.IPv6Address
 CERT_NAME = "vr-teleop.crt"
 KEY_NAME = "vr-teleop.key"
+CA_CERT_NAME = "vr-teleop-ca.crt"
+CA_KEY_NAME = "vr-teleop-ca.key"
+CA_DAYS = 3650  # an authority outlives the certificates it signs
 DEFAULT_DAYS = 397  # browsers refuse longer lifetimes for server certificates (398 days at most)
 
 
@@ -34,6 +41,49 @@ class Certificate:
     names: tuple[str, ...]
     addresses: tuple[IPAddress, ...]
     not_after: datetime.datetime
+
+
+@dataclass(frozen=True)
+class Authority:
+    certfile: Path
+    keyfile: Path
+
+
+def _write_key(keyfile: Path, key: ec.EllipticCurvePrivateKey) -> None:
+    key_pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                serialization.NoEncryption())
+    fd = os.open(keyfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(key_pem)
+    os.chmod(keyfile, 0o600)
+
+
+def make_authority(out: Path, name: str = "vr-teleop-server local authority", *, days: int = CA_DAYS) -> Authority:
+    """Writes `vr-teleop-ca.crt` and `vr-teleop-ca.key` into `out`: a certificate authority that may sign server
+    certificates only (path length 0). Its certificate is what clients are told to trust."""
+    out.mkdir(parents=True, exist_ok=True)
+    key = ec.generate_private_key(ec.SECP256R1())
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name[:64]),
+                         x509.NameAttribute(NameOID.ORGANIZATION_NAME, "vr-teleop-server")])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(subject).issuer_name(subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(x509.KeyUsage(digital_signature=False, key_encipherment=False, content_commitment=False,
+                                     data_encipherment=False, key_agreement=False, key_cert_sign=True,
+                                     crl_sign=True, encipher_only=False, decipher_only=False), critical=True)
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .sign(key, hashes.SHA256())
+    )
+    authority = Authority(out / CA_CERT_NAME, out / CA_KEY_NAME)
+    _write_key(authority.keyfile, key)
+    authority.certfile.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    return authority
 
 
 def machine_names() -> tuple[list[str], list[IPAddress]]:
@@ -63,8 +113,9 @@ def lan_addresses(addresses: list[IPAddress] | tuple[IPAddress, ...]) -> list[IP
 
 
 def make_certificate(out: Path, names: list[str], addresses: list[IPAddress], *, days: int = DEFAULT_DAYS,
-                     force: bool = False) -> Certificate:
-    """Writes `vr-teleop.crt` and `vr-teleop.key` (PEM; the key readable by its owner only) into `out`."""
+                     force: bool = False, authority: Authority | None = None) -> Certificate:
+    """Writes `vr-teleop.crt` and `vr-teleop.key` (PEM; the key readable by its owner only) into `out`, self-signed
+    or signed by `authority` (make_authority)."""
     if not names and not addresses:
         raise ValueError("a certificate needs at least one host name or IP address")
     if not 1 <= days <= 398:
@@ -76,13 +127,19 @@ def make_certificate(out: Path, names: list[str], addresses: list[IPAddress], *,
     out.mkdir(parents=True, exist_ok=True)
     key = ec.generate_private_key(ec.SECP256R1())
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, (names or [str(addresses[0])])[0][:64]),
-                         x509.NameAttribute(NameOID.ORGANIZATION_NAME, "vr-teleop-server (self-signed)")])
+                         x509.NameAttribute(NameOID.ORGANIZATION_NAME, "vr-teleop-server" if authority else
+                                            "vr-teleop-server (self-signed)")])
+    issuer, signer = subject, key
+    if authority is not None:
+        ca = x509.load_pem_x509_certificate(authority.certfile.read_bytes())
+        issuer = ca.subject
+        signer = serialization.load_pem_private_key(authority.keyfile.read_bytes(), password=None)
     now = datetime.datetime.now(datetime.timezone.utc)
     not_after = now + datetime.timedelta(days=days)
     san = [x509.DNSName(n) for n in names] + [x509.IPAddress(a) for a in addresses]
-    cert = (
+    builder = (
         x509.CertificateBuilder()
-        .subject_name(subject).issuer_name(subject)
+        .subject_name(subject).issuer_name(issuer)
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
         .not_valid_before(now - datetime.timedelta(minutes=5))  # a headset whose clock runs a little behind
@@ -93,13 +150,11 @@ def make_certificate(out: Path, names: list[str], addresses: list[IPAddress], *,
                                      data_encipherment=False, key_agreement=False, key_cert_sign=False,
                                      crl_sign=False, encipher_only=False, decipher_only=False), critical=True)
         .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
-        .sign(key, hashes.SHA256())
     )
-    key_pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                serialization.NoEncryption())
-    fd = os.open(keyfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(key_pem)
-    os.chmod(keyfile, 0o600)
+    if authority is not None:
+        builder = builder.add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(signer.public_key()),
+                                        critical=False)
+    cert = builder.sign(signer, hashes.SHA256())
+    _write_key(keyfile, key)
     certfile.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
     return Certificate(certfile, keyfile, tuple(names), tuple(addresses), not_after)

@@ -1,11 +1,11 @@
-"""Speech both ways: the robot's text-to-speech (pyttsx3 on espeak-ng) streamed to the headset, and the operator's
+"""Speech both ways: the robot's text-to-speech (espeak-ng) streamed to the headset, and the operator's
 voice written to the session's audio log.
 
-Robot speech. The text is rendered to a WAV off the event loop, in the one thread that owns the pyttsx3 engine
-(engines are not thread-safe). The robot then "says" it for exactly the WAV's duration (the stand-in animates its
-talking face; a real QTrobot gets /qt_robot/speech/say), while the same audio goes to the headset as raw PCM
-chunks of audio_common_msgs/AudioData on /vr_teleop/audio/robot, paced in real time with a small lead, whose
-format is on the latched /vr_teleop/audio/robot/info (audio_common_msgs/AudioInfo).
+Robot speech. The text is rendered to a WAV by an espeak-ng process, waited for off the event loop. The robot
+then "says" it for exactly the WAV's duration (the stand-in animates its talking face; a real QTrobot gets
+/qt_robot/speech/say), while the same audio goes to the headset as raw PCM chunks of audio_common_msgs/AudioData
+on /vr_teleop/audio/robot, paced in real time with a small lead, whose format is on the latched
+/vr_teleop/audio/robot/info (audio_common_msgs/AudioInfo).
 
 Every WAV the robot says is also kept in the audio log directory (robot-<time>-<text>.wav).
 
@@ -17,19 +17,16 @@ The WAV header is rewritten with every chunk, so a crash loses nothing already r
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import io
 import logging
-import os
 import re
+import subprocess
 import tempfile
-import threading
 import time
 import wave
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from client_protocol import names
 
@@ -41,10 +38,15 @@ log = logging.getLogger(__name__)
 CHUNK_S = 0.1  # audio per chunk sent to the headset
 LEAD_S = 0.3  # how far ahead of real time chunks are sent, so the headset's player never starves
 NORMAL_SPEED = 100  # LuxAI's speech speed is a percentage of normal
-ESPEAK_RATE = 200  # words a minute: pyttsx3's espeak driver's normal rate
-ESPEAK_PITCH = 50  # espeak-ng's normal pitch (0..100)
-# espeak-ng keeps one set of parameters per process and pyttsx3 one engine: renders take turns.
-ESPEAK_LOCK = threading.Lock()
+ESPEAK = "espeak-ng"
+ESPEAK_RATE = 200  # words a minute at LuxAI's speed 100 (what the server used with pyttsx3; espeak-ng's own is 175)
+ESPEAK_PITCH = 50  # espeak-ng's normal pitch (0..99)
+# espeak-ng's default voice (British English), named by its file: a voice named by language costs a search of every
+# voice file, about 50 ms a render
+ESPEAK_VOICE = "gmw/en"
+ESPEAK_TIMEOUT_S = 30.0  # espeak-ng renders far faster than real time: a render this long is a hung process
+# a row of `espeak-ng --voices`: Pty, Language, Age/Gender, VoiceName, File, Other Languages
+VOICE_ROW = re.compile(r"\s*\d+\s+(?P<language>\S+)\s+\S+\s+\S+\s+(?P<file>\S+)")
 
 
 @dataclass(frozen=True)
@@ -65,40 +67,50 @@ class Wav:
 
 
 class TextToSpeech:
-    """pyttsx3 in its own thread. Voice, pitch and speed follow LuxAI's /qt_robot/speech/config."""
+    """espeak-ng, one process per render, its voice, pitch and rate on that process's command line.
+
+    Nothing is shared between instances: espeak-ng's library keeps one set of parameters per process, and pyttsx3
+    (used here before) handed a process one engine whose espeak driver returned from runAndWait 10 ms after
+    starting a file, written or not (pyttsx3 issue #219): on a busy machine renders came back empty or with
+    another server's audio. Voice, pitch and speed follow LuxAI's /qt_robot/speech/config."""
 
     def __init__(self) -> None:
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="tts")
-        self._engine: Any = None
-        self._voices: list[Any] = []
-        # This instance's voice, applied before each render: pyttsx3 hands every caller in a process the same
-        # engine, and espeak-ng's parameters are process-wide, so another instance's configure must not leak in.
-        self._voice: str | None = None  # None: the engine's default voice, as found at first use
+        self._voices: list[tuple[str, str]] | None = None  # (voice file, language), as espeak-ng lists them
+        self._voice = ESPEAK_VOICE  # a voice file, as _voice_for finds them
         self._pitch = ESPEAK_PITCH
         self._rate = ESPEAK_RATE
 
-    def _engine_ready(self) -> Any:
-        if self._engine is None:
-            import pyttsx3
+    def _espeak(self, *args: str, text: str = "") -> bytes:
+        try:
+            done = subprocess.run([ESPEAK, *args], input=text.encode(), capture_output=True,
+                                  timeout=ESPEAK_TIMEOUT_S, check=False)
+        except FileNotFoundError:
+            raise RuntimeError("espeak-ng is not installed (scripts/install-system-packages.sh)") from None
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"espeak-ng took over {ESPEAK_TIMEOUT_S:g} s") from None
+        if done.returncode != 0:
+            raise RuntimeError(f"espeak-ng failed ({done.returncode}): {done.stderr.decode(errors='replace').strip()}")
+        return done.stdout
 
-            self._engine = pyttsx3.init()
-            self._voices = list(self._engine.getProperty("voices"))
-            self._voice = self._voice or self._engine.getProperty("voice")
-        return self._engine
+    def _voice_list(self) -> list[tuple[str, str]]:
+        if self._voices is None:
+            rows = (VOICE_ROW.match(line) for line in self._espeak("--voices").decode().splitlines()[1:])
+            self._voices = [(m["file"].lower(), m["language"].lower()) for m in rows if m]
+        return self._voices
 
     def _voice_for(self, language: str) -> str:
         wanted = language.strip().lower().replace("_", "-")
-        for voice in self._voices:
-            names = [str(voice.id).lower(), *(str(v).lower() for v in (voice.languages or []))]
-            if wanted in names or any(n.endswith("/" + wanted) for n in names):
-                return voice.id
-        for voice in self._voices:  # "en" also matches "en-gb"
-            if any(str(v).lower().startswith(wanted + "-") for v in (voice.languages or [])):
-                return voice.id
+        voices = self._voice_list()
+        for file, lang in voices:
+            if wanted in (file, lang) or file.endswith("/" + wanted):
+                return file
+        for file, lang in voices:  # "en" also matches "en-gb"
+            if lang.startswith(wanted + "-"):
+                return file
         raise ValueError(f"no voice for language {language!r}; espeak-ng offers e.g. en, en-gb, en-us, fr, de, nl")
 
     def _configure(self, language: str, pitch: int, speed: int) -> None:
-        self._engine_ready()
         if language:
             self._voice = self._voice_for(language)
         if pitch:
@@ -107,24 +119,18 @@ class TextToSpeech:
             self._rate = max(40, round(ESPEAK_RATE * speed / NORMAL_SPEED))
 
     def _render(self, text: str) -> Wav:
-        engine = self._engine_ready()
-        fd, path = tempfile.mkstemp(suffix=".wav", prefix="vr-teleop-tts-")
-        os.close(fd)
+        out = self._espeak("--stdin", "--stdout", "-v", self._voice, "-p", str(self._pitch), "-s", str(self._rate),
+                           text=text)
         try:
-            with ESPEAK_LOCK, contextlib.redirect_stdout(io.StringIO()):  # the driver prints each file it saves
-                engine.setProperty("voice", self._voice)
-                engine.setProperty("pitch", self._pitch)
-                engine.setProperty("rate", self._rate)
-                engine.save_to_file(text, path)
-                engine.runAndWait()
-            return Wav.parse(Path(path).read_bytes())
-        finally:
-            Path(path).unlink(missing_ok=True)
+            return Wav.parse(out)  # a streamed WAV: its header gives no length, and wave reads the frames there are
+        except (wave.Error, EOFError) as exc:
+            raise RuntimeError(f"espeak-ng's output is not a WAV ({exc or 'empty'})") from None
 
     async def configure(self, language: str = "", pitch: int = 0, speed: int = 0) -> None:
         await asyncio.get_running_loop().run_in_executor(self._executor, self._configure, language, pitch, speed)
 
     async def render(self, text: str) -> Wav:
+        """The text as a WAV; RuntimeError if espeak-ng fails."""
         return await asyncio.get_running_loop().run_in_executor(self._executor, self._render, text)
 
     def close(self) -> None:
@@ -151,7 +157,10 @@ class Speaker:
     async def say(self, text: str) -> SpeechResult:
         if not text.strip():
             raise BusError("nothing to say: the message is empty")
-        wav = await self.tts.render(text)
+        try:
+            wav = await self.tts.render(text)
+        except RuntimeError as exc:
+            raise BusError(f"text-to-speech failed: {exc}") from None
         self.stop_speaking()
         self._log(text, wav)
         self._publish_info(wav)

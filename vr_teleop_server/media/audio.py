@@ -38,6 +38,7 @@ from client_protocol import names
 
 from ..core.bus import Bus, BusError, Published
 from ..robot.interface import Robot, held_level
+from .media_loop import call_on
 
 log = logging.getLogger(__name__)
 
@@ -130,9 +131,11 @@ class AudioMixer:
         self._rendered: list[np.ndarray] = []
         self._render_task: asyncio.Task[None] | None = None
         self._tokens: list[tuple[str, int]] = []
+        self.home: asyncio.AbstractEventLoop | None = None  # the server's loop, where the mixer lives (start)
         self.frames = 0
 
     def start(self) -> None:
+        self.home = asyncio.get_running_loop()
         self.bus.declare_topic(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
         self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True, persistent=True)
         self._tokens = [
@@ -164,7 +167,23 @@ class AudioMixer:
         self._heard_playing = self._heard.size > FRAME_SAMPLES  # runs dry: buffer again before going on
         return self._heard.pull(FRAME_SAMPLES)
 
+    def _at_home(self, fn: Callable[..., None], *args: object) -> None:
+        if self.home is None:
+            fn(*args)
+        else:
+            call_on(self.home, fn, *args)
+
     def attach(self, track: RobotAudioTrack) -> None:
+        """From any loop (a track lives on the media loop)."""
+        self._at_home(self._attach, track)
+
+    def detach(self, track: RobotAudioTrack) -> None:
+        """From any loop."""
+        self._at_home(self._detach, track)
+
+    def _attach(self, track: RobotAudioTrack) -> None:
+        if track.readyState != "live":
+            return
         self._tracks.add(track)
         if self._task is None or self._task.done():
             self._task = asyncio.ensure_future(self._run())
@@ -173,7 +192,7 @@ class AudioMixer:
         if self.render_line is not None and self.bystander_interval > 0 and self._render_task is None:
             self._render_task = asyncio.ensure_future(self._render_lines())
 
-    def detach(self, track: RobotAudioTrack) -> None:
+    def _detach(self, track: RobotAudioTrack) -> None:
         self._tracks.discard(track)
         if not self._tracks and self._unlisten is not None:
             self._unlisten()
@@ -220,8 +239,8 @@ class AudioMixer:
                 frame.time_base = TIME_BASE
                 pts += FRAME_SAMPLES
                 self.frames += 1
-                for track in list(self._tracks):
-                    track.offer(frame)
+                for track in self._tracks:
+                    track.deliver(frame)
                 next_at += FRAME_S
                 await asyncio.sleep(max(0.0, next_at - loop.time()))
         except asyncio.CancelledError:
@@ -231,7 +250,8 @@ class AudioMixer:
 
     async def close(self) -> None:
         for track in list(self._tracks):
-            track.stop()  # the last one stops listening to the robot's microphone
+            call_on(track.loop, track.stop)
+            self._detach(track)  # the last one stops listening to the robot's microphone
         for task in (self._task, self._render_task):
             if task is not None:
                 task.cancel()
@@ -242,17 +262,23 @@ class AudioMixer:
 
 
 class RobotAudioTrack(MediaStreamTrack):
-    """One peer's copy of the robot's audio (its sender encodes Opus)."""
+    """One peer's copy of the robot's audio (its sender encodes Opus), on the loop it was made on (the media
+    loop's); the mixer reaches it through `deliver`."""
 
     kind = "audio"
 
     def __init__(self, mixer: AudioMixer) -> None:
         super().__init__()
         self.mixer = mixer
+        self.loop = asyncio.get_running_loop()
         self._queue: deque[av.AudioFrame] = deque(maxlen=TRACK_QUEUE)
         self._ready = asyncio.Event()
         self.frames_sent = 0
         mixer.attach(self)
+
+    def deliver(self, frame: av.AudioFrame) -> None:
+        """From the mixer's loop."""
+        call_on(self.loop, self.offer, frame)
 
     def offer(self, frame: av.AudioFrame) -> None:
         self._queue.append(frame)
@@ -285,10 +311,14 @@ def voice_level(samples: np.ndarray) -> float:
 
 
 class OperatorVoice:
-    """One peer's incoming microphone track: logged as the client's operator audio and played on the robot."""
+    """One peer's incoming microphone track: logged as the client's operator audio and played on the robot. It
+    reads (and aiortc decodes) the track on the track's loop, the media loop; each frame goes to `home`, the loop
+    of the bus and the robot, to be played and published."""
 
-    def __init__(self, bus: Bus, robot: Robot | None, owner: str, track: MediaStreamTrack, may_speak: bool) -> None:
+    def __init__(self, bus: Bus, robot: Robot | None, owner: str, track: MediaStreamTrack, may_speak: bool,
+                 home: asyncio.AbstractEventLoop | None = None) -> None:
         self.bus = bus
+        self.home = home
         self.robot = robot
         self.owner = owner
         self.track = track
@@ -299,6 +329,7 @@ class OperatorVoice:
         self._pending: list[bytes] = []
         self._pending_samples = 0
         self._announced = False
+        self.closed = False
         self.task = asyncio.ensure_future(self._run())
 
     async def _run(self) -> None:
@@ -306,7 +337,11 @@ class OperatorVoice:
             while True:
                 frame = await self.track.recv()
                 for out in self._resampler.resample(frame):
-                    self._take(out.to_ndarray().reshape(-1).astype(np.int16))
+                    samples = out.to_ndarray().reshape(-1).astype(np.int16)
+                    if self.home is None:
+                        self._take(samples)
+                    else:
+                        call_on(self.home, self._take, samples)
         except (MediaStreamError, asyncio.CancelledError):
             pass
         except Exception:
@@ -321,6 +356,8 @@ class OperatorVoice:
         return held_level(self._level, time.monotonic())
 
     def _take(self, samples: np.ndarray) -> None:
+        if self.closed:
+            return  # queued for home before the peer closed
         self.frames += 1
         self._level = (voice_level(samples), time.monotonic())
         if not self.may_speak:
@@ -352,6 +389,7 @@ class OperatorVoice:
             log.exception("the operator's voice could not be published")
 
     async def close(self) -> None:
+        self.closed = True
         self.task.cancel()
         try:
             await self.task

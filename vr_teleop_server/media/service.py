@@ -14,6 +14,12 @@ an offer with one is not refused for a media section without a common codec: tha
 turn.py) to build its peer connection with; the server's own peer uses the same. Its responses are confidential
 (the session keeps them out of recordings).
 
+The peer connections run on a media loop of their own, in a thread (media_loop.py): aiortc's per-packet work
+never waits in the queue of the loop that carries the poses. This service lives on the server's loop (the bus's,
+the sessions'): it answers the offer there and hands the negotiation to the media loop; what the peers receive
+comes back (call_soon_threadsafe, in order): data-channel messages into the client's session, the operator's voice
+to the robot and the bus, a failed connection to be closed.
+
 Access is the camera topic's, for the offer and the ICE servers: a client that may not subscribe to the head camera
 gets no media. An operator's or
 supervisor's microphone is played on the robot and logged; a spectator's is ignored.
@@ -43,6 +49,7 @@ from ..robot.interface import Robot
 from . import link_quality, playout_delay
 from .audio import RATE as AUDIO_RATE
 from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
+from .media_loop import MediaLoop, call_on
 from .poses import PoseChannel
 from .turn import IceConfig
 from .video import CODECS, VIDEO_CLOCK_RATE, CameraTrack, VideoHub
@@ -56,8 +63,11 @@ MEDIA_OWNER = "/vr_teleop_server/media"
 
 @dataclass
 class Peer:
+    """One client's peer connection. Its pc, tracks and voice live on the media loop (made and touched there);
+    the rest, poses included, on the server's loop."""
+
     owner: str
-    pc: RTCPeerConnection
+    pc: RTCPeerConnection | None = None  # made on the media loop, during the negotiation
     created: float = field(default_factory=time.monotonic)
     video: CameraTrack | None = None
     audio: RobotAudioTrack | None = None
@@ -121,6 +131,8 @@ class MediaService:
         self.peers: dict[str, Peer] = {}
         self.links: dict[str, ClientLink] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
+        self.media_loop = MediaLoop()
+        self.home: asyncio.AbstractEventLoop | None = None  # the server's loop (start)
         self._telemetry: asyncio.Task[None] | None = None
         self._camera_published = 0
         self._pose_token = 0
@@ -129,6 +141,10 @@ class MediaService:
 
     # ---- lifecycle ----------------------------------------------------------------------------------------------
     def start(self) -> None:
+        self.home = asyncio.get_running_loop()
+        self.media_loop.setup()
+        if self.video is not None:
+            self.video.start()
         self.bus.provide(names.MEDIA_OFFER_SERVICE, "vr_teleop_msgs/MediaOffer", self._offer)
         self.bus.provide(names.MEDIA_ICE_SERVERS_SERVICE, "vr_teleop_msgs/IceServers", self._ice_servers,
                          confidential=True)
@@ -165,6 +181,7 @@ class MediaService:
         await self.audio.close()
         if self.video is not None:
             await self.video.close()
+        await self.media_loop.shutdown()  # last: the hubs above stop their tracks on it
 
     def _spawn(self, coro: Awaitable[Any]) -> asyncio.Task[Any]:
         task = asyncio.ensure_future(coro)
@@ -208,11 +225,11 @@ class MediaService:
         if "application" in kinds:  # a media section without a common codec must not cost the poses channel
             sdp, rejected = _without_unusable_media(request.sdp, offer)
         config = RTCConfiguration(iceServers=self.ice.rtc())
-        pc = RTCPeerConnection(config)
-        peer = self.peers[caller] = Peer(caller, pc)  # reserved before any await: a concurrent offer is refused
+        peer = self.peers[caller] = Peer(caller)  # reserved before any await: a concurrent offer is refused
         self.peers_created += 1
         try:
-            answer = await self._negotiate(peer, session, sdp, offer)
+            answer = await self.media_loop.run(self._negotiate(peer, session, self._may_speak(session.role), config,
+                                                               sdp, offer))
         except _Refusal as exc:
             await self._close_peer(caller)
             return self._refuse(str(exc))
@@ -251,28 +268,28 @@ class MediaService:
                                                                 "enough on a LAN)",
                 "ice_servers": servers, "expires": expires}
 
-    async def _negotiate(self, peer: Peer, session: SessionView, sdp: str,
-                         offer: aiortc_sdp.SessionDescription) -> RTCSessionDescription:
-        pc = peer.pc
-        may_speak = self._may_speak(session.role)
+    async def _negotiate(self, peer: Peer, session: SessionView, may_speak: bool, config: RTCConfiguration,
+                         sdp: str, offer: aiortc_sdp.SessionDescription) -> RTCSessionDescription:
+        """On the media loop: the peer connection, its callbacks and its answer. What must reach the bus, the
+        sessions or the robot goes home (to the server's loop) by call_on."""
+        home = self.home
+        assert home is not None
+        pc = peer.pc = RTCPeerConnection(config)
 
         @pc.on("track")
         def on_track(track: Any) -> None:
             if track.kind == "audio" and peer.voice is None:
-                peer.voice = OperatorVoice(self.bus, self.robot, peer.owner, track, may_speak)
+                peer.voice = OperatorVoice(self.bus, self.robot, peer.owner, track, may_speak, home=home)
 
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:
-            if peer.poses is None:
-                peer.poses = PoseChannel(session, self.holds_control)
-            channel.on("message", lambda message, poses=peer.poses, label=channel.label:
-                       poses.on_message(message, label))
+            label = channel.label
+            channel.on("message", lambda message: call_on(home, self._channel_message, peer, session, message, label))
 
         @pc.on("connectionstatechange")
-        async def on_state() -> None:
-            if pc.connectionState in ("failed", "closed") and not peer.closing:
-                log.info("%s: peer connection %s", peer.owner, pc.connectionState)
-                self._spawn(self._close_peer(peer.owner, peer))
+        def on_state() -> None:
+            if pc.connectionState in ("failed", "closed"):
+                call_on(home, self._connection_ended, peer, pc.connectionState)
 
         try:
             await pc.setRemoteDescription(RTCSessionDescription(sdp, "offer"))
@@ -320,6 +337,20 @@ class MediaService:
             return False
         return True
 
+    def _channel_message(self, peer: Peer, session: SessionView, message: str | bytes, label: str) -> None:
+        """Home: one data-channel message into the client's session, in arrival order (tasks start in the order
+        they are made, as aiortc's own emitter would start them)."""
+        if peer.closing:
+            return
+        if peer.poses is None:
+            peer.poses = PoseChannel(session, self.holds_control)
+        self._spawn(peer.poses.on_message(message, label))
+
+    def _connection_ended(self, peer: Peer, state: str) -> None:
+        if not peer.closing:
+            log.info("%s: peer connection %s", peer.owner, state)
+            self._spawn(self._close_peer(peer.owner, peer))
+
     def _owner_dropped(self, owner: str) -> None:
         self.links.pop(owner, None)
         if owner in self.peers:
@@ -333,20 +364,27 @@ class MediaService:
             return
         peer.closing = True
         try:
-            if peer.voice is not None:
-                await peer.voice.close()
-            for track in (peer.video, peer.audio):
-                if track is not None:
-                    track.stop()
-            try:  # not under wait_for: cancelling aiortc's close leaves its shared future cancelled
-                await peer.pc.close()
-            except InvalidStateError:
-                log.warning("%s: the peer connection did not close cleanly", owner)
+            await self.media_loop.run(self._close_media(peer))
         finally:
             if self.peers.get(owner) is peer:
                 del self.peers[owner]
             self.peers_closed += 1
             log.info("%s: peer connection closed", owner)
+
+    @staticmethod
+    async def _close_media(peer: Peer) -> None:
+        """On the media loop: the peer's voice, tracks and connection."""
+        if peer.voice is not None:
+            await peer.voice.close()
+        for track in (peer.video, peer.audio):
+            if track is not None:
+                track.stop()
+        if peer.pc is None:
+            return
+        try:  # not under wait_for: cancelling aiortc's close leaves its shared future cancelled
+            await peer.pc.close()
+        except InvalidStateError:
+            log.warning("%s: the peer connection did not close cleanly", peer.owner)
 
     # ---- clock --------------------------------------------------------------------------------------------------
     async def _clock(self, request: Any) -> dict[str, Any]:
@@ -407,13 +445,15 @@ class MediaService:
             link = self.links.setdefault(name, ClientLink())
             self._ping(name, session, link)
             peer = self.peers.get(name)
-            if peer is not None and not peer.closing:
-                await self._peer_stats(peer)
+            if peer is not None and not peer.closing and peer.pc is not None:
+                await self.media_loop.run(self._peer_stats(peer))
             clients.append(self._client_entry(name, session, link, peer, now))
         self.bus.publish(names.TELEMETRY_TOPIC, {"header": {"stamp": _stamp(time.time())}, "clients": clients})
 
-    async def _peer_stats(self, peer: Peer) -> None:
-        # The video sender's figures; without video (audio only), the audio sender's.
+    @staticmethod
+    async def _peer_stats(peer: Peer) -> None:
+        """On the media loop. The video sender's figures; without video (audio only), the audio sender's."""
+        assert peer.pc is not None
         senders = [x for x in peer.pc.getSenders() if x.track is not None]
         sender = next((x for x in senders if x.kind == "video"), None) or next(iter(senders), None)
         if sender is None:
@@ -459,9 +499,9 @@ class MediaService:
             "frame_rtp_timestamps": [], "frame_render_times": [], "operator_voice_level": 0.0,
             "dc_received": 0, "dc_refused": 0, "dc_stale_dropped": 0, "dc_last_refusal": ""}
         if peer is not None:
-            entry.update(rtc_state=peer.pc.connectionState, rtc_rtt=peer.rtt, rtc_jitter=peer.jitter,
-                         rtc_packets_lost=peer.packets_lost, rtc_fraction_lost=peer.fraction_lost,
-                         rtc_bitrate=peer.bitrate)
+            entry.update(rtc_state=peer.pc.connectionState if peer.pc is not None else "new", rtc_rtt=peer.rtt,
+                         rtc_jitter=peer.jitter, rtc_packets_lost=peer.packets_lost,
+                         rtc_fraction_lost=peer.fraction_lost, rtc_bitrate=peer.bitrate)
             video = peer.video
             if video is not None:
                 sent += video.frames_sent

@@ -7,7 +7,10 @@ its number in the stand-in's frame ring (shared memory the renderer draws into),
 the camera makes no JPEG for WebRTC viewers (`live_frames(jpeg=False)`); a camera that delivers JPEG anyway (a
 real robot's) sends that; each peer's
 `CameraTrack` hands the sender already-encoded packets, which aiortc only packetizes (`Encoder.pack`), so the
-per-peer cost is the RTP packetization alone. If the encoder process dies, the next frame starts another.
+per-peer cost is the RTP packetization alone. If the encoder process dies, the next frame starts another. The hub
+lives on the server's loop (it reads the robot); the tracks live with their peer connections on the media loop
+(media_loop.py): the hub hands each encoded frame to each track's loop, and the tracks' calls back (attach, detach,
+keyframe requests) come to the hub's.
 
 Frames come from `Robot.live_frames()` only while some track is attached, newest first: while one frame is being
 encoded, the camera's mailbox keeps only the newest one, so the encoder never works through a backlog. An
@@ -47,6 +50,7 @@ from robot_models.types import CameraFrame
 
 from ..robot.interface import Robot
 from .encoder_process import VIDEO_CLOCK_RATE, EncoderProcess, EncoderProcessError
+from .media_loop import call_on
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +87,7 @@ class VideoHub:
         self._encoder: EncoderProcess | None = None  # used only in the executor's thread
         self._executor: ThreadPoolExecutor | None = None
         self._task: asyncio.Task[None] | None = None
+        self.home: asyncio.AbstractEventLoop | None = None  # the server's loop, where the hub lives (start)
         self.epoch = time.time()
         self.encoded = {codec: 0 for codec in CODECS}  # frames each codec's encoder produced
         self.encoder_bitrate = {codec: 0 for codec in CODECS}  # each encoder's target at its latest frame
@@ -97,9 +102,25 @@ class VideoHub:
     def watching(self) -> int:
         return sum(len(tracks) for tracks in self._tracks.values())
 
+    def start(self) -> None:
+        """On the server's loop: the hub's home, where tracks on the media loop send their calls."""
+        self.home = asyncio.get_running_loop()
+
+    def _at_home(self, fn: Any, *args: Any) -> None:
+        if self.home is None:
+            fn(*args)
+        else:
+            call_on(self.home, fn, *args)
+
     def attach(self, track: CameraTrack, codec: str) -> None:
+        """From any loop: `track` receives the frames of `codec` from now on."""
         if codec not in self._tracks:
             raise ValueError(f"no encoder for {codec}; this server encodes {', '.join(CODECS)}")
+        self._at_home(self._attach, track, codec)
+
+    def _attach(self, track: CameraTrack, codec: str) -> None:
+        if track.readyState != "live":
+            return  # stopped before this call arrived
         self._tracks[codec].add(track)
         self._keyframe.add(codec)
         if self._task is None or self._task.done():
@@ -108,6 +129,10 @@ class VideoHub:
             self._task = asyncio.ensure_future(self._pump())
 
     def detach(self, track: CameraTrack) -> None:
+        """From any loop."""
+        self._at_home(self._detach, track)
+
+    def _detach(self, track: CameraTrack) -> None:
         for tracks in self._tracks.values():
             tracks.discard(track)
         if self.watching == 0 and self._task is not None:
@@ -115,7 +140,8 @@ class VideoHub:
             self._task = None
 
     def request_keyframe(self, codec: str) -> None:
-        self._keyframe.add(codec)
+        """From any loop."""
+        self._at_home(self._keyframe.add, codec)
 
     def _take_keyframe(self, codec: str) -> bool:
         if codec not in self._keyframe:
@@ -152,11 +178,8 @@ class VideoHub:
                         await asyncio.sleep(RESTART_DELAY_S)
                         continue
                     for codec, item in encoded.items():
-                        for track in list(self._tracks[codec]):
-                            track.offer(item)
-                            # One sender's burst of packets per turn of the loop, with the sockets polled between:
-                            # a pose arriving waits for one peer's frame at most, not for every peer's.
-                            await asyncio.sleep(0)
+                        for track in self._tracks[codec]:
+                            track.deliver(item)  # to its own loop: the packets are made and sent there
         except asyncio.CancelledError:
             raise
         except Exception:
@@ -194,7 +217,8 @@ class VideoHub:
     async def close(self) -> None:
         for tracks in self._tracks.values():
             for track in list(tracks):
-                track.stop()
+                call_on(track.loop, track.stop)
+            tracks.clear()
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -209,13 +233,15 @@ class VideoHub:
 
 class CameraTrack(MediaStreamTrack):
     """One peer's video track: hands its sender the hub's encoded frames (aiortc packs av.Packet without
-    encoding). Counts what it sent and dropped, and knows its RTP to render-time mapping."""
+    encoding). Counts what it sent and dropped, and knows its RTP to render-time mapping. It lives on the loop it
+    was made on (the media loop, with its peer connection); the hub reaches it through `deliver`."""
 
     kind = "video"
 
     def __init__(self, hub: VideoHub) -> None:
         super().__init__()
         self.hub = hub
+        self.loop = asyncio.get_running_loop()
         self.codec = ""
         self.sender: RTCRtpSender | None = None
         self.playout_delay = False  # whether its packets carry the playout-delay extension (playout_delay.py)
@@ -253,8 +279,12 @@ class CameraTrack(MediaStreamTrack):
         sender._handle_rtcp_packet = handle_rtcp
         self.hub.attach(self, codec)
 
+    def deliver(self, item: EncodedFrame) -> None:
+        """From the hub's loop: `offer` on this track's own loop, in delivery order."""
+        call_on(self.loop, self.offer, item)
+
     def offer(self, item: EncodedFrame) -> None:
-        """From the hub, on the loop: queue a frame, or drop this peer's queue when it has fallen behind."""
+        """On the track's loop: queue a frame, or drop this peer's queue when it has fallen behind."""
         if len(self._queue) >= QUEUE_BOUND:
             self.frames_dropped += len(self._queue)
             self._queue.clear()

@@ -144,7 +144,8 @@ function onVideoFrame(now, meta) {
 async function useWebRtc() {
   const ice = await fetchIceServers(ros);  // fresh TURN credentials for every peer connection
   const pc = camera.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers});  // audio: click the video to hear it
-  const iceErrors = camera.iceErrors = new IceErrors(pc, (text) => logLine($("events"), `camera: ${text}`, "danger"));
+  const iceErrors = camera.iceErrors = new IceErrors(pc, (text) => logLine($("events"), `camera: ${text}`, "danger"),
+                                                     ice.expires);
   const stream = new MediaStream();
   const video = $("camera-video");
   pc.ontrack = (event) => { stream.addTrack(event.track); video.srcObject = stream; };

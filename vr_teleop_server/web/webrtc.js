@@ -240,17 +240,22 @@ export function hasTurn(iceServers) {
 }
 
 /** The TURN relays' answers that mean no relay: 401 (credentials wrong or expired), 403, 437/438, or unreachable
- * (701), as text, once each. `onRefusal(text)` hears the credential refusals as they come. */
+ * (701), as text, once each. `onRefusal(text)` hears the credential refusals as they come. `expires` (s since 1970,
+ * from fetchIceServers; 0: unknown) tells an expired credential from a wrong one: the server's clock being behind
+ * the relay's issues credentials that are dead on arrival. */
 export class IceErrors {
-  constructor(pc, onRefusal = () => {}) {
+  constructor(pc, onRefusal = () => {}, expires = 0) {
     this.errors = [];
     this.refused = false;
     pc.addEventListener("icecandidateerror", (event) => {
       if (!/^turns?:/.test(event.url ?? "")) return;
       const auth = [401, 403, 437, 438].includes(event.errorCode);
-      const text = auth
-        ? `the TURN relay ${event.url} refused the credentials (${event.errorCode} ${event.errorText}): wrong or expired`
-        : `the TURN relay ${event.url} failed (${event.errorCode} ${event.errorText})`;
+      const expired = expires > 0 && expires * 1000 <= Date.now();
+      const text = !auth ? `the TURN relay ${event.url} failed (${event.errorCode} ${event.errorText})`
+        : `the TURN relay ${event.url} refused the credentials (${event.errorCode} ${event.errorText}): ` + (expired
+          ? `they expired at ${new Date(expires * 1000).toISOString()}, before this page used them (is the ` +
+            "server's clock behind?)"
+          : "wrong or expired");
       if (this.errors.includes(text)) return;
       this.errors.push(text);
       if (auth) {

@@ -252,7 +252,8 @@ export class CameraFeed {
     const ice = await fetchIceServers(this.ros);  // fresh TURN credentials for every peer connection
     if (generation !== this.generation) return;
     const pc = this.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers});
-    const iceErrors = this.iceErrors = new IceErrors(pc, (text) => this.onMessage(`camera: ${text}`, "error"));
+    const iceErrors = this.iceErrors = new IceErrors(pc, (text) => this.onMessage(`camera: ${text}`, "error"),
+                                                   ice.expires);
     const stream = new MediaStream();
     pc.addEventListener("track", (event) => stream.addTrack(event.track));
     try {
