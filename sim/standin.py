@@ -607,7 +607,8 @@ class StandIn:
 
         try:
             renderer = self._renderer = RenderProcess(self.model, self.camera_width, self.camera_height,
-                                                      nice=self.render_nice, ring=self._ring)
+                                                      nice=self.render_nice, ring=self._ring,
+                                                      reuse_unchanged=self.clock.simulated)
             self._render_ready.set()
             while not self._stop.is_set():
                 with self._render_cond:
