@@ -439,7 +439,6 @@ class MediaService:
 
     async def _report(self) -> None:
         sessions = self.sessions()
-        now = time.monotonic()
         clients = []
         for name, session in list(sessions.items()):
             link = self.links.setdefault(name, ClientLink())
@@ -447,7 +446,8 @@ class MediaService:
             peer = self.peers.get(name)
             if peer is not None and not peer.closing and peer.pc is not None:
                 await self.media_loop.run(self._peer_stats(peer))
-            clients.append(self._client_entry(name, session, link, peer, now))
+            # Read after the stats: poses keep arriving while the media loop answers, and an age is never negative.
+            clients.append(self._client_entry(name, session, link, peer, time.monotonic()))
         self.bus.publish(names.TELEMETRY_TOPIC, {"header": {"stamp": _stamp(time.time())}, "clients": clients})
 
     @staticmethod
