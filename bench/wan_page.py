@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -29,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from netem import Emulator, available, cleanup_leftovers, load_profiles  # noqa: E402
-from test_operator_page import INSTALL_HEADSET, IWER  # noqa: E402
+from test_operator_page import operator_in_namespace  # noqa: E402
 from wan_support import Observer, serve  # noqa: E402
 
 SWEEP = """(() => { const t0 = performance.now(); setInterval(() => {
@@ -44,39 +43,27 @@ def drive(host: str, mode: str, seconds: float) -> dict:
 
     origin = f"http://{host}"
     out: dict = {}
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=[
-            "--no-sandbox", "--enable-unsafe-swiftshader", f"--unsafely-treat-insecure-origin-as-secure={origin}"])
-        try:
-            page = browser.new_context(viewport={"width": 960, "height": 600}).new_page()
-            errors: list[str] = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.add_init_script(path=str(IWER))
-            page.add_init_script(script=INSTALL_HEADSET)
-            page.goto(f"{origin}/operator#camera={mode}")
-            page.wait_for_function("window.operator && window.operator.ros.connected && window.operator.state.teleop",
-                                   timeout=WAIT_MS)
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=WAIT_MS)
-            if mode == "webrtc":
-                page.wait_for_function("window.operator.poses.open", timeout=WAIT_MS)
-            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
-            time.sleep(0.3)
-            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
-            page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('YOU HAVE CONTROL')",
-                                   timeout=WAIT_MS)
-            out["engaged"] = time.monotonic()
-            frames0 = page.evaluate("window.operator.state.frameCount")
-            page.evaluate(SWEEP)
-            time.sleep(seconds)
-            out["end"] = time.monotonic()
-            out["xr_fps"] = round((page.evaluate("window.operator.state.frameCount") - frames0) / seconds, 1)
-            out["channel"] = page.evaluate("window.operator.poses.stats()")
-            out["camera"] = page.evaluate("window.operator.camera.stats()")
-            out["page_errors"] = errors
-        finally:
-            browser.close()
+    with sync_playwright() as p, operator_in_namespace(p, origin, mode, {"width": 960, "height": 600}, WAIT_MS) \
+            as (page, errors):
+        page.get_by_role("button", name="Enter VR").click()
+        page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                               timeout=WAIT_MS)
+        if mode == "webrtc":
+            page.wait_for_function("window.operator.poses.open", timeout=WAIT_MS)
+        page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
+        time.sleep(0.3)
+        page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
+        page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('YOU HAVE CONTROL')",
+                               timeout=WAIT_MS)
+        out["engaged"] = time.monotonic()
+        frames0 = page.evaluate("window.operator.state.frameCount")
+        page.evaluate(SWEEP)
+        time.sleep(seconds)
+        out["end"] = time.monotonic()
+        out["xr_fps"] = round((page.evaluate("window.operator.state.frameCount") - frames0) / seconds, 1)
+        out["channel"] = page.evaluate("window.operator.poses.stats()")
+        out["camera"] = page.evaluate("window.operator.camera.stats()")
+        out["page_errors"] = errors
     return out
 
 

@@ -36,7 +36,7 @@ from pathlib import Path
 import pytest
 
 from netem import EDGES, Edge, Emulator, cleanup_leftovers, edges_available, list_namespaces
-from test_operator_page import INSTALL_HEADSET, IWER
+from test_operator_page import operator_in_namespace
 from vr_teleop_server.core.certs import make_authority, make_certificate
 from vr_teleop_server.media.turn import credentials
 
@@ -148,52 +148,39 @@ def drive(origin: str, take_control: bool, until: str = "", home: Path | None = 
     counts."""
     from playwright.sync_api import sync_playwright
 
-    with sync_playwright() as p:
-        env = {**os.environ, "HOME": str(home)} if home else None
-        browser = p.chromium.launch(executable_path=shutil.which("chromium"), env=env, args=[
-            "--no-sandbox", "--enable-unsafe-swiftshader", f"--unsafely-treat-insecure-origin-as-secure={origin}"])
-        try:
-            page = browser.new_context(viewport={"width": 800, "height": 500}).new_page()
-            errors: list[str] = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.add_init_script(path=str(IWER))
-            page.add_init_script(script=INSTALL_HEADSET)
-            page.goto(f"{origin}/operator#camera=webrtc")
-            page.wait_for_function("window.operator && window.operator.ros.connected && window.operator.state.teleop",
+    with sync_playwright() as p, operator_in_namespace(p, origin, "webrtc", {"width": 800, "height": 500}, WAIT_MS,
+                                                       home) as (page, errors):
+        page.wait_for_function("['WebRTC', 'JPEG'].includes(window.operator.camera.path)", timeout=WAIT_MS)
+        if until:
+            page.wait_for_function(until, timeout=WAIT_MS)
+        out = {"path": page.evaluate("window.operator.camera.path"),
+               "first_message": page.text_content("#hud-message") or ""}
+        if out["path"] == "WebRTC":
+            page.wait_for_function("window.operator.camera.video.received > 3", timeout=WAIT_MS)
+        if take_control:
+            page.get_by_role("button", name="Enter VR").click()
+            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
                                    timeout=WAIT_MS)
-            page.wait_for_function("['WebRTC', 'JPEG'].includes(window.operator.camera.path)", timeout=WAIT_MS)
-            if until:
-                page.wait_for_function(until, timeout=WAIT_MS)
-            out = {"path": page.evaluate("window.operator.camera.path"),
-                   "first_message": page.text_content("#hud-message") or ""}
+            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
+            time.sleep(0.3)
+            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
+            page.wait_for_function("document.getElementById('hud-control')?.textContent"
+                                   ".startsWith('YOU HAVE CONTROL')", timeout=WAIT_MS)
+            page.evaluate("xrDevice.quaternion.set(0, Math.sin(0.2), 0, Math.cos(0.2))")
             if out["path"] == "WebRTC":
-                page.wait_for_function("window.operator.camera.video.received > 3", timeout=WAIT_MS)
-            if take_control:
-                page.get_by_role("button", name="Enter VR").click()
-                page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                       timeout=WAIT_MS)
-                page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
-                time.sleep(0.3)
-                page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
-                page.wait_for_function("document.getElementById('hud-control')?.textContent"
-                                       ".startsWith('YOU HAVE CONTROL')", timeout=WAIT_MS)
-                page.evaluate("xrDevice.quaternion.set(0, Math.sin(0.2), 0, Math.cos(0.2))")
-                if out["path"] == "WebRTC":
-                    page.wait_for_function("window.operator.poses.stats().sent > 20", timeout=WAIT_MS)
-                    # until the server's telemetry (every 0.5 s) says its channel received them
-                    page.wait_for_function("(window.operator.state.link?.dc_received ?? 0) > 0", timeout=WAIT_MS)
-                else:
-                    time.sleep(2.0)
-                out["poses"] = page.evaluate("window.operator.poses.stats()")
-            out.update(page.evaluate("""(() => { const c = window.operator.camera; return {
-                route: c.route, audio: c.audioViaWebRtc, video: c.video ? c.video.received : 0,
-                jpeg: c.jpeg ? c.jpeg.received : 0, ice_errors: c.iceErrors ? c.iceErrors.errors : [],
-                message: document.getElementById('hud-message')?.textContent ?? '',
-                numbers: document.getElementById('hud-numbers')?.textContent ?? ''}; })()"""))
-            out["errors"] = errors
-            return out
-        finally:
-            browser.close()
+                page.wait_for_function("window.operator.poses.stats().sent > 20", timeout=WAIT_MS)
+                # until the server's telemetry (every 0.5 s) says its channel received them
+                page.wait_for_function("(window.operator.state.link?.dc_received ?? 0) > 0", timeout=WAIT_MS)
+            else:
+                time.sleep(2.0)
+            out["poses"] = page.evaluate("window.operator.poses.stats()")
+        out.update(page.evaluate("""(() => { const c = window.operator.camera; return {
+            route: c.route, audio: c.audioViaWebRtc, video: c.video ? c.video.received : 0,
+            jpeg: c.jpeg ? c.jpeg.received : 0, ice_errors: c.iceErrors ? c.iceErrors.errors : [],
+            message: document.getElementById('hud-message')?.textContent ?? '',
+            numbers: document.getElementById('hud-numbers')?.textContent ?? ''}; })()"""))
+        out["errors"] = errors
+        return out
 
 
 class Telemetry:
