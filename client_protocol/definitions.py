@@ -138,6 +138,51 @@ MESSAGES: dict[str, str] = {
         "# Faces found in one head-camera frame, on /perception/faces. detector: what found them.\n"
         "Header header\nuint32 frame_seq\nuint32 image_width\nuint32 image_height\nstring detector\nFace[] faces"
     ),
+    # supervised autonomy (vr_teleop_server/features/autonomy)
+    "vr_teleop_msgs/AttentionTarget": (
+        "# Where the robot's attention is, on /vr_teleop/autonomy/attention (on every change, and 1 Hz).\n"
+        "# source: face, voice, both, glance (nobody there: a look around) or empty (no target). who: the person's\n"
+        "# track id (the stand-in's pupils by name) or empty. yaw/pitch: the target's direction in the robot's base\n"
+        "# frame, degrees (yaw positive to the left). has_face: face holds the face's box in the camera image.\n"
+        "Header header\nstring source\nstring who\nfloat64 yaw\nfloat64 pitch\nbool has_face\nFace face\n"
+        "float64 score"
+    ),
+    "vr_teleop_msgs/Proposal": (
+        "# An action the robot proposes (SPARC), on /vr_teleop/autonomy/proposals. action: a menu item id; label:\n"
+        "# that item's words; reason: why, for the teacher; confidence 0..1; timeout: seconds until on_timeout is\n"
+        "# done (execute or drop); situation: the situation it was proposed in, as the learner names it.\n"
+        "Header header\nstring id\nstring action\nstring label\nstring reason\nfloat64 confidence\n"
+        "float64 timeout\nstring on_timeout\nstring situation"
+    ),
+    "vr_teleop_msgs/ProposalOutcome": (
+        "# How a proposal ended, or an action the teacher took herself, on /vr_teleop/autonomy/outcomes.\n"
+        "# outcome: accepted, rejected, forbidden, timed_out_executed, superseded, dropped, or\n"
+        "# teacher_initiated (initiator teacher, an action picked from a menu). decided_by: the operator who\n"
+        "# decided, 'timeout', 'autonomy' (the autonomous level executes its own) or 'server'. seconds: from the\n"
+        "# proposal to its end.\n"
+        "Header header\nstring id\nstring action\nstring outcome\nstring initiator\nstring decided_by\n"
+        "float64 seconds\nstring situation"
+    ),
+    "vr_teleop_msgs/PartOwner": (
+        "# Who moves a part now: operator (the holder of control), trial, gesture, autonomy, estop or none.\n"
+        "string part\nstring owner"
+    ),
+    "vr_teleop_msgs/AutonomyState": (
+        "# Autonomy as the server sees it, latched on /vr_teleop/autonomy/state (on every change).\n"
+        "# level: teleoperated, supervised or autonomous. running: what autonomy is doing (attention, glance,\n"
+        "# an executing proposal's id...). owners: each part's owner.\n"
+        "Header header\nstring level\nAttentionTarget attention\nProposal[] pending\nstring[] running\n"
+        "PartOwner[] owners"
+    ),
+    # the stand-in's simulated pupils (simulation only)
+    "vr_teleop_msgs/Bystander": (
+        "# A simulated pupil: name, position in the robot's base frame (metres), its direction from the robot\n"
+        "# (yaw, degrees, positive to the left), where it looks (robot or away) and whether it speaks.\n"
+        "string name\ngeometry_msgs/Point position\nfloat64 yaw\nstring looking\nbool speaking"
+    ),
+    "vr_teleop_msgs/Bystanders": (
+        "# The stand-in's pupils, latched on /sim/bystanders (on every change)\nHeader header\nBystander[] bystanders"
+    ),
     # ROS 1 actionlib (actionlib_msgs), as roslibpy's ActionClient and SimpleActionServer speak it
     "actionlib_msgs/GoalID": "time stamp\nstring id",
     "actionlib_msgs/GoalStatus": (
@@ -264,6 +309,22 @@ SERVICES: dict[str, str] = {
     "vr_teleop_msgs/AddLabel": (
         "# A whole action the plan did not foresee, seconds since the trial started (stop < 0: still running).\n"
         "string agent\nstring action\nfloat64 start\nfloat64 stop\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/SetAutonomy": (
+        "# The autonomy level: teleoperated, supervised or autonomous (operators and supervisors).\n"
+        "string level\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/DecideProposal": (
+        "# The teacher's decision on a pending proposal: accept, reject, or forbid (never in this situation).\n"
+        "string id\nstring decision\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/BystanderSpeak": (
+        "# A simulated pupil says text (espeak-ng, into the robot's microphone). Simulation only.\n"
+        "string who\nstring text\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/BystanderLook": (
+        "# A simulated pupil looks at: robot or away. Simulation only.\n"
+        "string who\nstring at\n---\nbool success\nstring message"
     ),
     # rosapi, as client libraries (roslibpy, roslibjs, ROS#) call it
     "rosapi/Topics": "---\nstring[] topics\nstring[] types",

@@ -116,3 +116,20 @@ MEDIA_ICE_SERVERS_SERVICE = "/vr_teleop/media/ice_servers"
 TELEMETRY_TOPIC = "/vr_teleop/telemetry"
 # The data channel the operator's poses and Joy take beside the media (label; ordered false, maxRetransmits 0)
 POSES_CHANNEL = "poses"
+
+# ---- supervised autonomy (vr_teleop_server/features/autonomy) ----
+AUTONOMY_LEVEL_SERVICE = "/vr_teleop/autonomy/level"
+AUTONOMY_STATE_TOPIC = "/vr_teleop/autonomy/state"
+AUTONOMY_ATTENTION_TOPIC = "/vr_teleop/autonomy/attention"
+AUTONOMY_PROPOSALS_TOPIC = "/vr_teleop/autonomy/proposals"
+AUTONOMY_DECIDE_SERVICE = "/vr_teleop/autonomy/decide"
+AUTONOMY_OUTCOMES_TOPIC = "/vr_teleop/autonomy/outcomes"
+# The ROS 1 QTrobot's microphone array as LuxAI's qt_respeaker_app publishes it (latched): voice activity
+# (std_msgs/Bool) and the direction of arrival (std_msgs/Int32, the ReSpeaker's own angle in degrees), read by the
+# ros backend and turned into the robot's base frame there.
+RESPEAKER_SPEAKING_TOPIC = "/qt_respeaker_app/is_speaking"
+RESPEAKER_DIRECTION_TOPIC = "/qt_respeaker_app/sound_direction"
+# The stand-in's simulated pupils (simulation only)
+SIM_BYSTANDERS_TOPIC = "/sim/bystanders"
+SIM_BYSTANDERS_SPEAK_SERVICE = "/sim/bystanders/speak"
+SIM_BYSTANDERS_LOOK_SERVICE = "/sim/bystanders/look"

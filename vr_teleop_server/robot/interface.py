@@ -287,6 +287,22 @@ class SpeechResult:
     audible: bool  # False: this backend only animates the face (no sound is produced)
 
 
+@dataclass(frozen=True)
+class VoiceActivity:
+    """What the robot's microphone array tells of a voice: whether someone speaks, and from where.
+
+    direction_deg: the voice's azimuth in the robot's base frame (degrees, positive to the left, 0 straight ahead),
+    or None when the array gives no direction. Each backend maps its array's own angle at one boundary (the ROS 1
+    robot's ReSpeaker, the v3's microphone events). who: the speaker when the backend knows it (the stand-in's
+    simulated pupils), else "". stamp: the server clock's monotonic time it was heard.
+    """
+
+    speaking: bool
+    direction_deg: float | None
+    stamp: float
+    who: str = ""
+
+
 class Robot(abc.ABC):
     """What the server needs from a robot (the stand-in or the real QTrobot)."""
 
@@ -421,6 +437,19 @@ class Robot(abc.ABC):
         someone listens). The default hears nothing: a backend without a microphone stream (the stand-in's
         classroom is synthesised by the media mixer instead)."""
         return lambda: None
+
+    # ------------------------------------------------------------------------------------------------ hearing
+    def on_voice_activity(self, listener: Callable[[VoiceActivity], None]) -> Callable[[], None]:
+        """Call listener(activity) on the event loop whenever the robot's microphone array reports a voice starting,
+        stopping or moving, until the returned function is called. The default hears no voices."""
+        listeners = self.__dict__.setdefault("_voice_listeners", [])
+        listeners.append(listener)
+        return lambda: listener in listeners and listeners.remove(listener)
+
+    def _voice_activity(self, activity: VoiceActivity) -> None:
+        """For backends, on the event loop: hand a voice report to every listener."""
+        for listener in tuple(self.__dict__.get("_voice_listeners", ())):
+            listener(activity)
 
     # ------------------------------------------------------------------------------------------------ voice
     def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
