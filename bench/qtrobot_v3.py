@@ -79,11 +79,13 @@ def main(argv: list[str] | None = None) -> int:
     broker = start_mosquitto(tmp)
     zmq_hub = FakeQtrobotV3(camera=False).start()
     zmq_robot = LuxaiRobot(f"tcp://127.0.0.1:{zmq_hub.hub_port}", camera_url=f"tcp://127.0.0.1:{free_port()}")
+    zmq_robot.connect()
     mqtt_hub = mqtt_robot = None
     if broker is not None:
         url = f"mqtt://127.0.0.1:{broker[1]}"
         mqtt_hub = FakeQtrobotV3(broker=url, zmq=False, camera=False).start()
         mqtt_robot = LuxaiRobot(url, robot_id=mqtt_hub.robot_id)
+        mqtt_robot.connect()
     try:
         time.sleep(0.5)
         ratios, costs, zmq_ms, mqtt_ms = [], [], [], []

@@ -12,7 +12,12 @@ What it copies from ROS 1, where the backend depends on it:
   own list), with the project's TypeRegistry doing the checking; a request that does not fit fails as rosbridge
   fails it (`result: false`, the reason as the values);
 - LuxAI's speech node: `/qt_robot/speech/say` answers once the sentence is spoken, `/qt_robot/speech/stop` cuts
-  whatever is being spoken at the moment it runs, `/qt_robot/speech/config` sets language, pitch and speed.
+  whatever is being spoken at the moment it runs, `/qt_robot/speech/config` sets language, pitch and speed;
+- LuxAI's motor controller publishes `/qt_robot/joints/state` all the time (JOINT_STATE_HZ; each joint at the
+  position its part was last commanded), the robot's heartbeat; `beating = False` stops it with the socket up,
+  as a hung robot would;
+- qt_respeaker_app's `is_speaking` (std_msgs/Bool) and `sound_direction` (std_msgs/Int32) are latched: a new
+  subscriber gets the last message at once (`publish(..., latch=True)`).
 
 Everything the robot received is recorded (`calls` in arrival order, `utterances` with whether each was cut).
 """
@@ -70,7 +75,15 @@ TOPIC_TYPES = {  # what LuxAI's nodes publish or subscribe to, before anyone adv
     "/qt_robot/right_arm_position/command": "std_msgs/Float64MultiArray",
     "/qt_robot/left_arm_position/command": "std_msgs/Float64MultiArray",
     "/camera/color/image_raw/compressed": "sensor_msgs/CompressedImage",
+    "/qt_respeaker_app/is_speaking": "std_msgs/Bool",
+    "/qt_respeaker_app/sound_direction": "std_msgs/Int32",
 }
+PARTS = {  # LuxAI's part command topics and the joints of their arrays, in order
+    "/qt_robot/head_position/command": ("HeadYaw", "HeadPitch"),
+    "/qt_robot/right_arm_position/command": ("RightShoulderPitch", "RightShoulderRoll", "RightElbowRoll"),
+    "/qt_robot/left_arm_position/command": ("LeftShoulderPitch", "LeftShoulderRoll", "LeftElbowRoll"),
+}
+JOINT_STATE_HZ = 30.0
 
 
 @dataclass
@@ -97,6 +110,9 @@ class Ros1QTrobot:
         self.speech_config: list[dict[str, Any]] = []
         self.refusals: list[str] = []  # every status error sent
         self.published: dict[str, list[Any]] = {}
+        self.positions = {joint: 0.0 for joints in PARTS.values() for joint in joints}
+        self.beating = True
+        self._latched: dict[str, Any] = {}
         self._lock = threading.Condition()
         self._begun = 0  # calls whose handling has begun (a say: once its sentence is being spoken)
         self._speaking: Utterance | None = None
@@ -116,9 +132,21 @@ class Ros1QTrobot:
                 self.port = server.sockets[0].getsockname()[1]
                 self._stopped = asyncio.Event()
                 self._ready.set()
+                beat = asyncio.ensure_future(self._heartbeat())
                 await self._stopped.wait()
+                beat.cancel()
 
         self._loop.run_until_complete(main())
+
+    async def _heartbeat(self) -> None:
+        while True:
+            await asyncio.sleep(1 / JOINT_STATE_HZ)
+            if self.beating:
+                names = sorted(self.positions)
+                self._deliver("/qt_robot/joints/state", {
+                    "header": {"seq": 0, "stamp": {"secs": 0, "nsecs": 0}, "frame_id": ""}, "name": names,
+                    "position": [self.positions[n] for n in names], "velocity": [0.0] * len(names),
+                    "effort": [0.0] * len(names)})
 
     @property
     def url(self) -> str:
@@ -177,6 +205,8 @@ class Ros1QTrobot:
                                      f"is already established with type {known}", mid)
                 return
             self._subscriptions[ws].add(topic)
+            if topic in self._latched:
+                self._send(ws, {"op": "publish", "topic": topic, "msg": self._latched[topic]})
         elif op == "unsubscribe":
             self._subscriptions[ws].discard(msg["topic"])
         elif op == "advertise":
@@ -193,6 +223,8 @@ class Ros1QTrobot:
                 self._status(ws, op, f"{topic}: {exc}", mid)
                 return
             self.published.setdefault(topic, []).append(msg.get("msg"))
+            if topic in PARTS:
+                self.positions.update(zip(PARTS[topic], msg["msg"]["data"]))
             self._deliver(topic, msg.get("msg"), exclude=ws)
         elif op == "call_service":
             self.calls.append((msg["service"], msg.get("args") or {}))
@@ -204,10 +236,16 @@ class Ros1QTrobot:
             if topic in topics and ws is not exclude:
                 self._send(ws, {"op": "publish", "topic": topic, "msg": message})
 
-    def publish(self, topic: str, message: dict[str, Any]) -> None:
-        """A robot-side node publishes (checked against the topic's type)."""
+    def publish(self, topic: str, message: dict[str, Any], latch: bool = False) -> None:
+        """A robot-side node publishes (checked against the topic's type); a latched message is also given to every
+        later subscriber."""
         self.registry.validate(self.topic_types[topic], message)
-        self._loop.call_soon_threadsafe(self._deliver, topic, message)
+
+        def deliver() -> None:
+            if latch:
+                self._latched[topic] = message
+            self._deliver(topic, message)
+        self._loop.call_soon_threadsafe(deliver)
 
     # ---- the robot's nodes (each call on its own thread) -----------------------------------------------------
     def _call(self, ws: Any, msg: dict[str, Any]) -> None:

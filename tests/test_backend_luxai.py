@@ -241,7 +241,7 @@ async def test_voice_in_and_the_microphone_out_through_webrtc(zmq_robot):
     microphone (channel 0, a 440 Hz tone) reaches the peer's audio, read only while someone listens."""
     hub, server, _ = zmq_robot
     backend = server.server.robot
-    assert backend._microphone is None
+    assert not backend.microphone_read
     ros = await Rosbridge.open(server.url)
     tone = Tone(660.0, 0.5)
     peer = MediaPeer(video=False, mic=tone)
@@ -262,7 +262,7 @@ async def test_voice_in_and_the_microphone_out_through_webrtc(zmq_robot):
         assert abs(np.fft.rfftfreq(heard.size, 1 / 48000)[np.argmax(spectrum)] - 440) < 10
         await peer.close()
         peer = None
-        assert await until(lambda: server.call(lambda: backend._microphone is None), 15)
+        assert await until(lambda: server.call(lambda: not backend.microphone_read), 15)
     finally:
         if peer is not None:
             await peer.close()

@@ -173,13 +173,13 @@ async def test_the_robots_microphone_reaches_a_webrtc_peer(tmp_path):
             port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}", gesture_dir=tmp_path / "g",
             audio_dir=tmp_path / "a"))
         backend = server.server.robot
-        assert not backend._microphone_topic.is_subscribed  # nobody listens yet
+        assert not backend.microphone_read  # nobody listens yet
         ros = await Rosbridge.open(server.url)
         peer = MediaPeer(video=False)
         reply = await peer.negotiate(ros)
         assert reply["values"]["success"], reply
         assert await until(lambda: len(peer.audio_frames) >= 25, 30)
-        assert backend._microphone_topic.is_subscribed
+        assert backend.microphone_read
         assert max(rms(f) for _, f in peer.audio_frames[-25:]) < 100  # the classroom is quiet
 
         respeaker.loud = True
@@ -194,7 +194,7 @@ async def test_the_robots_microphone_reaches_a_webrtc_peer(tmp_path):
             "the robot's microphone went quiet, its audio did not"
         await peer.close()
         peer = None
-        assert await until(lambda: not server.call(lambda: backend._microphone_topic.is_subscribed), 15)
+        assert await until(lambda: not server.call(lambda: backend.microphone_read), 15)
     finally:
         if peer is not None:
             await peer.close()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 from typing import Any
@@ -27,11 +28,12 @@ from .features.luxai_api import LuxaiApi
 from .features.menu_service import MenuService, check_commands_implemented
 from .features.motivation import Motivation
 from .features.motivation import load_config as load_motivation_config
-from .features.speech import OperatorAudioLog, Speaker, default_audio_dir
+from .features.speech import OperatorVoiceIn, Speaker, default_audio_dir
 from .features.status import StatusPublisher
 from .media import MediaService
 from .recording.recorder import Recorder
 from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
+from .robot.backends import BACKENDS
 from .robot.interface import Robot
 from .settings import ServerSettings
 
@@ -118,8 +120,8 @@ class TeleopServer:
                    "home": self.model.joint(n).home, "max_velocity": self.model.joint(n).max_velocity}
                   for part, joint_names in self.model.parts.items() for n in joint_names]
         description: dict[str, Any] = {"robot": "QTrobot", "joints": joints}
-        info = getattr(self.robot, "info", None)  # what a real robot's backend knows of it (type, id, camera)
-        if isinstance(info, dict):
+        info = self.robot.info if self.robot is not None else {}  # what a real robot's backend knows of it
+        if info:
             description["backend"] = info
         self.bus.publish(names.DESCRIPTION_TOPIC, {"data": json.dumps(description)}, latch=True)
 
@@ -137,36 +139,17 @@ class TeleopServer:
     async def _start_robot(self) -> Speaker | None:
         """The robot and the features on it; returns the speaker (None without a robot) for the media."""
         s = self.settings
-        if s.backend == "none":
+        backend = BACKENDS[s.backend]
+        if not backend.module:
             return None
-        if s.backend == "ros":
-            from .robot.backends.ros import RosRobot
-
-            self.robot = robot = await RosRobot.create(s.resolved_robot_url, self.model)
-            robot.connection_changed.append(lambda up: publish_event(
-                self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",
-                {"robot_url": s.resolved_robot_url}))
-        elif s.backend == "luxai":
-            from .robot.backends.luxai import LuxaiRobot  # the SDK loads only when a QTrobot v3 is wanted
-
-            self.robot = robot = await LuxaiRobot.create(
-                s.resolved_robot_url, self.model, robot_id=s.robot_id, camera_url=s.camera_url,
-                mqtt_ca_file=s.mqtt_ca_file, mqtt_username=s.mqtt_username, mqtt_password=s.mqtt_password)
-            self.model = robot.model  # the robot's own limits narrow the model's: everything uses those in force
-            robot.connection_changed.append(lambda up: publish_event(
-                self.bus, "backend", "reconnected" if up else "disconnected", "info" if up else "danger",
-                {"robot_url": robot.url}))
-            robot.events.append(lambda kind, level, detail: publish_event(self.bus, "backend", kind, level, detail))
-            if robot.camera_problem:
-                declare_event_topic(self.bus)
-                publish_event(self.bus, "backend", "camera_unavailable", "warning", {"problem": robot.camera_problem})
-        else:
-            from .robot.backends.sim import SimRobot  # MuJoCo and EGL load only when the stand-in is wanted
-
-            self.robot = await SimRobot.create(self.model, camera_width=s.camera_width,
-                                               camera_height=s.camera_height, camera_fps=s.camera_fps,
-                                               clock=self.clock)
-        robot = self.robot
+        # Built off the loop (the stand-in starts MuJoCo; a real robot's backend does no I/O until open()), wired,
+        # then opened, so that what opening finds (camera_unavailable) reaches the event topic.
+        robot = await asyncio.to_thread(backend.load().from_settings, s, self.model, self.clock)
+        self.robot = robot
+        declare_event_topic(self.bus)
+        robot.on_event(lambda kind, level, detail: publish_event(self.bus, "backend", kind, level, detail))
+        await robot.open()
+        self.model = robot.model  # a robot's own limits may narrow the model's: everything uses those in force
         gestures = GestureLibrary([packaged_gesture_dir()], self.model,
                                   user_dir=s.gesture_dir or default_user_gesture_dir())
         audio_dir = s.audio_dir or default_audio_dir()
@@ -178,7 +161,7 @@ class TeleopServer:
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
             operator_of=self._operator, operator_online=self._operator_online, clock=self.clock.monotonic)
         self._start(self.control)
-        self._start(OperatorAudioLog(self.bus, audio_dir))
+        self._start(OperatorVoiceIn(self.bus, robot, audio_dir))
         status = StatusPublisher(self.bus, robot)
         self._start(status)
         motivation = Motivation(self.bus, self.motivation_config)

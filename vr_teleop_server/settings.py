@@ -9,20 +9,20 @@ from pydantic import Field, SecretStr, ValidationInfo, field_validator
 
 from .core.settings import MIB, CoreSettings
 from .media.turn import DEFAULT_TTL_S, IceConfig, check_url
+from .robot.backends import BACKEND_NAMES, BACKENDS
 from .teleop.settings import TeleopSettings
 
 __all__ = ["MIB", "CoreSettings", "ServerSettings"]
 
 
 class ServerSettings(CoreSettings):
-    backend: Literal["sim", "ros", "luxai", "none"] = Field(
-        "sim", description="the robot: 'sim', the embedded MuJoCo stand-in; 'ros', a real QTrobot through its own "
-                           "rosbridge at robot_url; 'luxai', a QTrobot v3 through LuxAI's SDK at robot_url; 'none', "
-                           "the protocol server alone")
+    backend: Literal[BACKEND_NAMES] = Field(  # type: ignore[valid-type]
+        "sim", description="the robot: " + "; ".join(f"'{b.name}', {b.summary}" for b in BACKENDS.values()))
     robot_url: str | None = Field(
-        None, description="the real robot: its rosbridge for backend 'ros' (default ws://127.0.0.1:9091); for "
-                          "'luxai' its service hub, tcp://HOST:50500 (the default, on 127.0.0.1), or an MQTT broker "
-                          "(mqtt://, mqtts://, wss://) with robot_id")
+        None, description="the real robot: its rosbridge for backend 'ros', ws://ROBOT:9090; for 'luxai' its service "
+                          "hub, tcp://ROBOT:50500, or an MQTT broker (mqtt://, mqtts://, wss://) with robot_id. "
+                          "Default: " + ", ".join(f"{b.default_url} ({b.name})" for b in BACKENDS.values()
+                                                  if b.default_url))
     robot_id: str | None = Field(None, description="the QTrobot v3's id (e.g. QTRD000320), for 'luxai' over MQTT")
     mqtt_ca_file: Path | None = Field(None, description="for 'luxai' through a TLS broker (mqtts://, wss://): the CA "
                                                         "certificate (PEM) to trust; default: the system's")
@@ -82,4 +82,4 @@ class ServerSettings(CoreSettings):
         """robot_url, or the backend's default."""
         if self.robot_url:
             return self.robot_url
-        return "tcp://127.0.0.1:50500" if self.backend == "luxai" else "ws://127.0.0.1:9091"
+        return BACKENDS[self.backend].default_url or ""

@@ -17,6 +17,8 @@ from client_protocol.files import describe_problems, read_document
 from client_protocol.registry import describe_validation_error
 
 from ..app import TeleopServer
+from ..robot.backends import BACKENDS
+from ..robot.link import RobotUnreachable
 from ..settings import ServerSettings
 from ..core.access import ROLES, generate_tokens
 from ..core.scheduling import short_slice
@@ -123,14 +125,11 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"vr-teleop serve: {exc}", file=sys.stderr)
         return 2
-    if args.backend == "luxai":
-        from ..robot.backends.luxai import parse_robot_url
-
-        try:
-            parse_robot_url(args.robot_url or "tcp://127.0.0.1", args.robot_id)
-        except ValueError as exc:
-            print(f"vr-teleop serve: {exc}", file=sys.stderr)
-            return 2
+    try:
+        BACKENDS[args.backend].check_url(args.robot_url, args.robot_id)
+    except ValueError as exc:
+        print(f"vr-teleop serve: {exc}", file=sys.stderr)
+        return 2
     tokens = {role: getattr(args, f"{role}_token") for role in ROLES}
     if args.generate_tokens:
         tokens = {role: tokens[role] or token for role, token in generate_tokens().items()}
@@ -196,7 +195,7 @@ async def _serve(settings: ServerSettings) -> int:
         return 2
     try:
         await server.start()
-    except RuntimeError as exc:  # the robot cannot be reached
+    except RobotUnreachable as exc:
         logging.getLogger("vr_teleop_server").error("%s", exc)
         return 1
     except OSError as exc:

@@ -182,7 +182,7 @@ class ExplicitControl:
                 log.exception("teleop tick failed")
 
     def _check_robot(self) -> None:
-        connected = bool(getattr(self.robot, "connected", True))
+        connected = self.robot.connected
         if connected == self._robot_connected:
             return
         self._robot_connected = connected

@@ -229,11 +229,15 @@ def default_audio_dir() -> Path:
     return Path(tempfile.gettempdir()) / "vr-teleop-audio"
 
 
-class OperatorAudioLog:
-    """One WAV per client that sends operator audio, in `directory`."""
+class OperatorVoiceIn:
+    """The one road of the operator's voice: every chunk on /vr_teleop/audio/operator, whatever carried it (a
+    client's AudioData over rosbridge, at the rate and channel count its AudioInfo declares; WebRTC, which
+    media/audio.py publishes there as the client; a replayed recording), is played on the robot
+    (`Robot.play_voice`) and logged, one WAV per client in `directory`."""
 
-    def __init__(self, bus: Bus, directory: Path, default_rate: int = 16000) -> None:
+    def __init__(self, bus: Bus, robot: Robot, directory: Path, default_rate: int = 16000) -> None:
         self.bus = bus
+        self.robot = robot
         self.directory = directory
         self.default_rate = default_rate
         self._formats: dict[str, tuple[int, int]] = {}  # sender -> (sample rate, channels)
@@ -276,6 +280,10 @@ class OperatorAudioLog:
             entry = self._files[published.sender] = (w, path)
             log.info("operator audio from %s goes to %s", published.sender, path)
         entry[0].writeframes(data)  # rewrites the header: the file is whole after every chunk
+        try:
+            self.robot.play_voice(data, rate, channels)
+        except Exception:  # the log above is kept whatever the robot does with it
+            log.exception("the robot could not play the operator's voice")
 
     def _close_for(self, owner: str) -> None:
         entry = self._files.pop(owner, None)

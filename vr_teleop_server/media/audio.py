@@ -14,9 +14,9 @@ hands each to every `RobotAudioTrack` (aiortc's sender encodes it as Opus). What
   however the robot's clock and ours drift).
 
 In: `OperatorVoice` reads one peer's incoming Opus track (aiortc decodes it), and for an operator or supervisor
-(a spectator only listens) publishes it on /vr_teleop/audio/operator as that client (so OperatorAudioLog writes
-its WAV exactly as for PCM sent over rosbridge), and plays it on the robot (`Robot.play_voice`): the stand-in
-moves its mouth with the voice's level and reports the level (`Robot.voice_level`).
+(a spectator only listens) publishes each decoded frame on /vr_teleop/audio/operator as that client: the voice's one
+road, where features/speech.py's OperatorVoiceIn plays it on the robot (`Robot.play_voice`) and logs it, exactly
+as PCM a client sends over rosbridge.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ BYSTANDER_LINES = (
 )
 HEARD_START_S = 0.06  # a real robot's microphone starts playing once this much is buffered...
 HEARD_MAX_S = 0.5     # ...and is cut back to HEARD_START_S when more than this waits (bounded latency)
-OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
+OPERATOR_CHUNK_S = FRAME_S  # operator audio published on the bus a decoded frame at a time: no wait added
 
 # (pcm s16 bytes, sample rate, channels) of a rendered line
 Rendered = tuple[bytes, int, int]
@@ -311,15 +311,14 @@ def voice_level(samples: np.ndarray) -> float:
 
 
 class OperatorVoice:
-    """One peer's incoming microphone track: logged as the client's operator audio and played on the robot. It
-    reads (and aiortc decodes) the track on the track's loop, the media loop; each frame goes to `home`, the loop
-    of the bus and the robot, to be played and published."""
+    """One peer's incoming microphone track, published as the client's operator audio (which the robot plays and
+    the server logs). It reads (and aiortc decodes) the track on the track's loop, the media loop; each frame goes
+    to `home`, the loop of the bus, to be published."""
 
-    def __init__(self, bus: Bus, robot: Robot | None, owner: str, track: MediaStreamTrack, may_speak: bool,
+    def __init__(self, bus: Bus, owner: str, track: MediaStreamTrack, may_speak: bool,
                  home: asyncio.AbstractEventLoop | None = None) -> None:
         self.bus = bus
         self.home = home
-        self.robot = robot
         self.owner = owner
         self.track = track
         self.may_speak = may_speak
@@ -362,13 +361,7 @@ class OperatorVoice:
         self._level = (voice_level(samples), time.monotonic())
         if not self.may_speak:
             return  # a spectator's microphone is neither played nor logged
-        pcm = samples.tobytes()
-        if self.robot is not None:
-            try:
-                self.robot.play_voice(pcm, RATE, 1)
-            except Exception:
-                log.exception("the robot could not play the operator's voice")
-        self._pending.append(pcm)
+        self._pending.append(samples.tobytes())
         self._pending_samples += samples.size
         if self._pending_samples >= OPERATOR_CHUNK_S * RATE:
             self._publish()

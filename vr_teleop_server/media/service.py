@@ -279,7 +279,7 @@ class MediaService:
         @pc.on("track")
         def on_track(track: Any) -> None:
             if track.kind == "audio" and peer.voice is None:
-                peer.voice = OperatorVoice(self.bus, self.robot, peer.owner, track, may_speak, home=home)
+                peer.voice = OperatorVoice(self.bus, peer.owner, track, may_speak, home=home)
 
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:

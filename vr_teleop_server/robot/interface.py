@@ -16,15 +16,19 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import logging
 import math
 import threading
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from robot_models import RobotModel
 from robot_models.types import CameraFrame, MotorMode
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -303,8 +307,65 @@ class VoiceActivity:
     who: str = ""
 
 
+class Listeners:
+    """Callbacks on the event loop; one that fails is logged and the others still hear."""
+
+    def __init__(self, what: str) -> None:
+        self._what = what
+        self._listeners: list[Callable[..., None]] = []
+
+    def add(self, listener: Callable[..., None]) -> Callable[[], None]:
+        """Add one; the returned function removes it."""
+        self._listeners.append(listener)
+        return lambda: listener in self._listeners and self._listeners.remove(listener)
+
+    def __bool__(self) -> bool:
+        return bool(self._listeners)
+
+    def __call__(self, *args: Any) -> None:
+        for listener in tuple(self._listeners):
+            try:
+                listener(*args)
+            except Exception:  # one faulty listener must not silence the others
+                log.exception("a robot %s listener failed", self._what)
+
+
 class Robot(abc.ABC):
-    """What the server needs from a robot (the stand-in or the real QTrobot)."""
+    """What the server needs from a robot (the stand-in or the real QTrobot).
+
+    Lifecycle: construction does no I/O (a real robot's backend only checks its URL); `await open()` reaches the
+    robot (RobotUnreachable, robot/link.py, when it cannot); `close()` lets it go. Listeners added between the two
+    hear what open() finds (an event such as camera_unavailable).
+    """
+
+    def __init__(self) -> None:
+        self._voice_listeners = Listeners("voice activity")
+        self._connection_listeners = Listeners("connection")
+        self._event_listeners = Listeners("event")
+
+    async def open(self) -> None:
+        """Reach the robot. The default has nothing to reach."""
+
+    # ------------------------------------------------------------------------------------------------ the link
+    @property
+    def connected(self) -> bool:
+        """Whether the robot answers now; while False, commands are ignored and services refused."""
+        return True
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """What the backend knows of the robot for /vr_teleop/robot_description's `backend` entry ({}: none)."""
+        return {}
+
+    def on_connection_changed(self, listener: Callable[[bool], None]) -> Callable[[], None]:
+        """listener(connected) on the event loop when the robot is lost or back, until the returned function is
+        called."""
+        return self._connection_listeners.add(listener)
+
+    def on_event(self, listener: Callable[[str, str, dict[str, Any]], None]) -> Callable[[], None]:
+        """listener(kind, level, detail) on the event loop for what the backend reports (disconnected,
+        reconnected, motor_error, voice_activity, camera_unavailable...), until the returned function is called."""
+        return self._event_listeners.add(listener)
 
     @property
     @abc.abstractmethod
@@ -442,14 +503,11 @@ class Robot(abc.ABC):
     def on_voice_activity(self, listener: Callable[[VoiceActivity], None]) -> Callable[[], None]:
         """Call listener(activity) on the event loop whenever the robot's microphone array reports a voice starting,
         stopping or moving, until the returned function is called. The default hears no voices."""
-        listeners = self.__dict__.setdefault("_voice_listeners", [])
-        listeners.append(listener)
-        return lambda: listener in listeners and listeners.remove(listener)
+        return self._voice_listeners.add(listener)
 
     def _voice_activity(self, activity: VoiceActivity) -> None:
         """For backends, on the event loop: hand a voice report to every listener."""
-        for listener in tuple(self.__dict__.get("_voice_listeners", ())):
-            listener(activity)
+        self._voice_listeners(activity)
 
     # ------------------------------------------------------------------------------------------------ voice
     def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:

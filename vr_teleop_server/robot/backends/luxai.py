@@ -13,11 +13,14 @@ This class only maps the Robot interface onto it:
   the microphone's channel 0 is read while someone listens; voice activity and direction of arrival become events.
 - camera: the `realsense-driver` plugin's color stream (raw BGR), encoded to JPEG in the reader's thread.
 
-Lost and back: the joints state stream is the robot's heartbeat. When it stops for LOST_AFTER_S (or the broker
-connection drops), `connected` turns False and `connection_changed` listeners hear it on the event loop; commands are
-then reported ignored and RPCs refused, never queued (the stream writers are closed, dropping whatever their sockets
-still held, and opened afresh once the robot is back). The transports reconnect by themselves: ZeroMQ's sockets
-retry every RECONNECT interval, the MQTT client with a back-off from 1 to MQTT_MAX_BACKOFF_S seconds.
+Lost and back are the link's rule (robot/link.py), with the joints state stream as the heartbeat: while the robot is
+lost the stream writers are closed, dropping whatever their sockets still held, and they are opened afresh when it is
+back (`_resume`). The transports reconnect by themselves: ZeroMQ's sockets retry every RECONNECT interval, the MQTT
+client with a back-off from 1 to MQTT_MAX_BACKOFF_S seconds.
+
+Hearing: the microphone's events ({activity, direction}) are the link's voice activity; `_to_base` maps their
+direction, assumed to be the array's azimuth counter-clockwise from the face (the base frame's sense; LuxAI documents
+neither), turned with the head's yaw.
 """
 
 from __future__ import annotations
@@ -29,34 +32,26 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-import av
 import cv2
 import numpy as np
 
-from client_protocol.errors import Refusal
 from robot_models import RobotModel, load_qtrobot
 
 from ..interface import (
-    CameraFrame,
     ClampReport,
-    FrameMailbox,
-    Gesture,
     GestureResult,
     JointState,
     MotorMode,
     MotorStatus,
-    Robot,
     SpeechResult,
     clamp_command,
-    held_level,
-    pcm_level,
-    stream_waypoints,
 )
+from ..link import SPEAKER_RATE, WATCH_PERIOD_S, RobotLink, RobotUnreachable, wrap_deg
 
 log = logging.getLogger(__name__)
 
@@ -64,27 +59,10 @@ DEFAULT_HUB_PORT = 50500  # LuxAI's service hub
 DEFAULT_CAMERA_PORT = 50655  # LuxAI's realsense-driver plugin
 CAMERA_NODE_ID = "qtrobot-realsense-driver"  # the plugin's node id, its namespace through the MQTT gateway
 CALL_TIMEOUT_S = 30.0  # the longest any SDK call may take (a gesture file or a sentence included)
-LOST_AFTER_S = 1.0  # no joint state for this long: the robot is lost
-WATCH_PERIOD_S = 0.1
+CONNECT_TIMEOUT_S = 10.0
 MQTT_MAX_BACKOFF_S = 5
-SPEAKER_RATE = 16000  # the media foreground audio stream: PCM S16LE, 16 kHz mono
-SPEAKER_CHUNK_S = 0.04
 JPEG_QUALITY = 80
-DIRECTION_STEP_DEG = 20.0  # a voice that moves this far while it lasts is news again
 FAULT_KEYS = ("overload_limit", "voltage_limit", "temperature_limit", "sensor_failure")
-
-
-def _angle(a: float, b: float) -> float:
-    """The smaller angle between two directions in degrees."""
-    return abs((a - b + 180.0) % 360.0 - 180.0)
-
-
-class RobotUnreachable(RuntimeError):
-    """The robot did not answer at start-up: the server cannot run this backend."""
-
-
-class RobotDisconnected(Refusal):
-    """A request refused while the robot is away; the client sees the message as it is."""
 
 
 def _sdk():
@@ -114,89 +92,106 @@ def parse_robot_url(url: str, robot_id: str | None) -> tuple[str, str]:
                      "or mqtt://BROKER:1883 (also mqtts://, wss://) with --robot-id")
 
 
-class LuxaiRobot(Robot):
-    """QTrobot v3 through `luxai-robot`. Construction connects and blocks: from asyncio, use `await create(...)`."""
+class LuxaiRobot(RobotLink):
+    """QTrobot v3 through `luxai-robot`. Construction only checks the URL; open() connects."""
+
+    backend = "luxai"
+    check_url = staticmethod(parse_robot_url)
 
     def __init__(self, url: str, model: RobotModel | None = None, *, robot_id: str | None = None,
-                 camera_url: str | None = None, connect_timeout: float = 10.0, mqtt_ca_file: Path | None = None,
-                 mqtt_username: str | None = None, mqtt_password: str | None = None) -> None:
-        self.transport, self.url = parse_robot_url(url, robot_id)
+                 camera_url: str | None = None, connect_timeout: float = CONNECT_TIMEOUT_S,
+                 mqtt_ca_file: Path | None = None, mqtt_username: str | None = None,
+                 mqtt_password: str | None = None) -> None:
+        transport, url = parse_robot_url(url, robot_id)
+        super().__init__(url, model or load_qtrobot())
+        self.transport = transport
         self.robot_id = robot_id
+        self._camera_url = camera_url
+        self._connect_timeout = connect_timeout
         self._mqtt_login = (mqtt_ca_file, mqtt_username, mqtt_password)
         self._lock = threading.Lock()
-        self._loop: asyncio.AbstractEventLoop | None = None
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=6, thread_name_prefix="luxai-sdk")
-        self._closed = threading.Event()
-        self.connection_changed: list[Callable[[bool], None]] = []  # called on the event loop with the new state
-        self.events: list[Callable[[str, str, dict[str, Any]], None]] = []  # (kind, level, detail), on the loop
-        _, self._command_frame, self._audio_frame = _sdk()
-        self._sdk_robot = self._connect(connect_timeout)
-        try:
-            base = model or load_qtrobot()
-            self.robot_limits = self._read_limits(base)
-            try:
-                self._model = base.narrowed(self.robot_limits)
-            except ValueError as exc:
-                raise RobotUnreachable(f"the QTrobot v3 at {self.url} cannot be driven safely: {exc}") from None
-            self._emotions = self._list("face.list_emotions", self._sdk_robot.face.list_emotions)
-            self._gesture_files = tuple(f.removesuffix(".xml") for f in
-                                        self._list("gesture.list_files", self._sdk_robot.gesture.list_files))
-            self.camera_problem = self._enable_camera(camera_url)
-            narrowed = [f"{j.name} {j.lower:g}..{j.upper:g}" for j in self._model.joints
-                        if (j.lower, j.upper) != (base.joint(j.name).lower, base.joint(j.name).upper)]
-            log.info("QTrobot v3 %s (%s) at %s; %s; camera: %s", self._sdk_robot.robot_id or robot_id,
-                     self._sdk_robot.robot_type, self.url,
-                     f"its limits narrow {', '.join(narrowed)} deg" if narrowed else "the model's limits hold",
-                     self.camera_problem or "realsense-driver")
-            self._state: JointState | None = None
-            self._readings: dict[str, tuple[float | None, float | None]] = {}
-            self._faults: dict[str, tuple[str, ...]] = {}
-            self._last_state = time.monotonic()
-            self._connected = True
-            self._modes = {n: MotorMode.ON for n in self._model.names}
-            self._commanded: dict[str, float] = {}
-            self._writers_lock = threading.Lock()
-            self._speech: Any = None  # the ActionHandle of the sentence being said
-            self._gesture: Any = None  # the ActionHandle of the gesture file playing, or an asyncio.Event
-            self._stopped: set[int] = set()  # id() of the handles stop_speech()/stop_gesture() cancelled
-            self._voice_config: dict[str, Any] = {}
-            self._frames = FrameMailbox()
-            self._frame_seq = 0
-            self._camera_count = 0
-            self._camera_thread: threading.Thread | None = None
-            self._camera_stop = threading.Event()
-            self._listeners: list[Callable[[bytes, int, int], None]] = []
-            self._microphone: Any = None
-            self._speaker_format = (0, 0)
-            self._speaker_resampler: av.AudioResampler | None = None
-            self._speaker_pending = bytearray()
-            self._voice = (0.0, 0.0)
-            self._mic_activity: tuple[bool, float | None] | None = None  # the last (activity, direction) told
-            self._command_writer: Any = None
-            self._speaker_writer: Any = None
-            self._open_writers()
-            self._subscriptions = [self._sdk_robot.motor.stream.on_joints_state(self._on_joint_state, queue_size=1),
-                                   *self._optional_stream("the motors' error stream", "motor", "on_joints_error",
-                                                          self._on_joints_error),
-                                   *self._optional_stream("the microphone's events", "microphone", "on_int_event",
-                                                          self._on_mic_event)]
-            self._watcher = threading.Thread(target=self._watch, name="luxai-watch", daemon=True)
-            self._watcher.start()
-        except BaseException:
-            self._closed.set()
-            with contextlib.suppress(Exception):
-                self._sdk_robot.close()
-            self._pool.shutdown(wait=False)
-            raise
+        self._sdk_robot: Any = None
+        self.robot_limits: dict[str, dict[str, float]] = {}
+        self.camera_problem = "not connected"
+        self.camera_source = ""
+        self._emotions: tuple[str, ...] = ()
+        self._gesture_files: tuple[str, ...] = ()
+        self._state: JointState | None = None
+        self._readings: dict[str, tuple[float | None, float | None]] = {}
+        self._faults: dict[str, tuple[str, ...]] = {}
+        self._modes = {n: MotorMode.ON for n in self._model.names}
+        self._commanded: dict[str, float] = {}
+        self._writers_lock = threading.Lock()
+        self._speech: Any = None  # the ActionHandle of the sentence being said
+        self._own_gesture: Any = None  # the ActionHandle of the gesture file playing
+        self._stopped: set[int] = set()  # id() of the handles stop_speech()/stop_gesture() cancelled
+        self._voice_config: dict[str, Any] = {}
+        self._camera_thread: threading.Thread | None = None
+        self._camera_stop = threading.Event()
+        self._microphone: Any = None
+        self._command_writer: Any = None
+        self._speaker_writer: Any = None
+        self._subscriptions: list[Any] = []
 
     @classmethod
-    async def create(cls, url: str, model: RobotModel | None = None, **options: Any) -> LuxaiRobot:
-        robot = await asyncio.to_thread(lambda: cls(url, model, **options))
-        robot._loop = asyncio.get_running_loop()
-        return robot
+    def from_settings(cls, settings: Any, model: RobotModel, _clock: Any = None) -> LuxaiRobot:
+        return cls(settings.resolved_robot_url, model, robot_id=settings.robot_id, camera_url=settings.camera_url,
+                   mqtt_ca_file=settings.mqtt_ca_file, mqtt_username=settings.mqtt_username,
+                   mqtt_password=settings.mqtt_password)
 
     # ---- connection ---------------------------------------------------------------------------------------------
-    def _connect(self, timeout: float) -> Any:
+    def _connect(self) -> None:
+        _, self._command_frame, self._audio_frame = _sdk()
+        self._sdk_robot = self._open_sdk(self._connect_timeout)
+        base = self._model
+        self.robot_limits = self._read_limits(base)
+        try:
+            self._model = base.narrowed(self.robot_limits)
+        except ValueError as exc:
+            raise RobotUnreachable(f"the QTrobot v3 at {self.url} cannot be driven safely: {exc}") from None
+        self._emotions = self._list("face.list_emotions", self._sdk_robot.face.list_emotions)
+        self._gesture_files = tuple(f.removesuffix(".xml") for f in
+                                    self._list("gesture.list_files", self._sdk_robot.gesture.list_files))
+        self.camera_problem = self._enable_camera(self._camera_url)
+        if self.camera_problem:
+            self._event("camera_unavailable", "warning", {"problem": self.camera_problem})
+        narrowed = [f"{j.name} {j.lower:g}..{j.upper:g}" for j in self._model.joints
+                    if (j.lower, j.upper) != (base.joint(j.name).lower, base.joint(j.name).upper)]
+        log.info("QTrobot v3 %s (%s) at %s; %s; camera: %s", self._sdk_robot.robot_id or self.robot_id,
+                 self._sdk_robot.robot_type, self.url,
+                 f"its limits narrow {', '.join(narrowed)} deg" if narrowed else "the model's limits hold",
+                 self.camera_problem or "realsense-driver")
+        self._open_writers()
+        self._subscriptions = [self._sdk_robot.motor.stream.on_joints_state(self._on_joint_state, queue_size=1),
+                               *self._optional_stream("the motors' error stream", "motor", "on_joints_error",
+                                                      self._on_joints_error),
+                               *self._optional_stream("the microphone's events", "microphone", "on_int_event",
+                                                      self._on_mic_event)]
+
+    def _disconnect(self) -> None:
+        self._camera_stop.set()
+        for subscription in [*self._subscriptions, self._microphone]:
+            if subscription is not None:
+                with contextlib.suppress(Exception):
+                    subscription.cancel()
+        self._subscriptions, self._microphone = [], None
+        self._close_writers()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        if self._sdk_robot is not None:
+            with contextlib.suppress(Exception):
+                self._sdk_robot.close()
+
+    def _resume(self) -> None:
+        self._open_writers()  # fresh sockets: nothing from before the loss goes out
+
+    def _on_lost(self) -> None:
+        self._close_writers()
+
+    def _to_base(self, array_deg: float) -> float:
+        return wrap_deg(array_deg + self.joint_state().as_dict().get("HeadYaw", 0.0))
+
+    def _open_sdk(self, timeout: float) -> Any:
         SdkRobot, _, _ = _sdk()
         try:
             if self.transport == "zmq":
@@ -271,37 +266,13 @@ class LuxaiRobot(Robot):
             return problem
 
     @property
-    def connected(self) -> bool:
-        return self._connected
-
-    @property
     def info(self) -> dict[str, Any]:
-        return {"backend": "luxai", "robot_url": self.url, "robot_id": self._sdk_robot.robot_id or self.robot_id,
-                "robot_type": self._sdk_robot.robot_type, "connected": self._connected,
+        sdk = self._sdk_robot
+        return {**super().info, "robot_id": (sdk.robot_id if sdk else None) or self.robot_id,
+                "robot_type": sdk.robot_type if sdk else None,
                 "camera": {"available": not self.camera_problem, "source": self.camera_source,
                            "problem": self.camera_problem},
                 "robot_limits": self.robot_limits}
-
-    def _watch(self) -> None:
-        """The heartbeat: lost when joint states stop (or the broker is gone), back when they flow again."""
-        while not self._closed.wait(WATCH_PERIOD_S):
-            alive = time.monotonic() - self._last_state < LOST_AFTER_S
-            if alive == self._connected:
-                continue
-            if alive:
-                try:
-                    self._open_writers()  # fresh sockets: nothing from before the loss goes out
-                except Exception as exc:  # the SDK could not open them yet: still lost, try again
-                    log.warning("QTrobot v3 at %s answers again but its streams cannot be opened: %s", self.url, exc)
-                    continue
-                log.info("QTrobot v3 at %s is back", self.url)
-            else:
-                log.warning("QTrobot v3 at %s is lost (no joint state for %.1f s); waiting for it", self.url,
-                            LOST_AFTER_S)
-                self._close_writers()
-                self._stop_actions()
-            self._connected = alive
-            self._call_soon(self._notify, alive)
 
     def _open_writers(self) -> None:
         stream = self._sdk_robot.motor.stream
@@ -332,56 +303,18 @@ class LuxaiRobot(Robot):
                         writer.close()
             self._command_writer = self._speaker_writer = None
 
-    def _stop_actions(self) -> None:
-        """The robot is gone: whatever waited on it ends now rather than at its timeout."""
-        gesture = self._gesture
-        if isinstance(gesture, asyncio.Event):
-            self._call_soon(gesture.set)
-
-    def _call_soon(self, fn: Callable[..., None], *args: Any) -> None:
-        loop = self._loop
-        if loop is None:
-            return
-        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody to tell
-            loop.call_soon_threadsafe(fn, *args)
-
-    def _notify(self, connected: bool) -> None:
-        for listener in list(self.connection_changed):
-            try:
-                listener(connected)
-            except Exception:
-                log.exception("robot connection listener failed")
-
-    def _event(self, kind: str, level: str, detail: dict[str, Any]) -> None:
-        """Any thread: an event for the listeners on the loop."""
-        def deliver() -> None:
-            for listener in list(self.events):
-                try:
-                    listener(kind, level, detail)
-                except Exception:
-                    log.exception("robot event listener failed")
-        self._call_soon(deliver)
-
-    @property
-    def model(self) -> RobotModel:
-        return self._model
-
     # ---- motion -------------------------------------------------------------------------------------------------
-    def set_joint_targets(self, targets: Mapping[str, float]) -> ClampReport:
-        clamped, report = clamp_command(self._model, targets)
-        writer = self._command_writer
-        ignored = tuple(n for n in clamped if writer is None or not self._connected
-                        or self._modes[n] is not MotorMode.ON)
-        if ignored:
-            report = ClampReport(report.names, report.requested, report.applied, report.clamped, ignored)
-        moving = {n: v for n, v in clamped.items() if n not in ignored}
+    def _send_targets(self, targets: dict[str, float]) -> tuple[str, ...]:
+        """Joints whose motor is ON, at their velocity caps; the others are ignored (BRAKE, or OFF)."""
+        ignored = tuple(n for n in targets if self._command_writer is None or self._modes[n] is not MotorMode.ON)
+        moving = {n: v for n, v in targets.items() if n not in ignored}
         if moving:
             frame = self._command_frame()
             for name, value in moving.items():
                 frame.set_joint(name, position=value, velocity=self._model.joint(name).max_velocity)
             self._commanded.update(moving)
             self._write("_command_writer", frame)
-        return report
+        return ignored
 
     def _on_joint_state(self, frame: Any) -> None:
         """The SDK's stream thread: {joint: {position, velocity, effort, temperature, voltage}}."""
@@ -404,7 +337,7 @@ class LuxaiRobot(Robot):
         with self._lock:
             self._state = state
             self._readings.update(readings)
-        self._last_state = state.stamp_monotonic
+        self._heartbeat()
 
     def joint_state(self) -> JointState:
         with self._lock:
@@ -473,11 +406,6 @@ class LuxaiRobot(Robot):
                      for part, joints in self._model.parts.items() for n in joints)
 
     # ---- the SDK's calls ----------------------------------------------------------------------------------------
-    def _refuse_if_disconnected(self, what: str) -> None:
-        if not self._connected:
-            raise RobotDisconnected(f"{what}: the QTrobot v3 at {self.url} is disconnected (waiting for it to come "
-                                    "back); try again once it is back")
-
     def _submit(self, what: str, call: Callable[..., Any], *args: Any, **kwargs: Any) -> concurrent.futures.Future:
         """Runs a blocking SDK call in the pool (bounded by the SDK's default timeout); failures are logged."""
         def run() -> Any:
@@ -522,7 +450,7 @@ class LuxaiRobot(Robot):
             """Until the action ends, the robot is lost or CALL_TIMEOUT_S passes; True if it ended well."""
             deadline = time.monotonic() + CALL_TIMEOUT_S
             while not handle.done():
-                if not self._connected or time.monotonic() > deadline:
+                if not self.connected or time.monotonic() > deadline:
                     return False
                 with contextlib.suppress(TimeoutError):
                     handle.wait(WATCH_PERIOD_S)
@@ -533,7 +461,7 @@ class LuxaiRobot(Robot):
                 return False
 
         ok = await asyncio.to_thread(wait)
-        stopped = id(handle) in self._stopped or not self._connected
+        stopped = id(handle) in self._stopped or not self.connected
         self._stopped.discard(id(handle))
         return ok and not stopped, stopped
 
@@ -570,50 +498,31 @@ class LuxaiRobot(Robot):
             raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
         self._refuse_if_disconnected("gesture")
         self.stop_gesture()
-        handle = self._gesture = await asyncio.to_thread(self._sdk_robot.gesture.play_file_async, name, speed)
+        handle = self._own_gesture = await asyncio.to_thread(self._sdk_robot.gesture.play_file_async, name, speed)
         try:
             completed, stopped = await self._finished(handle)
         finally:
-            if self._gesture is handle:
-                self._gesture = None
+            if self._own_gesture is handle:
+                self._own_gesture = None
         return GestureResult(name, completed, stopped, 0, (), (), None)
 
-    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
-        """The server's gestures (its files, recordings) are streamed as joint commands, waypoint by waypoint."""
-        gesture.validate(self._model)
-        if not (math.isfinite(speed) and speed > 0):
-            raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
-        self._refuse_if_disconnected("gesture")
-        self.stop_gesture()
-        stop = self._gesture = asyncio.Event()
-        streamed = await stream_waypoints(self.set_joint_targets, gesture, speed, stop)
-        if self._gesture is stop:
-            self._gesture = None
-        stopped = stop.is_set()
-        completed = not stopped and streamed.sent == len(gesture.waypoints) and not streamed.ignored
-        return GestureResult(gesture.name, completed, stopped, streamed.sent, streamed.clamps, streamed.ignored, None)
-
     def stop_gesture(self) -> None:
-        gesture = self._gesture
-        if isinstance(gesture, asyncio.Event):
-            gesture.set()
-        elif gesture is not None and not gesture.done():
-            self._stopped.add(id(gesture))
-            self._submit("stop gesture", gesture.cancel, CALL_TIMEOUT_S)
+        super().stop_gesture()
+        handle = self._own_gesture
+        if handle is not None and not handle.done():
+            self._stopped.add(id(handle))
+            self._submit("stop gesture", handle.cancel, CALL_TIMEOUT_S)
 
     # ---- camera -------------------------------------------------------------------------------------------------
-    def add_camera_subscriber(self) -> None:
-        self._camera_count += 1
-        if self._camera_count == 1 and not self.camera_problem:
+    def _start_camera(self) -> None:
+        if not self.camera_problem:
             self._camera_stop = threading.Event()
             self._camera_thread = threading.Thread(target=self._read_camera, args=(self._camera_stop,),
                                                    name="luxai-camera", daemon=True)
             self._camera_thread.start()
 
-    def remove_camera_subscriber(self) -> None:
-        self._camera_count = max(0, self._camera_count - 1)
-        if self._camera_count == 0:
-            self._camera_stop.set()
+    def _stop_camera(self) -> None:
+        self._camera_stop.set()
 
     def _read_camera(self, stop: threading.Event) -> None:
         """The plugin's color stream (raw BGR) to JPEG, newest frame only, while someone watches."""
@@ -641,107 +550,37 @@ class LuxaiRobot(Robot):
                     image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
                 ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
                 if ok:
-                    self._frame_seq += 1  # only this thread counts
-                    self._frames.put(CameraFrame(jpeg.tobytes(), frame.width, frame.height, self._frame_seq,
-                                                 time.monotonic(), time.time()))
+                    self._put_jpeg(jpeg.tobytes(), frame.width, frame.height)
         finally:
             with contextlib.suppress(Exception):
                 reader.close()
 
-    def latest_frame(self) -> CameraFrame | None:
-        return self._frames.newest
-
-    async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
-        return await self._frames.next(after_seq, timeout)
-
-    def camera_closed(self) -> bool:
-        return self._frames.closed
-
     # ---- microphone ---------------------------------------------------------------------------------------------
-    def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
-        self._listeners.append(listener)
-        if len(self._listeners) == 1:
-            self._microphone = self._sdk_robot.microphone.stream.on_int_audio_ch0(self._on_microphone)
+    def _start_microphone(self) -> None:
+        self._microphone = self._sdk_robot.microphone.stream.on_int_audio_ch0(self._on_microphone)
 
-        def stop() -> None:
-            if listener in self._listeners:
-                self._listeners.remove(listener)
-            if not self._listeners and self._microphone is not None:
-                self._microphone.cancel()
-                self._microphone = None
+    def _stop_microphone(self) -> None:
+        if self._microphone is not None:
+            self._microphone.cancel()
+            self._microphone = None
 
-        return stop
+    @property
+    def microphone_read(self) -> bool:
+        """Whether channel 0 is read (only while someone listens)."""
+        return self._microphone is not None
 
     def _on_microphone(self, frame: Any) -> None:
         pcm = bytes(getattr(frame, "data", b"") or b"")
-        if pcm:
-            rate, channels = int(frame.sample_rate or 16000), int(frame.channels or 1)
-            self._call_soon(self._hear, pcm, rate, channels)
-
-    def _hear(self, pcm: bytes, rate: int, channels: int) -> None:
-        for listener in list(self._listeners):
-            try:
-                listener(pcm, rate, channels)
-            except Exception:
-                log.exception("a microphone listener failed")
+        self._heard(pcm, int(frame.sample_rate or 16000), int(frame.channels or 1))
 
     def _on_mic_event(self, frame: Any) -> None:
-        """{activity, direction}: an event when a voice starts or stops, or, while it lasts, moves by
-        DIRECTION_STEP_DEG or more (the array's estimate wanders a little at its own rate)."""
+        """{activity, direction} from the array, for the link's voice activity."""
         value = getattr(frame, "value", None) or {}
-        activity = bool(value.get("activity"))
         direction = value.get("direction")
-        direction = float(direction) if isinstance(direction, (int, float)) else None
-        last = self._mic_activity
-        if last is not None and activity == last[0] and not (
-                activity and direction is not None and (last[1] is None or _angle(direction, last[1])
-                                                        >= DIRECTION_STEP_DEG)):
-            return
-        self._mic_activity = (activity, direction)
-        self._event("voice_activity", "info", {"activity": activity, "direction_deg": direction})
+        self._heard_voice(bool(value.get("activity")),
+                          float(direction) if isinstance(direction, (int, float)) else None)
 
     # ---- the operator's voice -----------------------------------------------------------------------------------
-    def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
-        self._voice = (pcm_level(pcm), time.monotonic())
-        writer = self._speaker_writer
-        if writer is None or not self._connected:
-            self._speaker_pending.clear()
-            return
-        if (sample_rate, channels) != self._speaker_format:
-            self._speaker_format = (sample_rate, channels)
-            self._speaker_resampler = av.AudioResampler(format="s16", layout="mono", rate=SPEAKER_RATE)
-            self._speaker_pending.clear()
-        samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % (2 * channels)], "<i2")
-        frame = av.AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16",
-                                           layout="stereo" if channels == 2 else "mono")
-        frame.sample_rate = sample_rate
-        for out in self._speaker_resampler.resample(frame):
-            self._speaker_pending += out.to_ndarray().tobytes()
-        step = int(SPEAKER_RATE * SPEAKER_CHUNK_S) * 2
-        while len(self._speaker_pending) >= step:
-            chunk = bytes(self._speaker_pending[:step])
-            del self._speaker_pending[:step]
-            frame = self._audio_frame(channels=1, sample_rate=SPEAKER_RATE, bit_depth=16, data=chunk)
-            if not self._write("_speaker_writer", frame):
-                return
-
-    @property
-    def voice_level(self) -> float:
-        return held_level(self._voice, time.monotonic())
-
-    # ---- lifecycle ----------------------------------------------------------------------------------------------
-    def close(self) -> None:
-        if self._closed.is_set():
-            return
-        self._closed.set()
-        self._loop = None  # our own closing is no news for the listeners
-        self._frames.close()
-        self._camera_stop.set()
-        for subscription in [*self._subscriptions, self._microphone]:
-            if subscription is not None:
-                subscription.cancel()
-        self._watcher.join(timeout=2)
-        self._close_writers()
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        with contextlib.suppress(Exception):
-            self._sdk_robot.close()
+    def _send_voice(self, chunk: bytes) -> bool:
+        frame = self._audio_frame(channels=1, sample_rate=SPEAKER_RATE, bit_depth=16, data=chunk)
+        return self._write("_speaker_writer", frame)

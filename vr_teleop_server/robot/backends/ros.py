@@ -1,18 +1,21 @@
-"""The real QTrobot, reached through its own rosbridge (LuxAI's /qt_robot/* API) with roslibpy.
+"""The real QTrobot (ROS 1), reached through its own rosbridge (LuxAI's /qt_robot/* API) with roslibpy.
 
-roslibpy runs its own networking thread; what arrives there (joint states, camera frames, connection changes) is
-stored under a lock and handed to asyncio waiters with call_soon_threadsafe. roslibpy reconnects with backoff
-(0.5 s growing to MAX_BACKOFF_S) and re-subscribes by itself. While the robot is unreachable, `connected` is False
-and `connection_changed` listeners hear it on the event loop: joint commands are refused (reported as ignored, never
-queued to burst out later), explicit control holds and says so, and services answer with an error.
+This class only translates the Robot interface to roslibpy; lost and back, command gating, the voice's resampling,
+gestures and the camera's reference counting are the link's (robot/link.py). roslibpy runs its own networking
+thread; what arrives there (joint states, camera frames, connection changes) is stored under a lock and handed on.
+roslibpy reconnects by itself (with the link's backoff, set on this connection's factory only) and re-subscribes.
+The heartbeat is /qt_robot/joints/state.
 
 Audio. The robot's microphone is LuxAI's qt_respeaker_app channel 0 (names.ROBOT_MICROPHONE_TOPIC, AudioData
 carrying mono S16LE at 16 kHz: the ReSpeaker's processed channel), read only while someone listens (the WebRTC
-mixer, through `listen`) and handed to the listeners on the event loop. LuxAI's ROS 1 API has no way to stream
-sound into the robot (`/qt_robot/audio/play` plays a file already on it), so the operator's voice goes out on our
-own topic (names.ROBOT_SPEAKER_TOPIC: AudioData, mono S16LE at 16 kHz, 40 ms a message), which audio_common's
-`audio_play` node, run on the robot, plays on its speaker (README). While the robot is away the voice is dropped,
-never queued to burst out later.
+mixer, through `listen`). LuxAI's ROS 1 API has no way to stream sound into the robot (`/qt_robot/audio/play`
+plays a file already on it), so the operator's voice goes out on our own topic (names.ROBOT_SPEAKER_TOPIC:
+AudioData, mono S16LE at 16 kHz, 40 ms a message), which audio_common's `audio_play` node, run on the robot, plays
+on its speaker (docs/guides/qtrobot-ros1.md).
+
+Hearing. qt_respeaker_app's `is_speaking` (std_msgs/Bool) and `sound_direction` (std_msgs/Int32, the ReSpeaker
+array's own angle in degrees) are subscribed from the start; `respeaker_to_base` is the one place that angle becomes
+the robot's base frame (its assumptions are written there).
 
 Speech. ROS 1's rosbridge answers each service call from a thread of its own, so two calls sent back to back may
 reach LuxAI's nodes in either order. A stop is therefore sent only while one of our sentences is being spoken, and
@@ -32,52 +35,42 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 from urllib.parse import urlparse
 
-import av
-import numpy as np
 import roslibpy
-from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
 
 from client_protocol import names
 from client_protocol.errors import Refusal
 from robot_models import RobotModel, load_qtrobot
 
 from ..interface import (
-    CameraFrame,
-    ClampReport,
-    FrameMailbox,
-    Gesture,
-    GestureResult,
     JointState,
     MotorMode,
     MotorStatus,
-    Robot,
     SpeechResult,
-    clamp_command,
-    held_level,
-    pcm_level,
-    stream_waypoints,
 )
+from ..link import RETRY_MAX_S, RETRY_MIN_S, RobotLink, RobotUnreachable, wrap_deg
 
 log = logging.getLogger(__name__)
 
-MAX_BACKOFF_S = 5.0
 CALL_TIMEOUT_S = 10.0  # for an answer that does not wait for the robot to finish something
+CONNECT_TIMEOUT_S = 10.0
 MOTOR_STATE_TYPE = "qt_motors_controller/MotorState"  # LuxAI's: string[] name, float32[] temperature, voltage
 MICROPHONE_RATE = 16000  # qt_respeaker_app's channels: the ReSpeaker array's rate, mono S16LE
-SPEAKER_RATE = 16000  # the operator's voice for the robot's speaker: speech, at the rate audio_play defaults to
-SPEAKER_CHUNK_S = 0.04
+RESPEAKER_FRONT_DEG = 0.0  # the array's angle that points where the face looks (assumed, see respeaker_to_base)
 
 
-class RobotUnreachable(RuntimeError):
-    """The robot's rosbridge did not answer at start-up: the server cannot run this backend."""
+def respeaker_to_base(array_deg: float, head_yaw_deg: float) -> float:
+    """qt_respeaker_app's sound_direction as an azimuth in the robot's base frame (degrees, positive left).
 
-
-class RobotDisconnected(Refusal):
-    """A request refused while the robot is away; the client sees the message as it is."""
+    Assumed (no LuxAI document states it): the ReSpeaker Mic Array v2.0 sits on top of QTrobot's head and turns
+    with HeadYaw; its angle (0..359) grows clockwise seen from above (towards the robot's right), as the array's
+    firmware reports its direction of arrival; its 0 points where the face looks (RESPEAKER_FRONT_DEG; change it if
+    a voice straight ahead reads otherwise on a robot). Head pitch, which tilts the array by a few degrees, is
+    ignored."""
+    return wrap_deg(head_yaw_deg - (array_deg - RESPEAKER_FRONT_DEG))
 
 
 def _jpeg_size(data: bytes) -> tuple[int, int]:
@@ -93,118 +86,94 @@ def _jpeg_size(data: bytes) -> tuple[int, int]:
     return 0, 0
 
 
-class RosRobot(Robot):
-    def __init__(self, url: str, model: RobotModel | None = None, connect_timeout: float = 10.0) -> None:
-        parsed = urlparse(url)
-        if parsed.scheme not in ("ws", "wss") or not parsed.hostname:
-            raise ValueError(f"robot URL must look like ws://HOST:PORT, not {url!r}")
-        self.url = url
-        self._model = model or load_qtrobot()
-        AutobahnRosBridgeClientFactory.set_initial_delay(0.5)
-        AutobahnRosBridgeClientFactory.set_max_delay(MAX_BACKOFF_S)
-        self._ros = roslibpy.Ros(host=parsed.hostname, port=parsed.port or 9090, is_secure=parsed.scheme == "wss")
+class RosRobot(RobotLink):
+    backend = "ros"
+
+    def __init__(self, url: str, model: RobotModel | None = None, connect_timeout: float = CONNECT_TIMEOUT_S) -> None:
+        super().__init__(self.check_url(url), model or load_qtrobot())
+        self._connect_timeout = connect_timeout
+        self._ros: roslibpy.Ros | None = None
         self._lock = threading.Lock()
-        self._connected = False
         self._state: JointState | None = None
         self._commanded: dict[str, float] = {}
         self._modes = {n: MotorMode.ON for n in self._model.names}
-        self._frames = FrameMailbox()
-        self._frame_seq = 0
-        self._camera_count = 0
-        self._gesture_stop: asyncio.Event | None = None
         self._sentences = 0  # say calls sent and not answered yet
         self._stops = 0  # stop requests: a sentence that saw one while spoken (or waiting) was cut short
         self._stopping: asyncio.Future | None = None  # the newest stop, until the robot answers it
         self._motor_readings: dict[str, tuple[float | None, float | None]] = {}
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self.connection_changed: list[Callable[[bool], None]] = []  # called on the event loop with the new state
-        self._ros.on("close", self._on_close)
-        self._ros.on("ready", self._on_ready)
-        try:
-            self._ros.run(timeout=connect_timeout)
-        except roslibpy.core.RosTimeoutError:  # roslibpy kept retrying (refused, unreachable) until the timeout
-            self._stop_reconnecting()
-            raise RobotUnreachable(f"cannot reach the robot's rosbridge at {url} within {connect_timeout:g} s") \
-                from None
-        self._connected = True
-        self._publishers = {part: roslibpy.Topic(self._ros, topic, "std_msgs/Float64MultiArray")
-                            for part, topic in names.PART_COMMAND_TOPICS.items()}
-        for topic in self._publishers.values():
-            topic.advertise()
-        self._joints_topic = roslibpy.Topic(self._ros, names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")
-        self._joints_topic.subscribe(self._on_joint_state)
-        self._motors_topic = roslibpy.Topic(self._ros, names.MOTOR_STATES_TOPIC, MOTOR_STATE_TYPE)
-        self._motors_topic.subscribe(self._on_motor_states)
-        self._camera_topic = roslibpy.Topic(self._ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage",
-                                            queue_length=1)
-        self._microphone_topic = roslibpy.Topic(self._ros, names.ROBOT_MICROPHONE_TOPIC, "audio_common_msgs/AudioData")
-        self._listeners: list[Callable[[bytes, int, int], None]] = []
-        self._speaker_topic = roslibpy.Topic(self._ros, names.ROBOT_SPEAKER_TOPIC, "audio_common_msgs/AudioData")
-        self._speaker_topic.advertise()
-        self._speaker_format: tuple[int, int] = (0, 0)
-        self._speaker_resampler: av.AudioResampler | None = None
-        self._speaker_pending = bytearray()
-        self._voice = (0.0, 0.0)  # (level, monotonic time) of the newest piece of voice
+        self._topics: dict[str, roslibpy.Topic] = {}
+
+    @staticmethod
+    def check_url(url: str, _robot_id: str | None = None) -> str:
+        """The URL if it can name a rosbridge, else a ValueError saying what to give."""
+        parsed = urlparse(url)
+        if parsed.scheme not in ("ws", "wss") or not parsed.hostname:
+            raise ValueError(f"robot URL must look like ws://HOST:PORT, not {url!r}")
+        return url
 
     @classmethod
-    async def create(cls, url: str, model: RobotModel | None = None) -> RosRobot:
-        robot = await asyncio.to_thread(cls, url, model)
-        robot._loop = asyncio.get_running_loop()
-        return robot
+    def from_settings(cls, settings: Any, model: RobotModel, _clock: Any = None) -> RosRobot:
+        return cls(settings.resolved_robot_url, model)
 
     # ---- connection ---------------------------------------------------------------------------------------------
-    @property
-    def connected(self) -> bool:
-        return self._ros.is_connected
+    def _connect(self) -> None:
+        parsed = urlparse(self.url)
+        ros = self._ros = roslibpy.Ros(host=parsed.hostname, port=parsed.port or 9090,
+                                       is_secure=parsed.scheme == "wss")
+        factory = ros.factory  # this connection's backoff only: the class's stays as roslibpy has it
+        factory.initialDelay = factory.delay = RETRY_MIN_S
+        factory.maxDelay = RETRY_MAX_S
+        ros.on("close", lambda *_: self._transport(False))
+        ros.on("ready", lambda *_: self._transport(True))
+        try:
+            ros.run(timeout=self._connect_timeout)
+        except roslibpy.core.RosTimeoutError:  # roslibpy kept retrying (refused, unreachable) until the timeout
+            raise RobotUnreachable(f"cannot reach the robot's rosbridge at {self.url} within "
+                                   f"{self._connect_timeout:g} s") from None
 
-    def _on_ready(self, *_args: Any) -> None:
-        if not self._connected:
-            log.info("robot rosbridge %s connected", self.url)
-            self._connected = True
-            self._announce(True)
+        def topic(name: str, type_name: str, **options: Any) -> roslibpy.Topic:
+            made = self._topics[name] = roslibpy.Topic(ros, name, type_name, **options)
+            return made
 
-    def _on_close(self, *_args: Any) -> None:
-        if self._connected:
-            log.warning("robot rosbridge %s disconnected; reconnecting", self.url)
-            self._connected = False
-            self._announce(False)
+        for part_topic in names.PART_COMMAND_TOPICS.values():
+            topic(part_topic, "std_msgs/Float64MultiArray").advertise()
+        topic(names.ROBOT_SPEAKER_TOPIC, "audio_common_msgs/AudioData").advertise()
+        topic(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState").subscribe(self._on_joint_state)
+        topic(names.MOTOR_STATES_TOPIC, MOTOR_STATE_TYPE).subscribe(self._on_motor_states)
+        topic(names.RESPEAKER_SPEAKING_TOPIC, "std_msgs/Bool").subscribe(
+            lambda m: self._heard_voice(bool(m.get("data")), None))
+        topic(names.RESPEAKER_DIRECTION_TOPIC, "std_msgs/Int32").subscribe(
+            lambda m: self._heard_voice(None, float(m.get("data") or 0)))
+        topic(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", queue_length=1)
+        topic(names.ROBOT_MICROPHONE_TOPIC, "audio_common_msgs/AudioData")
 
-    def _announce(self, connected: bool) -> None:
-        """From roslibpy's thread to the listeners on the event loop (none before start-up completed)."""
-        loop = self._loop
-        if loop is None:
+    def _disconnect(self) -> None:
+        ros = self._ros
+        if ros is None:
             return
-        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody to tell
-            loop.call_soon_threadsafe(self._notify, connected)
+        from twisted.internet import reactor
 
-    def _notify(self, connected: bool) -> None:
-        for listener in list(self.connection_changed):
-            try:
-                listener(connected)
-            except Exception:  # one faulty listener must not silence the others
-                log.exception("robot connection listener failed")
+        reactor.callFromThread(ros.factory.stopTrying)
+        with contextlib.suppress(Exception):  # already gone
+            ros.close(timeout=2)
 
-    @property
-    def model(self) -> RobotModel:
-        return self._model
+    def _to_base(self, array_deg: float) -> float:
+        return respeaker_to_base(array_deg, self.joint_state().as_dict().get("HeadYaw", 0.0))
 
-    # ---- motion -------------------------------------------------------------------------------------------------
-    def set_joint_targets(self, targets: Mapping[str, float]) -> ClampReport:
-        clamped, report = clamp_command(self._model, targets)
-        if not self.connected:
-            return ClampReport(report.names, report.requested, report.applied, report.clamped, tuple(clamped))
+    def _send_targets(self, targets: dict[str, float]) -> tuple[str, ...]:
+        """Each part the targets touch, whole (LuxAI's part arrays), the others of it at what they were given last."""
         with self._lock:
             current = self._state.as_dict() if self._state is not None else {}
         for part, joints in self._model.parts.items():
-            if not any(n in clamped for n in joints):
+            if not any(n in targets for n in joints):
                 continue
             values = []
             for n in joints:
-                value = clamped.get(n, self._commanded.get(n, current.get(n, self._model.joint(n).home)))
+                value = targets.get(n, self._commanded.get(n, current.get(n, self._model.joint(n).home)))
                 values.append(float(value))
                 self._commanded[n] = float(value)
-            self._publishers[part].publish(roslibpy.Message({"data": values}))
-        return report
+            self._topics[names.PART_COMMAND_TOPICS[part]].publish(roslibpy.Message({"data": values}))
+        return ()
 
     def _on_joint_state(self, msg: dict[str, Any]) -> None:
         positions = dict(zip(msg.get("name", []), msg.get("position", [])))
@@ -216,6 +185,7 @@ class RosRobot(Robot):
                            tuple(float(efforts.get(n, 0.0)) for n in names), time.monotonic(), time.time())
         with self._lock:
             self._state = state
+        self._heartbeat()
 
     def joint_state(self) -> JointState:
         with self._lock:
@@ -261,11 +231,6 @@ class RosRobot(Robot):
         return tuple(out)
 
     # ---- services -----------------------------------------------------------------------------------------------
-    def _refuse_if_disconnected(self, name: str) -> None:
-        if not self.connected:
-            raise RobotDisconnected(f"{name}: the robot's rosbridge at {self.url} is disconnected (reconnecting); "
-                                    "try again once it is back")
-
     def _call_nowait(self, name: str, type_name: str, args: dict[str, Any]) -> None:
         self._refuse_if_disconnected(name)
         roslibpy.Service(self._ros, name, type_name).call(
@@ -335,65 +300,29 @@ class RosRobot(Robot):
             raise Refusal(f"{names.SPEECH_CONFIG_SERVICE}: the robot refused language {language!r}, pitch {pitch}, "
                           f"speed {speed}")
 
-    async def play_gesture(self, gesture: Gesture, speed: float = 1.0) -> GestureResult:
-        """Streams the gesture's waypoints as position commands, so recordings the robot does not hold play too."""
-        gesture.validate(self._model)
-        self._refuse_if_disconnected(names.GESTURE_PLAY_SERVICE)
-        if not (math.isfinite(speed) and speed > 0):
-            raise ValueError(f"gesture speed must be a positive number, got {speed!r}")
-        self.stop_gesture()
-        stop = self._gesture_stop = asyncio.Event()
-        streamed = await stream_waypoints(self.set_joint_targets, gesture, speed, stop)
-        if self._gesture_stop is stop:
-            self._gesture_stop = None
-        stopped = stop.is_set()
-        completed = not stopped and streamed.sent == len(gesture.waypoints) and not streamed.ignored
-        return GestureResult(gesture.name, completed, stopped, streamed.sent, streamed.clamps, streamed.ignored, None)
-
-    def stop_gesture(self) -> None:
-        if self._gesture_stop is not None:
-            self._gesture_stop.set()
-
     # ---- camera -------------------------------------------------------------------------------------------------
-    def add_camera_subscriber(self) -> None:
-        self._camera_count += 1
-        if self._camera_count == 1:
-            self._camera_topic.subscribe(self._on_camera)
+    def _start_camera(self) -> None:
+        self._topics[names.CAMERA_TOPIC].subscribe(self._on_camera)
 
-    def remove_camera_subscriber(self) -> None:
-        self._camera_count = max(0, self._camera_count - 1)
-        if self._camera_count == 0 and self._camera_topic.is_subscribed:
-            self._camera_topic.unsubscribe()
+    def _stop_camera(self) -> None:
+        self._topics[names.CAMERA_TOPIC].unsubscribe()
 
     def _on_camera(self, msg: dict[str, Any]) -> None:
         data = msg.get("data", "")
         jpeg = base64.b64decode(data) if isinstance(data, str) else bytes(data)
-        width, height = _jpeg_size(jpeg)
-        self._frame_seq += 1  # only roslibpy's thread counts
-        self._frames.put(CameraFrame(jpeg, width, height, self._frame_seq, time.monotonic(), time.time()))
-
-    def latest_frame(self) -> CameraFrame | None:
-        return self._frames.newest
-
-    async def next_frame(self, after_seq: int = 0, timeout: float | None = None) -> CameraFrame | None:
-        return await self._frames.next(after_seq, timeout)
-
-    def camera_closed(self) -> bool:
-        return self._frames.closed
+        self._put_jpeg(jpeg, *_jpeg_size(jpeg))
 
     # ---- microphone ---------------------------------------------------------------------------------------------
-    def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
-        self._listeners.append(listener)
-        if len(self._listeners) == 1:
-            self._microphone_topic.subscribe(self._on_microphone)
+    def _start_microphone(self) -> None:
+        self._topics[names.ROBOT_MICROPHONE_TOPIC].subscribe(self._on_microphone)
 
-        def stop() -> None:
-            if listener in self._listeners:
-                self._listeners.remove(listener)
-            if not self._listeners and self._microphone_topic.is_subscribed:
-                self._microphone_topic.unsubscribe()
+    def _stop_microphone(self) -> None:
+        self._topics[names.ROBOT_MICROPHONE_TOPIC].unsubscribe()
 
-        return stop
+    @property
+    def microphone_read(self) -> bool:
+        """Whether the microphone's topic is subscribed (only while someone listens)."""
+        return bool(self._topics) and self._topics[names.ROBOT_MICROPHONE_TOPIC].is_subscribed
 
     def _on_microphone(self, msg: dict[str, Any]) -> None:
         """On roslibpy's thread: rosbridge sends uint8[] as base64 (ROS 1) or a list of numbers."""
@@ -403,55 +332,10 @@ class RosRobot(Robot):
         except (ValueError, TypeError):
             log.warning("%s: a message whose data is not audio bytes was ignored", names.ROBOT_MICROPHONE_TOPIC)
             return
-        loop = self._loop
-        if loop is None or not pcm:
-            return
-        with contextlib.suppress(RuntimeError):  # the loop has closed: nobody listens
-            loop.call_soon_threadsafe(self._hear, pcm)
-
-    def _hear(self, pcm: bytes) -> None:
-        for listener in list(self._listeners):
-            try:
-                listener(pcm, MICROPHONE_RATE, 1)
-            except Exception:
-                log.exception("a microphone listener failed")
+        self._heard(pcm, MICROPHONE_RATE, 1)
 
     # ---- the operator's voice -----------------------------------------------------------------------------------
-    def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:
-        self._voice = (pcm_level(pcm), time.monotonic())
-        if not self.connected:
-            self._speaker_pending.clear()
-            return
-        if (sample_rate, channels) != self._speaker_format:
-            self._speaker_format = (sample_rate, channels)
-            self._speaker_resampler = av.AudioResampler(format="s16", layout="mono", rate=SPEAKER_RATE)
-            self._speaker_pending.clear()
-        samples = np.frombuffer(pcm[:len(pcm) - len(pcm) % (2 * channels)], "<i2")
-        frame = av.AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16",
-                                           layout="stereo" if channels == 2 else "mono")
-        frame.sample_rate = sample_rate
-        for out in self._speaker_resampler.resample(frame):
-            self._speaker_pending += out.to_ndarray().tobytes()
-        step = int(SPEAKER_RATE * SPEAKER_CHUNK_S) * 2
-        while len(self._speaker_pending) >= step:
-            chunk = bytes(self._speaker_pending[:step])
-            del self._speaker_pending[:step]
-            self._speaker_topic.publish(roslibpy.Message({"data": base64.b64encode(chunk).decode("ascii")}))
-
-    @property
-    def voice_level(self) -> float:
-        return held_level(self._voice, time.monotonic())
-
-    def _stop_reconnecting(self) -> None:
-        from twisted.internet import reactor
-
-        reactor.callFromThread(self._ros.factory.stopTrying)
-
-    def close(self) -> None:
-        self._frames.close()
-        self._loop = None  # our own closing is no news for the listeners
-        self._stop_reconnecting()
-        with contextlib.suppress(Exception):  # already gone
-            self._ros.close(timeout=2)
-
-
+    def _send_voice(self, chunk: bytes) -> bool:
+        self._topics[names.ROBOT_SPEAKER_TOPIC].publish(
+            roslibpy.Message({"data": base64.b64encode(chunk).decode("ascii")}))
+        return True

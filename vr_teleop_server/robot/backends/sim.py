@@ -48,6 +48,7 @@ class SimRobot(Robot):
                  words_per_minute: float = 150.0, **standin_options: Any) -> None:
         if not (math.isfinite(words_per_minute) and words_per_minute > 0):
             raise ValueError(f"words_per_minute must be a positive number, got {words_per_minute!r}")
+        super().__init__()
         self._model = model or (standin.robot if standin else load_qtrobot())
         self._standin = standin or StandIn(self._model, **standin_options)
         self._owns_standin = standin is None
@@ -64,6 +65,12 @@ class SimRobot(Robot):
     async def create(cls, model: RobotModel | None = None, **options: Any) -> SimRobot:
         """Build one off the event loop (MuJoCo and EGL start-up block for a fraction of a second)."""
         return await asyncio.to_thread(cls, model, **options)
+
+    @classmethod
+    def from_settings(cls, settings: Any, model: RobotModel, clock: Any = None) -> SimRobot:
+        """Starts MuJoCo and a GL context: call it off the event loop."""
+        return cls(model, camera_width=settings.camera_width, camera_height=settings.camera_height,
+                   camera_fps=settings.camera_fps, **({"clock": clock} if clock is not None else {}))
 
     @property
     def model(self) -> RobotModel:

@@ -1,0 +1,38 @@
+"""The operator's voice over rosbridge takes the one road (features/speech.py's OperatorVoiceIn) to the stand-in:
+a client's 48 kHz stereo AudioData moves its mouth and is logged as it came. The same road to the ROS 1 robot's
+speaker topic and the v3's media stream is tested in test_backend_ros1.py and test_backend_luxai.py; WebRTC's
+in test_media.py (the stand-in), test_backend_ros.py and test_backend_luxai.py."""
+
+from __future__ import annotations
+
+import pytest
+import roslibpy
+from operator_voice import VoiceSender, logged, tone
+from support import RunningServer, wait_for
+
+from vr_teleop_server.settings import ServerSettings
+
+
+@pytest.fixture
+def server(tmp_path):
+    running = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp_path / "g",
+                                           audio_dir=tmp_path / "a", bystander_interval=0))
+    yield running
+    running.stop()
+
+
+def test_a_clients_voice_over_rosbridge_moves_the_standins_mouth_and_is_logged(server):
+    robot = server.server.robot
+    ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    ros.run(timeout=10)
+    try:
+        assert server.call(lambda: robot.voice_level) == 0.0
+        pcm = tone(2.0, 48000, 2)
+        sender = VoiceSender(ros, pcm, 48000, 2).start()
+        assert wait_for(lambda: server.call(lambda: robot.voice_level) > 0.5 or sender.done.is_set(), 30)
+        assert not sender.done.is_set(), "the mouth did not open while the voice came"
+        assert sender.done.wait(30)
+        assert wait_for(lambda: logged(server.settings.audio_dir) == (48000, 2, pcm), 30)
+        assert wait_for(lambda: server.call(lambda: robot.voice_level) == 0.0, 10)  # it closes after the voice
+    finally:
+        ros.close()
