@@ -19,6 +19,7 @@ import pytest
 import roslibpy
 from luxai_hub import NARROW, FakeQtrobotV3, free_port
 from media_client import MediaPeer, Rosbridge, Tone
+from operator_voice import VoiceSender, logged, pitch, tone
 from support import (
     Headset,
     RunningServer,
@@ -33,6 +34,7 @@ from support import (
 )
 
 from client_protocol import names
+from vr_teleop_server.robot.interface import VoiceActivity
 from vr_teleop_server.settings import ServerSettings
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -207,6 +209,45 @@ def test_motor_errors_and_voice_activity_become_events(zmq_robot):
         hub.faults, hub.mic_event = {}, {"activity": False, "direction": 0}
         events.close()
         motors.close()
+
+
+def test_voice_activity_in_the_base_frame(zmq_robot):
+    """The microphone's events are the link's VoiceActivity, their direction turned with the head's yaw into the
+    base frame (luxai.py's _to_base); a wandering estimate is no news."""
+    hub, server, ros = zmq_robot
+    backend = server.server.robot
+    heard: list[VoiceActivity] = []
+    remove = server.call(lambda: backend.on_voice_activity(heard.append))
+    try:
+        yaw = server.call(lambda: backend.joint_state().as_dict()["HeadYaw"])
+        hub.mic_event = {"activity": True, "direction": 75}
+        assert wait_for(lambda: any(a.speaking for a in heard), 10), heard
+        assert heard[-1].direction_deg == pytest.approx(75 + yaw, abs=1.0) and heard[-1].who == ""
+        hub.mic_event = {"activity": True, "direction": 80}
+        hub.mic_event = {"activity": True, "direction": 330}  # past 180: to the right, negative
+        assert wait_for(lambda: heard[-1].direction_deg == pytest.approx(-30 + yaw, abs=1.0), 10), heard
+        hub.mic_event = {"activity": False, "direction": 330}
+        assert wait_for(lambda: not heard[-1].speaking, 10), heard
+        assert [round(a.direction_deg - yaw) for a in heard if a.speaking] == [75, -30]
+    finally:
+        server.call(remove)
+        hub.mic_event = {"activity": False, "direction": 0}
+
+
+def test_the_operators_voice_over_rosbridge_reaches_the_speaker_stream(zmq_robot):
+    """A client's voice on /vr_teleop/audio/operator (48 kHz stereo, as its AudioInfo says) reaches the media
+    foreground audio stream as 16 kHz mono PCM at its pitch, and is logged."""
+    hub, server, ros = zmq_robot
+    start = len(hub.audio)
+    pcm = tone(1.0, 48000, 2)
+    sender = VoiceSender(ros, pcm, 48000, 2).start()
+    assert sender.done.wait(30)
+    assert wait_for(lambda: len(hub.audio) - start >= 0.9 * 16000 * 2, 30), len(hub.audio) - start
+    assert set(hub.audio_frames[-10:]) == {(1, 16000, 16)}
+    heard = np.frombuffer(bytes(hub.audio[start:]), "<i2")
+    assert np.sqrt(np.mean(heard.astype(np.float32) ** 2)) > 5000
+    assert abs(pitch(heard, 16000) - 440) < 10
+    assert wait_for(lambda: logged(server.settings.audio_dir) == (48000, 2, pcm), 30)
 
 
 def test_the_cameras_color_stream_reaches_the_jpeg_topic(zmq_robot):

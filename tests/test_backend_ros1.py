@@ -5,16 +5,20 @@ without waiting before every say, speech settings kept local)."""
 
 from __future__ import annotations
 
+import base64
 import json
 import threading
 from collections.abc import Iterator
 
+import numpy as np
 import pytest
 import roslibpy
+from operator_voice import VoiceSender, logged, pitch, tone
 from ros1_rosbridge import Ros1QTrobot
-from support import RawClient, RunningServer, Watch, call, wait_for
+from support import RawClient, RunningServer, Watch, call, refused, wait_for, wait_subscribed
 
 from client_protocol import names
+from vr_teleop_server.robot.interface import VoiceActivity
 from vr_teleop_server.settings import ServerSettings
 
 SAY = names.SPEECH_SAY_SERVICE
@@ -140,3 +144,84 @@ def test_speech_speed_and_voice_reach_the_robot(robot: Ros1QTrobot, ros: roslibp
     assert robot.speech_config[-1] == {"language": "en-GB", "pitch": 0, "speed": 100}
     assert json.dumps(robot.services_called(names.SPEECH_CONFIG_SERVICE)[-1], sort_keys=True) == \
         '{"language": "en-GB", "pitch": 0, "speed": 100}'  # exactly LuxAI's three fields on the wire
+
+
+def test_the_respeakers_voice_activity_reaches_the_server_in_the_base_frame(server: RunningServer, robot: Ros1QTrobot,
+                                                                         ros: roslibpy.Ros):
+    """qt_respeaker_app's latched is_speaking and sound_direction become VoiceActivity (the array's angle turned
+    into the base frame with the head's yaw: respeaker_to_base) and voice_activity events (the array's angle)."""
+    backend = server.server.robot
+    heard: list[VoiceActivity] = []
+    remove = server.call(lambda: backend.on_voice_activity(heard.append))
+    events = Watch(ros, names.EVENT_TOPIC, "vr_teleop_msgs/Event")
+    assert wait_subscribed(server, names.EVENT_TOPIC)
+    try:
+        roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
+            roslibpy.Message({"data": [30.0, 0.0]}))
+        assert wait_for(lambda: server.call(lambda: backend.joint_state().as_dict()["HeadYaw"]) == 30.0, 10)
+        robot.publish(names.RESPEAKER_DIRECTION_TOPIC, {"data": 90}, latch=True)  # to the array's right
+        robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": True}, latch=True)
+        assert wait_for(lambda: any(a.speaking for a in heard), 10), heard
+        start = next(a for a in heard if a.speaking)
+        assert start.direction_deg == pytest.approx(30.0 - 90.0) and start.who == ""
+        robot.publish(names.RESPEAKER_DIRECTION_TOPIC, {"data": 95}, latch=True)  # wanders: no news
+        robot.publish(names.RESPEAKER_DIRECTION_TOPIC, {"data": 300}, latch=True)  # to the left now
+        assert wait_for(lambda: heard[-1].direction_deg == pytest.approx(30.0 + 60.0), 10), heard
+        robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": False}, latch=True)
+        assert wait_for(lambda: not heard[-1].speaking, 10), heard
+        spoken = [a.direction_deg for a in heard if a.speaking]
+        assert spoken == [pytest.approx(-60.0), pytest.approx(90.0)], heard
+        assert all(a.stamp <= b.stamp for a, b in zip(heard, heard[1:]))
+        assert wait_for(lambda: [json.loads(e["detail"]) for e in events.messages if e["kind"] == "voice_activity"
+                                 and e["source"] == "backend"][-1:] == [{"activity": False, "direction_deg": 300}], 10)
+    finally:
+        server.call(remove)
+        events.close()
+        robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": False}, latch=True)
+
+
+def test_a_robot_whose_joint_states_stop_is_lost_though_its_socket_is_up(server: RunningServer, robot: Ros1QTrobot,
+                                                                       ros: roslibpy.Ros):
+    """The link's one rule: the joint states are the heartbeat. A hung robot (socket up, nothing published) is
+    lost: commands ignored, services refused; when they flow again it is back."""
+    events = Watch(ros, names.EVENT_TOPIC, "vr_teleop_msgs/Event")
+    assert wait_subscribed(server, names.EVENT_TOPIC)
+    backend = server.server.robot
+    try:
+        robot.beating = False
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"
+                                           and e["level"] == "danger"), 10)
+        assert not server.call(lambda: backend.connected)
+        before = len(robot.published.get("/qt_robot/head_position/command", []))
+        report = server.call(lambda: backend.set_joint_targets({"HeadYaw": 10.0}))
+        assert report.ignored == ("HeadYaw",)
+        refused(call(ros, SAY, "qt_robot_interface/speech_say", {"message": "Nobody hears this"}), "disconnected")
+        robot.beating = True
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 10)
+        assert len(robot.published.get("/qt_robot/head_position/command", [])) == before  # nothing queued
+        assert server.call(lambda: backend.set_joint_targets({"HeadYaw": 10.0})).ok
+        assert wait_for(lambda: robot.positions["HeadYaw"] == 10.0, 10)
+    finally:
+        robot.beating = True
+        events.close()
+
+
+def test_the_operators_voice_over_rosbridge_reaches_the_speaker_topic(server: RunningServer, robot: Ros1QTrobot,
+                                                                     ros: roslibpy.Ros):
+    """A client's voice on /vr_teleop/audio/operator at 48 kHz stereo (its AudioInfo says so) goes out on the
+    robot's speaker topic as audio_play takes it (16 kHz mono, 40 ms a message) at its pitch, and is logged."""
+    before = len(robot.published.get(names.ROBOT_SPEAKER_TOPIC, []))
+    pcm = tone(1.0, 48000, 2)
+    sender = VoiceSender(ros, pcm, 48000, 2).start()
+    assert sender.done.wait(30)
+
+    def played() -> list[np.ndarray]:
+        return [np.frombuffer(base64.b64decode(m["data"]), "<i2")
+                for m in robot.published.get(names.ROBOT_SPEAKER_TOPIC, [])[before:]]
+
+    assert wait_for(lambda: sum(c.size for c in played()) >= 0.9 * 16000, 30), sum(c.size for c in played())
+    assert {c.size for c in played()} == {640}
+    heard = np.concatenate(played())
+    assert np.sqrt(np.mean(heard.astype(np.float32) ** 2)) > 5000
+    assert abs(pitch(heard, 16000) - 440) < 10
+    assert wait_for(lambda: logged(server.settings.audio_dir) == (48000, 2, pcm), 30)
