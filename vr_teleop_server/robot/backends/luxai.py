@@ -393,10 +393,6 @@ class LuxaiRobot(RobotLink):
             else:
                 self._event("motor_ok", "info", {"motor": name})
 
-    def motor_faults(self) -> dict[str, tuple[str, ...]]:
-        with self._lock:
-            return {n: f for n, f in self._faults.items() if f}
-
     def motor_status(self) -> tuple[MotorStatus, ...]:
         positions = self.joint_state().as_dict()
         with self._lock:
