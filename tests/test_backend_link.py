@@ -3,6 +3,8 @@ decisions out. The backends that feed it are tested for real in test_backend_ros
 
 from __future__ import annotations
 
+import socket
+
 import pytest
 
 from vr_teleop_server.robot.backends import BACKEND_NAMES, BACKENDS
@@ -113,3 +115,25 @@ def test_one_exception_family_and_one_table_of_backends():
     with pytest.raises(ValueError, match="--robot-id"):
         BACKENDS["luxai"].check_url("mqtt://broker:1883")
     BACKENDS["sim"].check_url("anything")  # no robot URL to check
+
+
+async def test_construction_does_no_io_and_open_says_when_the_robot_cannot_be_reached():
+    """A backend is built without touching the network (so that it can be wired first); open() reaches the robot
+    or raises RobotUnreachable with the reason; roslibpy's reconnect backoff is set on that connection only."""
+    from roslibpy.comm.comm_autobahn import AutobahnRosBridgeClientFactory
+
+    from vr_teleop_server.robot.backends.luxai import LuxaiRobot
+    from vr_teleop_server.robot.backends.ros import RosRobot
+
+    delays = (AutobahnRosBridgeClientFactory.initialDelay, AutobahnRosBridgeClientFactory.maxDelay)
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    for robot in (RosRobot(f"ws://127.0.0.1:{port}", connect_timeout=1.0),
+                  LuxaiRobot(f"tcp://127.0.0.1:{port}", connect_timeout=1.0)):
+        assert not robot.connected and robot.info["connected"] is False
+        assert robot.set_joint_targets({"HeadYaw": 10.0}).ignored == ("HeadYaw",)  # nothing to send it to
+        with pytest.raises(RobotUnreachable, match=f"127.0.0.1:{port}"):
+            await robot.open()
+        await robot.aclose()
+    assert (AutobahnRosBridgeClientFactory.initialDelay, AutobahnRosBridgeClientFactory.maxDelay) == delays
