@@ -77,6 +77,8 @@ WHOAMI_SERVICE = "/vr_teleop/whoami"
 URDF_JOINT_STATES_TOPIC = "/joint_states"  # sensor_msgs/JointState, radians, URDF joint names
 ROBOT_DESCRIPTION_PARAM = "robot_description"  # a rosapi parameter (the URDF), not a topic
 FILE_SERVER_SERVICE = "/file_server/get_file"
+# rosapi's clock (core/rosapi.py serves /rosapi/*): the page's clock sync, and the clients' round trip (sync())
+ROSAPI_GET_TIME_SERVICE = "/rosapi/get_time"
 
 # ---- the study framework ------------------------------------------------------------------------------------------
 STUDY_LABELS_TOPIC = "/study/labels"
