@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import json
+import logging
 from collections.abc import AsyncIterator, Callable
 from typing import Any, Protocol
 
@@ -26,6 +27,7 @@ from client_protocol import names
 from client_protocol.interface import ENDPOINTS
 from client_protocol.registry import TypeRegistry, describe_validation_error
 
+log = logging.getLogger(__name__)
 Message = dict[str, Any]
 Callback = Callable[[Message], None]
 Match = Callable[[Message], bool]
@@ -90,7 +92,10 @@ class Subscription:
         self.latest = msg
         self.count += 1
         if self.callback is not None:
-            self.callback(msg)
+            try:
+                self.callback(msg)
+            except Exception:  # one bad handler must not stop the client's reading
+                log.exception("the callback of %s failed", self.topic)
             for waiter in [w for w in self._waiters if not w[1].done() and (w[0] is None or w[0](msg))]:
                 waiter[1].set_result(msg)
         else:
@@ -267,6 +272,8 @@ class Client:
             self.statuses.append(message)
             if self.on_status is not None:
                 self.on_status(message)
+        elif op is None:
+            log.warning("a frame without an op: %.200s", message)
 
     def _ended(self) -> None:
         self.closed = True
