@@ -59,7 +59,13 @@ def test_over_the_in_process_connection_on_the_simulated_clock():
                 with pytest.raises(TimeoutError):  # a wait with no answer ends on the loop's (simulated) clock
                     sub = await client.subscribe("/client_test/silent", "std_msgs/String")
                     await sub.next(timeout=60.0)
-                return clock.monotonic() - started
+                waited = clock.monotonic() - started
+                # A call the server cannot take (args must be an object) is answered by a status error only: the
+                # call fails with its message once the wait ends (simulated: no wall-clock window).
+                with pytest.raises(CallFailed, match="call_service"):
+                    await client.call(names.ROSAPI_GET_TIME_SERVICE, "not an object")  # type: ignore[arg-type]
+                await client.sync()  # and the connection still works
+                return waited
 
     assert run_on_clock(main(), clock) == pytest.approx(60.0, abs=0.1)  # not sooner, and no wall-clock wait
 
@@ -85,3 +91,4 @@ async def test_a_closed_connection_fails_the_waits():
         with pytest.raises(ConnectionError):
             await waiting
         await client.close()
+

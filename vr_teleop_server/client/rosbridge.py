@@ -155,6 +155,7 @@ class Client:
         self.on_binary: Callable[[bytes], None] | None = None
         self._ids = itertools.count(1)
         self._calls: dict[str, asyncio.Future[Message]] = {}
+        self._call_errors: dict[str, str] = {}  # call id -> a status error the server sent about that call
         self._topics: dict[str, list[Subscription]] = {}
         self._registry: TypeRegistry | None = None
         self.closed = False
@@ -204,6 +205,7 @@ class Client:
         future: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
         self._calls[call_id] = future
         future.add_done_callback(lambda _f: self._calls.pop(call_id, None))
+        future.add_done_callback(lambda _f: self._call_errors.pop(call_id, None))
         if self.closed:
             future.set_exception(ConnectionError("the connection is closed"))
             return future
@@ -215,11 +217,18 @@ class Client:
         """The service's response values, validated against its response type (`type_name`, or the interface's
         type of that service; values of a service the client knows no type of come as they are). Raises
         Refused, CallFailed, or TimeoutError after `timeout` seconds of the loop's clock."""
-        future = await self.request(service, args)
+        call_id = f"{self.id_prefix}:{next(self._ids)}"
+        future = await self.request(service, args, call_id=call_id)
         try:
             async with asyncio.timeout(timeout):
-                response = await future
+                response = await asyncio.shield(future)  # still pending after a timeout: its status read below
         except TimeoutError:
+            # A frame the server could not take as a call (a malformed one, too many calls in progress) is
+            # answered by a status error with its id only.
+            error = self._call_errors.get(call_id)
+            future.cancel()
+            if error is not None:
+                raise CallFailed(service, error) from None
             raise TimeoutError(f"{service}: no answer within {timeout:g} s") from None
         values = outcome(response, service)
         type_name = type_name or SERVICE_TYPES.get(service)
@@ -270,6 +279,8 @@ class Client:
                 future.set_result(message)
         elif op == "status":
             self.statuses.append(message)
+            if message.get("level") == "error" and str(message.get("id")) in self._calls:
+                self._call_errors[str(message.get("id"))] = str(message.get("msg", ""))
             if self.on_status is not None:
                 self.on_status(message)
         elif op is None:
