@@ -19,7 +19,7 @@ bench: $(STAMP)
 	$(PY) bench/run_all.py
 
 schema: $(STAMP)
-	$(VENV)/bin/vr-teleop schema --out client_protocol/schemas
+	$(VENV)/bin/vr-teleop schema --out client_protocol/schemas --names-js vr_teleop_server/web/names.js
 
 # The documentation site (MkDocs, Material theme) into site/; the reference pages are generated while it builds.
 # (NO_MKDOCS_2_WARNING: Material's banner about MkDocs 2, which the docs extra's bounds exclude.)

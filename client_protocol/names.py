@@ -7,6 +7,7 @@ clients that use it.
 
 from __future__ import annotations
 
+import json
 from types import MappingProxyType
 
 # ---- the robot (LuxAI's QTrobot interface) ----------------------------------------------------------------------
@@ -77,6 +78,8 @@ WHOAMI_SERVICE = "/vr_teleop/whoami"
 URDF_JOINT_STATES_TOPIC = "/joint_states"  # sensor_msgs/JointState, radians, URDF joint names
 ROBOT_DESCRIPTION_PARAM = "robot_description"  # a rosapi parameter (the URDF), not a topic
 FILE_SERVER_SERVICE = "/file_server/get_file"
+# rosapi's clock (core/rosapi.py serves /rosapi/*): the page's clock sync, and the clients' round trip (sync())
+ROSAPI_GET_TIME_SERVICE = "/rosapi/get_time"
 
 # ---- the study framework ------------------------------------------------------------------------------------------
 STUDY_LABELS_TOPIC = "/study/labels"
@@ -96,6 +99,22 @@ PERCEPTION_QUERY_SERVICE = "/perception/query"
 RECORDING_IN_CHANNEL = "/rosbridge/in"
 RECORDING_OUT_CHANNEL = "/rosbridge/out"
 RECORDING_CONNECTIONS_CHANNEL = "/rosbridge/connections"
+
+
+def javascript_module() -> str:
+    """This module's names as an ES module for the pages (vr_teleop_server/web/names.js; `vr-teleop schema
+    --names-js` writes it, tests/test_names.py checks it is current): every string constant, and each map as a
+    frozen object."""
+    lines = ["// Generated from client_protocol/names.py by `vr-teleop schema --names-js`: do not edit.",
+             "// Every topic and service name the server uses; the pages import them from here."]
+    for key, value in globals().items():
+        if not key.isupper():
+            continue
+        if isinstance(value, str):
+            lines.append(f"export const {key} = {json.dumps(value)};")
+        elif isinstance(value, MappingProxyType):
+            lines.append(f"export const {key} = Object.freeze({json.dumps(dict(value))});")
+    return "\n".join(lines) + "\n"
 
 
 def all_names() -> dict[str, str]:

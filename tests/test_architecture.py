@@ -21,7 +21,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("leaves", ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", "simclock")),
     ("core, robot, recording, teleop, media", (
         f"{SERVER}.core", f"{SERVER}.robot", f"{SERVER}.recording", f"{SERVER}.teleop", f"{SERVER}.media",
-        f"{SERVER}.questionnaires", SERVER)),  # SERVER: the package's own __init__ (a docstring)
+        f"{SERVER}.questionnaires", f"{SERVER}.client", SERVER)),  # SERVER: the package's own __init__ (a docstring)
     ("features, study", (f"{SERVER}.features", f"{SERVER}.study")),
     ("app", (f"{SERVER}.app", f"{SERVER}.settings")),
     ("tools, cli", (f"{SERVER}.tools", f"{SERVER}.cli")),
@@ -41,6 +41,8 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     f"{SERVER}.teleop": LEAVES,  # pure mapping maths
     f"{SERVER}.recording.format": LEAVES,  # reading a recording needs no bus
     f"{SERVER}.questionnaires": ("client_protocol",),
+    # A client knows the wire protocol only, never the server's inside: what it does, an outside client can do.
+    f"{SERVER}.client": ("client_protocol",),
     f"{SERVER}.media": LEAVES + (f"{SERVER}.core", f"{SERVER}.robot"),  # never features or the app
 }
 PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", "simclock", SERVER)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 from client_protocol import names
@@ -57,3 +58,38 @@ def test_the_literal_check_sees_a_spelled_name(tmp_path):
     module = tmp_path / "m.py"
     module.write_text('"""Publishes on "/vr_teleop/events"."""\nTOPIC = "/vr_teleop/events"\nf"{TOPIC}/x"\n')
     assert literal_names(module, {names.EVENT_TOPIC}) == [(2, "/vr_teleop/events")]
+
+
+# ---- the pages (vr_teleop_server/web): names.js, generated from names.py ------------------------------------------
+WEB = ROOT / "vr_teleop_server" / "web"
+NAMES_JS = WEB / "names.js"
+JS_STRING = re.compile(r"""(["'`])((?:\\.|(?!\1).)*?)\1""")
+
+
+def js_literal_names(text: str, known: set[str]) -> list[tuple[int, str]]:
+    """Known names written as whole string literals in JavaScript (comments aside)."""
+    found = []
+    for number, line in enumerate(text.splitlines(), 1):
+        code = line.split("//", 1)[0] if not line.lstrip().startswith("*") else ""
+        found += [(number, m.group(2)) for m in JS_STRING.finditer(code) if m.group(2) in known]
+    return found
+
+
+def test_the_pages_names_module_is_current():
+    assert NAMES_JS.read_text() == names.javascript_module(), (
+        "vr_teleop_server/web/names.js is not what client_protocol/names.py gives: run "
+        "`vr-teleop schema --out client_protocol/schemas --names-js vr_teleop_server/web/names.js`")
+
+
+def test_no_page_spells_a_name_itself():
+    known = set(names.all_names().values())
+    files = [p for p in sorted(WEB.rglob("*.js")) if "vendor" not in p.parts and p != NAMES_JS]
+    assert len(files) > 5
+    found = [f"{path.relative_to(ROOT)}:{line}: {value!r} (import it from names.js)"
+             for path in files for line, value in js_literal_names(path.read_text(), known)]
+    assert not found, "names spelled out in the pages instead of taken from web/names.js:\n  " + "\n  ".join(found)
+
+
+def test_the_page_check_sees_a_spelled_name():
+    text = 'const A = "/vr_teleop/events";  // "/vr/head/pose"\nconst B = `/vr_teleop/events/x`;\n'
+    assert js_literal_names(text, {names.EVENT_TOPIC, names.HEAD_POSE_TOPIC}) == [(1, "/vr_teleop/events")]

@@ -18,7 +18,8 @@ from study_support import EXAMPLE, on_loop, prepared, small_study
 from support import RawClient, RunningServer, wait_for
 
 from vr_teleop_server.settings import ServerSettings
-from vr_teleop_server.study.people import RosbridgeClient, SimulatedPeople
+from vr_teleop_server.client import Client, Refused, connect
+from vr_teleop_server.study.people import SimulatedPeople
 from vr_teleop_server.study.perception import ArucoTracker
 from vr_teleop_server.features.faces import FaceDetector
 from vr_teleop_server.tools.study_runner import recorded_metrics
@@ -44,8 +45,7 @@ def run_with_people(server: RunningServer, runtime: TrialRuntime, *, people: boo
     async def main():
         crowd = SimulatedPeople(server.url, study, trial, operator=study.trials[trial].decision != "scripted")
         await crowd.connect()
-        client = RosbridgeClient(server.url)
-        await client.connect()
+        client = await connect(server.url)
         acting = asyncio.ensure_future(crowd.run()) if people else None
         running = asyncio.wrap_future(asyncio.run_coroutine_threadsafe(runtime.run(), server.loop))
         try:
@@ -244,7 +244,7 @@ def test_preempt_stops_the_tree_and_the_robot_holds(server):
     runtime = prepared(server, study, "autonomous")
     robot = server.server.robot
 
-    async def preempt(client: RosbridgeClient, rt: TrialRuntime) -> None:
+    async def preempt(client: Client, rt: TrialRuntime) -> None:
         await until(lambda: rt.log.happened("robot", "pick_bottom", "start"))
         await asyncio.sleep(0.2)
         values = await client.call("/decision/preempt", {})
@@ -272,7 +272,7 @@ def test_override_moves_a_stalled_action_on_and_counts_as_an_intervention(server
     study = small_study(autonomous={"stalls": ["handover_front"]})
     runtime = prepared(server, study, "autonomous")
 
-    async def override(client: RosbridgeClient, rt: TrialRuntime) -> None:
+    async def override(client: Client, rt: TrialRuntime) -> None:
         await until(lambda: rt.log.happened("robot", "handover_front", "start"), 60)
         await asyncio.sleep(1.5)  # longer than the move takes: it is the stall that holds the plan
         assert not rt.log.happened("robot", "handover_front", "stop")
@@ -294,9 +294,9 @@ def test_wizard_of_oz_and_semi_autonomous_take_the_operators_commands(server):
                                          "operator": doc_study.operator.model_copy(update={"reaction_s": (1.0, 1.0)})})
     runtime = prepared(server, study, "semi")
 
-    async def check_refusals(client: RosbridgeClient, rt: TrialRuntime) -> None:
+    async def check_refusals(client: Client, rt: TrialRuntime) -> None:
         await until(lambda: rt.log.happened("robot", "pick_bottom", "stop"), 30)
-        with pytest.raises(RuntimeError, match="waiting for handover on bottom, not hold on bottom"):
+        with pytest.raises(Refused, match="waiting for handover on bottom, not hold on bottom"):
             await client.call("/decision/teleop", {"object": "bottom", "action": "hold"})
 
     result, refusals = run_with_people(server, runtime, during=check_refusals)
@@ -306,10 +306,10 @@ def test_wizard_of_oz_and_semi_autonomous_take_the_operators_commands(server):
     study = small_study()
     runtime = prepared(server, study, "teleoperated")
 
-    async def bad_commands(client: RosbridgeClient, rt: TrialRuntime) -> None:
-        with pytest.raises(RuntimeError, match="unknown action 'fly'"):
+    async def bad_commands(client: Client, rt: TrialRuntime) -> None:
+        with pytest.raises(Refused, match="unknown action 'fly'"):
             await client.call("/decision/teleop", {"object": "bottom", "action": "fly"})
-        with pytest.raises(RuntimeError, match="no part 'lid'"):
+        with pytest.raises(Refused, match="no part 'lid'"):
             await client.call("/decision/teleop", {"object": "lid", "action": "pick"})
 
     result, refusals = run_with_people(server, runtime, during=bad_commands)
@@ -335,7 +335,7 @@ def test_every_primitive_runs_on_the_stand_in_and_reports_its_start_and_stop(ser
     robot = server.server.robot
     seen: list[dict] = []
 
-    async def command(client: RosbridgeClient, rt: TrialRuntime) -> None:
+    async def command(client: Client, rt: TrialRuntime) -> None:
         await client.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", seen.append)
         await asyncio.sleep(0.2)
         for action in extra:
@@ -365,16 +365,16 @@ def test_experimenter_labels_through_services_and_the_dashboards_topic(server):
     study = small_study()
     runtime = prepared(server, study, "teleoperated")
 
-    async def label(client: RosbridgeClient, rt: TrialRuntime) -> None:
+    async def label(client: Client, rt: TrialRuntime) -> None:
         await client.call("/study/label/start", {"action": "sneeze"})
         await asyncio.sleep(0.2)
         await client.call("/study/label/stop", {"action": "sneeze"})
-        with pytest.raises(RuntimeError, match="no human action 'sneeze' is running"):
+        with pytest.raises(Refused, match="no human action 'sneeze' is running"):
             await client.call("/study/label/stop", {"action": "sneeze"})
         await client.call("/study/label/add", {"agent": "human", "action": "wave", "start": 0.0, "stop": 0.1})
-        with pytest.raises(RuntimeError, match="agent must be human or robot"):
+        with pytest.raises(Refused, match="agent must be human or robot"):
             await client.call("/study/label/add", {"agent": "dog", "action": "bark", "start": 0.0, "stop": 0.1})
-        with pytest.raises(RuntimeError, match="stop .* is before start"):
+        with pytest.raises(Refused, match="stop .* is before start"):
             await client.call("/study/label/add", {"agent": "human", "action": "x", "start": 1.0, "stop": 0.5})
         assert rt.log.happened("human", "sneeze") and rt.log.happened("human", "wave")
         await client.call("/decision/preempt", {})

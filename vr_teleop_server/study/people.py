@@ -13,79 +13,17 @@ theirs. Draws come from a generator seeded by the study's seed and the trial's n
 from __future__ import annotations
 
 import asyncio
-import itertools
-import json
 import random
 import zlib
 from collections.abc import Callable
 from typing import Any
 
-from websockets.asyncio.client import ClientConnection, connect
-
 from client_protocol import names
 
-from ..core.tasks import cancel_and_wait
+from ..client import Client, Refused, connect
 from .studyfile import Script, Study
 
 BUSY_RETRY_S = 0.3
-
-
-class RosbridgeClient:
-    """Just enough rosbridge v2 for the simulated people: subscribe and call services. Over a WebSocket to `url`,
-    or over what `opener()` returns (the server's in-process connection, on a simulated clock)."""
-
-    def __init__(self, url: str, opener: Callable[[], Any] | None = None) -> None:
-        self.url = url
-        self.opener = opener
-        self.ws: ClientConnection | Any = None
-        self._ids = itertools.count(1)
-        self._calls: dict[str, asyncio.Future[dict[str, Any]]] = {}
-        self._subs: dict[str, list[Any]] = {}
-        self._reader: asyncio.Task[None] | None = None
-
-    async def connect(self) -> None:
-        self.ws = self.opener() if self.opener is not None else await connect(self.url, max_size=None)
-        self._reader = asyncio.ensure_future(self._read())
-
-    async def close(self) -> None:
-        await cancel_and_wait(self._reader)
-        if self.ws is not None:
-            await self.ws.close()
-
-    async def subscribe(self, topic: str, type_name: str, callback: Any) -> None:
-        assert self.ws is not None
-        self._subs.setdefault(topic, []).append(callback)
-        await self.ws.send(json.dumps({"op": "subscribe", "topic": topic, "type": type_name}))
-
-    async def call(self, service: str, args: dict[str, Any], timeout: float = 10.0) -> dict[str, Any]:
-        """The service's response values; raises RuntimeError with the server's message when it refuses."""
-        assert self.ws is not None
-        call_id = f"call:{next(self._ids)}"
-        fut: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
-        self._calls[call_id] = fut
-        await self.ws.send(json.dumps({"op": "call_service", "id": call_id, "service": service, "args": args}))
-        try:
-            reply = await asyncio.wait_for(fut, timeout)
-        finally:
-            self._calls.pop(call_id, None)
-        if not reply.get("result", False):
-            raise RuntimeError(str(reply.get("values")))
-        values = reply.get("values")
-        if isinstance(values, dict) and values.get("success") is False:  # a refusal inside the response (ROS way)
-            raise RuntimeError(str(values.get("message") or "refused"))
-        return reply.get("values") or {}
-
-    async def _read(self) -> None:
-        assert self.ws is not None
-        async for raw in self.ws:
-            frame = json.loads(raw)
-            if frame.get("op") == "service_response":
-                fut = self._calls.get(frame.get("id", ""))
-                if fut is not None and not fut.done():
-                    fut.set_result(frame)
-            elif frame.get("op") == "publish":
-                for cb in self._subs.get(frame.get("topic", ""), []):
-                    cb(frame["msg"])
 
 
 class SimulatedPeople:
@@ -96,18 +34,27 @@ class SimulatedPeople:
         self.spec = study.trials[trial]
         self.operator = operator
         self.rng = random.Random(seed if seed is not None else study.seed * 1_000_003 + zlib.crc32(trial.encode()))
-        self.client = RosbridgeClient(url, opener)
+        self.url = url
+        self.opener = opener  # the server's in-process connection (a simulated clock), else a WebSocket to url
+        self._client: Client | None = None
         self.events: set[str] = set()
         self._changed = asyncio.Event()
         self.refusals: list[str] = []  # commands the server refused for a reason other than "busy"
 
+    @property
+    def client(self) -> Client:
+        assert self._client is not None, "connect() first"
+        return self._client
+
     async def connect(self) -> None:
-        await self.client.connect()
+        self._client = Client(self.opener(), id_prefix="people") if self.opener is not None \
+            else await connect(self.url, id_prefix="people")
         await self.client.subscribe(names.STUDY_STATE_UPDATES_TOPIC, "vr_teleop_msgs/StateUpdate", self._on_update)
-        await asyncio.sleep(0.1)  # the subscription is in place before the trial's first update
+        await self.client.sync()  # the subscription is in place before the trial's first update
 
     async def close(self) -> None:
-        await self.client.close()
+        if self._client is not None:
+            await self._client.close()
 
     def _on_update(self, msg: dict[str, Any]) -> None:
         if msg.get("trial") != self.trial:
@@ -163,9 +110,9 @@ class SimulatedPeople:
                 try:
                     await self.client.call(names.DECISION_TELEOP_SERVICE, {"object": part, "action": action})
                     break
-                except RuntimeError as exc:
-                    if "busy" not in str(exc) and "not waiting" not in str(exc):
-                        self.refusals.append(str(exc))
+                except Refused as exc:
+                    if "busy" not in exc.message and "not waiting" not in exc.message:
+                        self.refusals.append(exc.message)
                         break
                     await asyncio.sleep(BUSY_RETRY_S)
 

@@ -40,7 +40,6 @@ from typing import Any, Protocol
 
 import numpy as np
 from tqdm import tqdm
-from websockets.asyncio.client import connect
 
 from client_protocol import names, pose_frame
 from robot_models import load_qtrobot
@@ -48,6 +47,7 @@ from simclock import WALL, Clock, SimulatedClock, loop_clock
 from simclock import run as run_on_clock
 
 from ..app import TeleopServer
+from ..client import Client, RosbridgeError, connect, outcome
 from ..recording.format import read_recording
 from ..settings import ServerSettings
 
@@ -57,6 +57,7 @@ REPLAYED_TOPIC_PREFIXES = ("/vr/", names.MENU_SELECTION_TOPIC, names.OPERATOR_AU
 ENGAGE_LAGS = 10  # head poses an engage may be overtaken by, at most
 DRAIN_S = 30.0  # at most this long after the last message sent, for answers and late commands
 QUIET_S = 2.0  # commands have stopped once none came for this long (a loaded server pauses)
+ROAD_CALL_TIMEOUT_S = 30.0  # the road's calls (ICE servers, the media offer) on a loaded machine
 TOPIC_TYPES = {names.HEAD_POSE_TOPIC: "geometry_msgs/PoseStamped",
                **{topic: "geometry_msgs/PoseStamped" for topic in names.CONTROLLER_POSE_TOPICS.values()},
                **{topic: "sensor_msgs/Joy" for topic in names.JOY_TOPICS.values()},
@@ -161,38 +162,45 @@ class Collected:
     clock: Clock = WALL  # whose times the ones above are
     wall_started: float = 0.0  # time.perf_counter() when the first message was sent
     wall_last_command: float = 0.0  # time.perf_counter() when the newest joint command arrived
-    road_calls: int = 0
 
 
-async def _receive(ws: Any, got: Collected) -> None:
+def _listen(client: Client, got: Collected) -> list[tuple[str, Callable[[dict[str, Any]], None]]]:
+    """What the replay subscribes to, and how each message is recorded as it arrives."""
     clock = got.clock
-    async for frame in ws:
-        now = clock.monotonic()
-        if isinstance(frame, bytes):
-            continue
-        msg = json.loads(frame)
-        op = msg.get("op")
-        if op == "publish":
-            topic = msg["topic"]
-            if topic in names.COMMAND_TOPIC_PARTS:
-                got.commands[names.COMMAND_TOPIC_PARTS[topic]].append((now, msg["msg"]["data"]))
-                got.last_command = now
-                got.wall_last_command = time.perf_counter()
-            elif topic == names.JOINT_STATE_TOPIC:
-                got.joint_states.append((now, dict(zip(msg["msg"]["name"], msg["msg"]["position"]))))
-            elif topic == names.MENUS_TOPIC:
-                got.menu_items = {item["id"]: (item["command"], json.loads(item.get("args") or "{}"))
-                                  for item in msg["msg"]["items"] if item.get("command")}
-            elif topic == names.CAMERA_TOPIC:
-                stamp = msg["msg"]["header"]["stamp"]
-                secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
-                got.camera.append((clock.time(), secs))
-        elif op == "service_response":
-            values = msg.get("values")
-            refused = isinstance(values, dict) and (values.get("success") is False or values.get("status") is False)
-            got.responses[str(msg.get("id"))] = (bool(msg.get("result")) and not refused, values, now)
-        elif op == "status" and msg.get("level") == "error":
-            got.errors.append(msg.get("msg", ""))
+
+    def command(part: str) -> Callable[[dict[str, Any]], None]:
+        def on(msg: dict[str, Any]) -> None:
+            got.last_command = now = clock.monotonic()
+            got.commands[part].append((now, msg["data"]))  # a part never commanded has no entry
+            got.wall_last_command = time.perf_counter()
+        return on
+
+    def joint_state(msg: dict[str, Any]) -> None:
+        got.joint_states.append((clock.monotonic(), dict(zip(msg["name"], msg["position"]))))
+
+    def menus(msg: dict[str, Any]) -> None:
+        got.menu_items = {item["id"]: (item["command"], json.loads(item.get("args") or "{}"))
+                          for item in msg["items"] if item.get("command")}
+
+    def camera(msg: dict[str, Any]) -> None:
+        stamp = msg["header"]["stamp"]
+        secs = stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
+        got.camera.append((clock.time(), secs))
+
+    client.on_status = lambda msg: got.errors.append(msg.get("msg", "")) if msg.get("level") == "error" else None
+    return [*((topic, command(part)) for topic, part in names.COMMAND_TOPIC_PARTS.items()),
+            (names.JOINT_STATE_TOPIC, joint_state), (names.MENUS_TOPIC, menus), (names.CAMERA_TOPIC, camera)]
+
+
+def _answered(got: Collected, call_id: str, future: asyncio.Future[dict[str, Any]]) -> None:
+    """Records a replayed call's answer: acknowledged, or refused or failed (with the reason's values)."""
+    if future.cancelled() or isinstance(future.exception(), ConnectionError):
+        return  # never answered
+    try:
+        answer: tuple[bool, Any] = (True, outcome(future.result()))
+    except RosbridgeError as exc:
+        answer = (False, exc.values)
+    got.responses[call_id] = (*answer, got.clock.monotonic())
 
 
 async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = True,
@@ -200,26 +208,29 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                      connection: Callable[[], Any] | None = None,
                      pose_frames: bool = False) -> tuple[Collected, float]:
     """Plays the steps at `speed` (math.inf: each as soon as the connection takes it) over a WebSocket to `url`,
-    or over `connection()` (an async context manager shaped like a websockets connection) when given.
+    or over `connection()` (a connection shaped like a websockets one, as the server's in-process one) when given.
     `pose_frames`: poses and Joy go as binary pose frames where the layout carries them (a server of ours only:
     float32 values, as a headset's pose frames have), the rest as JSON."""
     clock = loop_clock()
     got = Collected(clock=clock)
     control: list[tuple[Step, str]] = []  # control calls whose answers are not applied yet, in order sent
+    answers: list[asyncio.Future[dict[str, Any]]] = []
     holding = False
-    opened = connection() if connection is not None else connect(url, max_size=None, compression=None)
-    async with opened as ws:
-        subscriptions = [*names.COMMAND_TOPIC_PARTS, names.JOINT_STATE_TOPIC] + ([names.CAMERA_TOPIC] if camera else [])
-        for topic in subscriptions:  # every command and joint state: a backlog, not the newest only
-            queue = 0 if topic == names.CAMERA_TOPIC else 100_000
-            await ws.send(json.dumps({"op": "subscribe", "topic": topic, "queue_length": queue}))
-        await ws.send(json.dumps({"op": "subscribe", "topic": names.MENUS_TOPIC, "type": "vr_teleop_msgs/Menus"}))
+    client = Client(connection(), id_prefix="replay") if connection is not None \
+        else await connect(url, id_prefix="replay")
+    async with client:
+        for topic, on in _listen(client, got):
+            if topic == names.CAMERA_TOPIC and not camera:
+                continue
+            # every command and joint state: a backlog, not the newest only; the camera's newest frame only
+            options = {"queue_length": 0 if topic == names.CAMERA_TOPIC else 100_000} \
+                if topic != names.MENUS_TOPIC else {"type": "vr_teleop_msgs/Menus"}
+            await client.subscribe(topic, callback=on, **options)
         for topic in sorted({s.topic for s in steps if s.kind == "publish"} & set(TOPIC_TYPES)):
-            await ws.send(json.dumps({"op": "advertise", "topic": topic, "type": TOPIC_TYPES[topic]}))
-        receiver = asyncio.create_task(_receive(ws, got))
+            await client.advertise(topic, TOPIC_TYPES[topic])
         if road is not None:
-            await road.open(lambda service, args: _call(ws, got, service, args))
-        await asyncio.sleep(0.3)  # let the subscriptions settle
+            await road.open(lambda service, args: client.call(service, args, timeout=ROAD_CALL_TIMEOUT_S))
+        await client.sync()  # the subscriptions and advertisements are the server's before the first step
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         got.started = clock.monotonic()
@@ -239,28 +250,39 @@ async def run_replay(steps: list[Step], url: str, speed: float, camera: bool = T
                         and road.send(step.topic, step.payload):
                     got.by_road += 1
                 elif pose_frames and (binary := _as_pose_frame(step.topic, step.payload)) is not None:
-                    await ws.send(binary)
+                    await client.send(binary)
                 else:
-                    await ws.send(json.dumps({"op": "publish", "topic": step.topic, "msg": step.payload}))
+                    await client.publish(step.topic, step.payload)
                 if step.topic == names.HEAD_POSE_TOPIC:
                     got.sent_head.append((sent, i))
             else:
-                frame = {**step.payload, "id": f"replay:{i}"}
-                got.calls[frame["id"]] = (step.topic, clock.monotonic(), frame.get("args") or {})
-                control.append((step, frame["id"]))
-                await ws.send(json.dumps(frame))
+                call_id = f"replay:{i}"
+                args = step.payload.get("args") or {}
+                got.calls[call_id] = (step.topic, clock.monotonic(), args)
+                control.append((step, call_id))
+                answer = await client.request(step.topic, args, call_id=call_id)
+                answer.add_done_callback(lambda future, cid=call_id: _answered(got, cid, future))
+                answers.append(answer)
             bar.update(1)
         bar.close()
         elapsed = time.perf_counter() - got.wall_started
-        # Wait for the last answers (a sentence, a gesture) and for the commands a lagging server still owes.
-        deadline = loop.time() + DRAIN_S
-        while loop.time() < deadline and (len(got.responses) < len(got.calls)
-                                          or clock.monotonic() - got.last_command < QUIET_S):
-            await asyncio.sleep(0.05)
-        receiver.cancel()
+        await _drain(got, answers, loop.time() + DRAIN_S)
         if road is not None:
             await road.close()
     return got, elapsed
+
+
+async def _drain(got: Collected, answers: list[asyncio.Future[dict[str, Any]]], deadline: float) -> None:
+    """Waits for the last answers (a sentence, a gesture) and for the commands a lagging server still owes: until
+    no command has come for QUIET_S, or the deadline."""
+    try:
+        async with asyncio.timeout_at(deadline):
+            if answers:
+                await asyncio.wait(answers)
+            while (quiet_in := QUIET_S - (got.clock.monotonic() - got.last_command)) > 0:
+                await asyncio.sleep(quiet_in)  # to when the quiet would be complete, unless a command came since
+    except TimeoutError:
+        pass
 
 
 def _holding(control: list[tuple[Step, str]], got: Collected, holding: bool) -> bool:
@@ -271,20 +293,6 @@ def _holding(control: list[tuple[Step, str]], got: Collected, holding: bool) -> 
         if action is not None and action[0] in ("engage", "estop"):
             holding = action == ("engage", True)
     return holding
-
-
-async def _call(ws: Any, got: Collected, service: str, args: dict[str, Any], timeout: float = 30.0) -> Any:
-    """A service call of the road's (its answer is taken out of got.responses: it is not the session's)."""
-    got.road_calls += 1
-    cid = f"road:{service}:{got.road_calls}"
-    await ws.send(json.dumps({"op": "call_service", "id": cid, "service": service, "args": args}))
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while cid not in got.responses:
-        if loop.time() > deadline:
-            raise TimeoutError(f"no answer from {service} within {timeout:g} s")
-        await asyncio.sleep(0.01)
-    return got.responses.pop(cid)[1]
 
 
 def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,

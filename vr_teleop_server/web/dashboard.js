@@ -1,71 +1,11 @@
 // The supervisor's dashboard. It speaks rosbridge v2 to the server that serves it, like any other client:
 // subscriptions, service calls and publishes, with no private back door. Token: the page's #token=... fragment.
 
+import * as names from "./names.js";
+import {connect} from "./rosbridge.js";
 import {IceErrors, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn, mediaRoute,
         negotiate, onVideoFrames,
         webRtcMissing} from "./webrtc.js";
-
-class Rosbridge {
-  // hello(): the frames that open every connection (auth, set_level), before subscriptions and anything queued.
-  constructor(url, hello) {
-    this.url = url;
-    this.hello = hello;
-    this.handlers = new Map();   // topic -> [callback]
-    this.subscriptions = [];     // subscribe frames, sent again after a reconnection
-    this.pending = new Map();    // call id -> {resolve, reject}
-    this.ids = 0;
-    this.onstatus = () => {};
-    this.onopen = () => {};
-    this.onclose = () => {};
-    this.queue = [];
-    this.connect();
-  }
-  connect() {
-    this.ws = new WebSocket(this.url);
-    this.ws.onopen = () => {
-      [...this.hello(), ...this.subscriptions].forEach(f => this.ws.send(JSON.stringify(f)));
-      this.queue.splice(0).forEach(f => this.ws.send(f));
-      this.onopen();
-    };
-    this.ws.onclose = () => { this.onclose(); setTimeout(() => this.connect(), 1000); };
-    this.ws.onmessage = (event) => this.receive(JSON.parse(event.data));
-  }
-  send(frame) {
-    const text = JSON.stringify(frame);
-    if (this.ws.readyState === WebSocket.OPEN) this.ws.send(text); else this.queue.push(text);
-  }
-  receive(msg) {
-    if (msg.op === "publish") (this.handlers.get(msg.topic) || []).forEach(cb => cb(msg.msg));
-    else if (msg.op === "service_response") {
-      const waiter = this.pending.get(msg.id);
-      if (!waiter) return;
-      this.pending.delete(msg.id);
-      // a refusal is a successful call whose response says so (success/status false, message why)
-      const refused = msg.result && msg.values && (msg.values.success === false || msg.values.status === false);
-      msg.result && !refused ? waiter.resolve(msg.values)
-        : waiter.reject(Object.assign(new Error(refused ? String(msg.values.message || "refused") : String(msg.values)),
-                                      {refused}));
-    } else if (msg.op === "status") this.onstatus(msg);
-  }
-  subscribe(topic, type, callback, options = {}) {
-    if (!this.handlers.has(topic)) this.handlers.set(topic, []);
-    this.handlers.get(topic).push(callback);
-    const frame = {op: "subscribe", topic, type, ...options};
-    this.subscriptions.push(frame);
-    if (this.ws.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify(frame));
-  }
-  publish(topic, type, msg) {
-    this.send({op: "advertise", topic, type});
-    this.send({op: "publish", topic, msg});
-  }
-  call(service, args = {}) {
-    const id = `dashboard:${++this.ids}`;
-    return new Promise((resolve, reject) => {
-      this.pending.set(id, {resolve, reject});
-      this.send({op: "call_service", id, service, args});
-    });
-  }
-}
 
 const $ = (id) => document.getElementById(id);
 const el = (tag, props = {}, ...children) => {
@@ -75,8 +15,7 @@ const el = (tag, props = {}, ...children) => {
 };
 const token = new URLSearchParams(location.hash.slice(1)).get("token");
 const scheme = location.protocol === "https:" ? "wss" : "ws";
-const ros = new Rosbridge(`${scheme}://${location.host}/`,
-  () => [...(token ? [{op: "auth", mac: token}] : []), {op: "set_level", level: "warning"}]);
+const ros = connect(`${scheme}://${location.host}/`, {token, idPrefix: "dashboard"});
 window.dashboard = {ros, frames: 0};
 
 function logLine(list, text, level = "info") {
@@ -121,7 +60,7 @@ function useJpeg(reason) {
   if (reason) logLine($("events"), `camera: WebRTC unavailable (${reason}); showing the JPEG topic`, "warning");
   if (camera.jpeg) return;
   camera.jpeg = true;
-  ros.subscribe("/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage", (msg) => {
+  ros.subscribe(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", (msg) => {
     if (camera.path !== "JPEG") return;
     const img = $("camera");
     img.src = `data:image/jpeg;base64,${msg.data}`;
@@ -196,18 +135,18 @@ function gauge(container, name, lower, upper) {
       this.value.textContent = v.toFixed(1);
     }};
 }
-ros.subscribe("/vr_teleop/robot_description", "std_msgs/String", (msg) => {
+ros.subscribe(names.DESCRIPTION_TOPIC, "std_msgs/String", (msg) => {
   const description = JSON.parse(msg.data);
   $("gauges").replaceChildren();
   gauges.clear();
   for (const j of description.joints) gauges.set(j.name, gauge($("gauges"), j.name, j.lower, j.upper));
 });
-ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (msg) => {
+ros.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", (msg) => {
   msg.name.forEach((name, i) => gauges.get(name)?.set(msg.position[i]));
 }, {throttle_rate: 100, queue_length: 1});
 
 // ---- teleoperation --------------------------------------------------------------------------------------------------
-ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
+ros.subscribe(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", (s) => {
   $("teleop-state").textContent = s.engaged ? `${s.state} (engaged)` : s.state;
   $("teleop-state").className = ["stalled", "estopped", "robot_lost", "disconnected"].includes(s.state) ? "danger" : "";
   $("teleop-holder").textContent = s.holder || "nobody";
@@ -221,7 +160,7 @@ ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
 // The holding operator's link: the worst of its connections' telemetry entries (only the holder's carry a watchdog
 // threshold).
 const QUALITY_RANK = {"": 0, good: 1, degraded: 2, poor: 3};
-ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", (t) => {
+ros.subscribe(names.TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", (t) => {
   const holding = (t.clients || []).filter((c) => c.watchdog_threshold >= 0);
   const worst = holding.sort((a, b) => QUALITY_RANK[b.link_quality] - QUALITY_RANK[a.link_quality])[0];
   const link = $("teleop-link");
@@ -234,7 +173,7 @@ ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", (t) => {
   link.textContent = `${worst.link_quality || "measuring"}${worst.link_warning ? ": " + worst.link_warning : rtt}`;
   link.className = {poor: "danger", degraded: "warning"}[worst.link_quality] || "";
 });
-ros.subscribe("/vr_teleop/clamps", "vr_teleop_msgs/Clamp", (c) => {
+ros.subscribe(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", (c) => {
   for (const name of c.joints) {
     const g = gauges.get(name);
     if (!g) continue;
@@ -244,14 +183,14 @@ ros.subscribe("/vr_teleop/clamps", "vr_teleop_msgs/Clamp", (c) => {
 });
 
 // ---- status and motivation ------------------------------------------------------------------------------------------
-ros.subscribe("/vr_teleop/status/hardware", "vr_teleop_msgs/HardwareStatus", (h) => {
+ros.subscribe(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", (h) => {
   const rows = [["CPU", `${h.cpu_percent.toFixed(0)} %`], ["memory", `${h.memory_percent.toFixed(0)} %`],
                 ["load", h.load_1min.toFixed(2)]];
   if (h.has_temperature) rows.push(["temperature", `${h.temperature_c.toFixed(0)} °C`]);
   $("status").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {textContent: k}), el("dd", {textContent: v})]));
 });
 const motivation = new Map();
-ros.subscribe("/vr_teleop/status/motivation", "vr_teleop_msgs/Motivation", (m) => {
+ros.subscribe(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", (m) => {
   m.name.forEach((name, i) => {
     if (!motivation.has(name)) motivation.set(name, gauge($("motivation"), name, m.min[i], m.max[i]));
     const g = motivation.get(name);
@@ -260,14 +199,14 @@ ros.subscribe("/vr_teleop/status/motivation", "vr_teleop_msgs/Motivation", (m) =
     g.row.classList.toggle("low", m.level[i] === "low");
   });
 });
-ros.subscribe("/vr_teleop/events", "vr_teleop_msgs/Event", (e) => {
+ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
   logLine($("events"), `${e.source}: ${e.kind}${e.detail ? " " + e.detail : ""}`, e.level);
 });
 
 // ---- Wizard-of-Oz buttons, from the same menu data as the headset's --------------------------------------------
 let sayItem = null;
 function select(id, args = "") {
-  return ros.call("/vr_teleop/menu/select", {id, args})
+  return ros.call(names.MENU_SELECT_SERVICE, {id, args})
     .then((r) => logLine($("events"), `${id}: ${r.message}`))
     .catch((err) => logLine($("events"), `${id}: ${err.message}`, "error"));
 }
@@ -276,7 +215,7 @@ function canonicalArgs(args) {
   const parsed = JSON.parse(args);
   return JSON.stringify(Object.keys(parsed).sort().map((k) => [k, parsed[k]]));
 }
-ros.subscribe("/vr_teleop/menus", "vr_teleop_msgs/Menus", (m) => {
+ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (m) => {
   const byParent = new Map();
   for (const item of m.items) {
     if (!byParent.has(item.parent)) byParent.set(item.parent, []);
@@ -314,12 +253,12 @@ $("say-form").onsubmit = (event) => {
 
 // ---- emergency stop and control ---------------------------------------------------------------------------------
 function estop() {
-  ros.call("/vr_teleop/control/estop")
+  ros.call(names.ESTOP_SERVICE)
     .then((r) => logLine($("events"), `EMERGENCY STOP: ${r.message}`, "danger"))
     .catch((err) => logLine($("events"), `e-stop refused: ${err.message}`, "error"));
 }
 $("estop").onclick = estop;
-$("release").onclick = () => ros.call("/vr_teleop/control/engage", {data: false})
+$("release").onclick = () => ros.call(names.ENGAGE_SERVICE, {data: false})
   .then((r) => logLine($("events"), r.message)).catch((err) => logLine($("events"), err.message, "error"));
 
 // ---- study: the trial, its live metrics, the experimenter's labels, overrides and preempt -------------------------
@@ -330,7 +269,7 @@ const fixed = (x) => (x === null || x === undefined) ? "–" : x.toFixed(2);
 let awaitedHuman = "";
 let trialName = null;
 let interventions = 0;
-ros.subscribe("/study/trial", "vr_teleop_msgs/TrialState", (t) => {
+ros.subscribe(names.STUDY_TRIAL_TOPIC, "vr_teleop_msgs/TrialState", (t) => {
   if (t.trial !== trialName) {  // a new trial: its own counts
     trialName = t.trial;
     interventions = 0;
@@ -347,36 +286,36 @@ ros.subscribe("/study/trial", "vr_teleop_msgs/TrialState", (t) => {
   if (human && human[1] !== awaitedHuman && document.activeElement !== $("label-action")) $("label-action").value = human[1];
   awaitedHuman = human ? human[1] : "";
 });
-ros.subscribe("/study/metrics", "vr_teleop_msgs/FluencyMetrics", (m) => {
+ros.subscribe(names.STUDY_METRICS_TOPIC, "vr_teleop_msgs/FluencyMetrics", (m) => {
   for (const key of ["h_idle", "r_idle", "c_act", "f_del"]) $(`m-${key}`).textContent = m.defined ? fixed(m[key]) : "–";
   $("m-effectiveness").textContent = m.effectiveness < 0 ? "–" : fixed(m.effectiveness);
   $("m-efficiency").textContent = m.final ? `${m.elapsed.toFixed(1)} s` : `(${m.elapsed.toFixed(0)} s)`;
   $("m-actions").textContent = `${m.human_actions} / ${m.robot_actions}`;
   $("trial-elapsed").textContent = `${m.elapsed.toFixed(1)} s`;
 });
-ros.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", (u) => {
+ros.subscribe(names.STUDY_STATE_UPDATES_TOPIC, "vr_teleop_msgs/StateUpdate", (u) => {
   const what = u.finished ? `stopped at ${u.stop.toFixed(2)} s${u.succeeded ? "" : " (failed)"}` : `started at ${u.start.toFixed(2)} s`;
   logLine($("updates"), `${u.agent} ${u.action} ${what} [${u.source}]`, u.finished && !u.succeeded ? "warning" : "info");
 });
-ros.subscribe("/study/interventions", "vr_teleop_msgs/Intervention", (i) => {
+ros.subscribe(names.STUDY_INTERVENTIONS_TOPIC, "vr_teleop_msgs/Intervention", (i) => {
   $("m-interventions").textContent = String(++interventions);
   logLine($("updates"), `intervention (${i.kind}) ${i.subtask || ""} at ${i.stop.toFixed(2)} s ${i.note}`, "warning");
 });
 function label(kind) {
   const action = $("label-action").value.trim() || "human_action";
   const detail = JSON.stringify({action, wall_time: Date.now() / 1000});
-  ros.publish("/study/labels", "vr_teleop_msgs/Event",
-              {header: {}, source: "experimenter", kind, level: "info", detail});
-  studyLog(`${kind.replaceAll("_", " ")}: ${action}`);
+  ros.advertise(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event");
+  const sent = ros.publish(names.STUDY_LABELS_TOPIC, {header: {}, source: "experimenter", kind, level: "info", detail});
+  studyLog(`${kind.replaceAll("_", " ")}: ${action}${sent ? "" : " NOT SENT (disconnected)"}`, sent ? "info" : "error");
 }
 function override(succeeded) {
-  ros.call("/decision/override", {succeeded, note: "marked on the dashboard"})
+  ros.call(names.DECISION_OVERRIDE_SERVICE, {succeeded, note: "marked on the dashboard"})
     .then((r) => studyLog(`override: ${r.message}`, r.success ? "info" : "error"))
     .catch((err) => studyLog(`override refused: ${err.message}`, "error"));
 }
 function preempt() {
   if (!confirm("Preempt the trial? The participant stops the study and the robot holds.")) return;
-  ros.call("/decision/preempt")
+  ros.call(names.DECISION_PREEMPT_SERVICE)
     .then((r) => studyLog(`preempt: ${r.message}`, r.success ? "warning" : "error"))
     .catch((err) => studyLog(`preempt refused: ${err.message}`, "error"));
 }

@@ -17,9 +17,10 @@
 // shown frame; the telemetry (/vr_teleop/telemetry, 2 Hz) lists the recent frames' RTP timestamps with their
 // render times (RenderTimes). ServerClock (/vr_teleop/clock, NTP-style) puts the server's times on this clock.
 
-export const OFFER_SERVICE = "/vr_teleop/media/offer";
-export const CLOCK_SERVICE = "/vr_teleop/clock";
-export const TELEMETRY_TOPIC = "/vr_teleop/telemetry";
+import * as names from "./names.js";
+export const OFFER_SERVICE = names.MEDIA_OFFER_SERVICE;
+export const CLOCK_SERVICE = names.CLOCK_SERVICE;
+export const TELEMETRY_TOPIC = names.TELEMETRY_TOPIC;
 
 /** Why there is no WebRTC: `refused` when the server said no (its message), otherwise a local or network cause. */
 export class MediaError extends Error {
@@ -218,7 +219,7 @@ export function onVideoFrames(video, callback) {
 // createPeerConnection. IceErrors collects the relays' refusals (wrong or expired credentials) for the page to
 // show; mediaRoute says from getStats whether the media go direct or through a relay, and over what.
 
-export const ICE_SERVERS_SERVICE = "/vr_teleop/media/ice_servers";
+export const ICE_SERVERS_SERVICE = names.MEDIA_ICE_SERVERS_SERVICE;
 
 /** {iceServers, expires, message}: the server's ICE servers for RTCPeerConnection. A server without the service or
  * that refuses it gives none (host candidates only: a LAN), with the reason in message. */

@@ -12,8 +12,9 @@
 // Without a microphone (refused, none, or a page that is not a secure context) push-to-talk is off, and `status`
 // says so for the HUD.
 
-const ROBOT_TOPIC = "/vr_teleop/audio/robot";
-const OPERATOR_TOPIC = "/vr_teleop/audio/operator";
+import * as names from "../names.js";
+const ROBOT_TOPIC = names.ROBOT_AUDIO_TOPIC;
+const OPERATOR_TOPIC = names.OPERATOR_AUDIO_TOPIC;
 const CHUNK_S = 0.1;
 const START_LEAD_S = 0.08;  // a first chunk starts this far ahead, so the next one is there in time
 

@@ -5,12 +5,13 @@
 // rosbridge connection and falls back to the JPEG topic when that is refused, impossible or fails later, saying so.
 // Signalling, the clock and the RTP -> render time mapping are ../webrtc.js, shared with the dashboard.
 
+import * as names from "../names.js";
 import * as THREE from "three";
-import {stampSeconds} from "./rosbridge.js";
+import {stampSeconds} from "../rosbridge.js";
 import {IceErrors, MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn,
         mediaRoute, negotiate, onVideoFrames, webRtcMissing} from "../webrtc.js";
 
-export const CAMERA_TOPIC = "/camera/color/image_raw/compressed";
+export const CAMERA_TOPIC = names.CAMERA_TOPIC;
 const AGES_KEPT = 2000;
 
 export class JpegCameraSource {

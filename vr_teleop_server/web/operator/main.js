@@ -3,8 +3,9 @@
 // the menus from /vr_teleop/menus, the robot's camera on a panel, sound both ways and a heads-up display.
 // Without a headset the same page is a flat view: mouse-look drives the head, the keyboard the menus.
 
+import * as names from "../names.js";
 import * as THREE from "three";
-import {Rosbridge, stampSeconds} from "./rosbridge.js";
+import {Rosbridge, stampSeconds} from "../rosbridge.js";
 import {poseStamped, joyFromGamepad, joyMessage, sameJoy} from "./ros_axes.js";
 import {CameraFeed} from "./camera.js";
 import {PoseChannel} from "./pose_channel.js";
@@ -14,16 +15,16 @@ import {Audio} from "./audio.js";
 import {ControllerActions} from "./controls.js";
 
 const TOPICS = {
-  head: "/vr/head/pose", left: "/vr/left_controller/pose", right: "/vr/right_controller/pose",
-  leftJoy: "/vr/left_controller/joy", rightJoy: "/vr/right_controller/joy",
+  head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
+  leftJoy: names.JOY_TOPICS.left, rightJoy: names.JOY_TOPICS.right,
 };
 const SERVICES = {
-  engage: "/vr_teleop/control/engage", calibrate: "/vr_teleop/control/calibrate",
-  recenter: "/vr_teleop/control/recenter",
-  estop: "/vr_teleop/control/estop", select: "/vr_teleop/menu/select", time: "/rosapi/get_time",
-  whoami: "/vr_teleop/whoami",
+  engage: names.ENGAGE_SERVICE, calibrate: names.CALIBRATE_SERVICE,
+  recenter: names.RECENTER_SERVICE,
+  estop: names.ESTOP_SERVICE, select: names.MENU_SELECT_SERVICE, time: names.ROSAPI_GET_TIME_SERVICE,
+  whoami: names.WHOAMI_SERVICE,
 };
-const TELEMETRY_TOPIC = "/vr_teleop/telemetry";
+const TELEMETRY_TOPIC = names.TELEMETRY_TOPIC;
 const JOY_KEEPALIVE_MS = 33;   // Joy goes out on every change, and at least at 30 Hz
 const HUD_PERIOD_MS = 200;     // the heads-up display is redrawn five times a second
 const RTT_PERIOD_MS = 1000;
@@ -224,7 +225,7 @@ function linkLine() {
 }
 
 // ---- the robot's state ----------------------------------------------------------------------------------------------
-ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
+ros.subscribe(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", (s) => {
   if (state.claimHolder && s.engaged && s.holder) {
     state.me = s.holder;
     state.claimHolder = false;
@@ -235,13 +236,13 @@ ros.subscribe("/vr_teleop/teleop_state", "vr_teleop_msgs/TeleopState", (s) => {
   state.lastClamped = clamped;
   state.teleop = s;
 }, {throttle_rate: 100, queue_length: 1});
-ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (js) => {
+ros.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", (js) => {
   js.name.forEach((name, i) => {
     if (name === "HeadYaw") state.robotHead.yaw = js.position[i];
     if (name === "HeadPitch") state.robotHead.pitch = js.position[i];
   });
 }, {throttle_rate: 30, queue_length: 1});
-ros.subscribe("/vr_teleop/events", "vr_teleop_msgs/Event", (e) => {
+ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
   let detail = {};
   try { detail = e.detail ? JSON.parse(e.detail) : {}; } catch { /* free text */ }
   if (e.source === "backend") {  // a real robot's own news: its motors' faults, a voice in the room
@@ -262,7 +263,7 @@ ros.subscribe("/vr_teleop/events", "vr_teleop_msgs/Event", (e) => {
 // ---- menus ----------------------------------------------------------------------------------------------------------
 const nav = new MenuNavigator();
 let menuDirty = true;
-ros.subscribe("/vr_teleop/menus", "vr_teleop_msgs/Menus", (msg) => {
+ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (msg) => {
   try {
     nav.setTree(parseMenus(msg));
     state.menusProblem = null;

@@ -19,12 +19,13 @@
 // (send() answers false) until the channel takes one again. The server merges both roads by stamp (older than
 // the newest taken: dropped), so the watchdog holds only when both roads are stalled.
 
-import {stampSeconds} from "./rosbridge.js";
+import * as names from "../names.js";
+import {stampSeconds} from "../rosbridge.js";
 
 export const POSES_LABEL = "poses";
-const HEAD = "/vr/head/pose";
-export const POSE_TOPICS = [HEAD, "/vr/left_controller/pose", "/vr/right_controller/pose"];
-export const JOY_TOPICS = ["/vr/left_controller/joy", "/vr/right_controller/joy"];
+const HEAD = names.HEAD_POSE_TOPIC;
+export const POSE_TOPICS = [HEAD, names.CONTROLLER_POSE_TOPICS.left, names.CONTROLLER_POSE_TOPICS.right];
+export const JOY_TOPICS = [names.JOY_TOPICS.left, names.JOY_TOPICS.right];
 export const BUFFER_BUDGET = 260;   // bytes: about two full frames (130 bytes each)
 export const STALL_MS = 100;        // no head pose taken by the channel for this long: the head goes over rosbridge
 

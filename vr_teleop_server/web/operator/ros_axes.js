@@ -5,7 +5,7 @@
 // Poses go out with header.frame_id FRAME_ID ("webxr"): the server reads any frame id other than "unity_left_handed" as ROS
 // axes, and a name of our own keeps the page independent of whatever the Unity convention becomes.
 
-import {stampNow} from "./rosbridge.js";
+import {stampNow} from "../rosbridge.js";
 
 export const FRAME_ID = "webxr";
 

@@ -1,14 +1,36 @@
-// A small rosbridge v2 client for the operator page: reconnects by itself with backoff, re-sends its auth,
-// advertisements and subscriptions on every new connection, and never queues streamed data while disconnected
-// (a pose from a second ago is worth nothing; the server's watchdog holds the robot meanwhile).
+// The pages' rosbridge v2 client, one for the dashboard (dashboard.js) and the operator page (operator/*.js).
+//
+//   import {connect} from "/rosbridge.js";                 // or "../rosbridge.js" from /operator/
+//   import * as names from "/names.js";                     // every topic and service name (generated)
+//   const ros = connect(`wss://${location.host}/`, {token, idPrefix: "mypage"});
+//   ros.subscribe(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", (msg) => ..., {queue_length: 1});
+//   ros.advertise(topic, "std_msgs/String");                 // once; sent again on every new connection
+//   ros.publish(topic, {data: "hi"});                        // true when sent, false when dropped (see below)
+//   ros.callService(names.ENGAGE_SERVICE, {data: true})     // a promise of the response's values; `call` too
+//     .then((values) => ..., (err) => err.refused ? say(err.message) : ...);
+//   ros.onopen / ros.onclose(reason, retryInMs) / ros.onstatus(statusMessage)  // callbacks to set
+//   ros.connected, ros.nextRetryAt, ros.close()
+//
+// One rule for connections: it connects by itself and reconnects with backoff (0.5 s doubling to 8 s), and on
+// every new connection it sends first the token (auth) and set_level warning (clamps and refusals reach the page
+// as status warnings), then its advertisements and subscriptions again. Nothing waits in a queue while it is
+// disconnected: a publish is dropped (publish() says false; a pose from a second ago is worth nothing, and the
+// server's watchdog holds the robot meanwhile), and so is a streamed publish while the socket is backed up; a
+// call is refused at once (its promise rejects), so that nothing the user asked for runs later by surprise.
+// Calls pending when the connection drops reject; a call unanswered in its timeout (10 s) rejects.
+//
+// The refusal rule, once: a call the server ran and refused comes back as a successful response whose values say
+// success: false (or LuxAI's status: false) with message why; the promise rejects with an Error whose message is
+// that reason and whose `refused` is true. A call rosbridge could not run (result false) rejects with refused false.
 
 const BACKOFF_FIRST_MS = 500;
 const BACKOFF_MAX_MS = 8000;
+const CALL_TIMEOUT_MS = 10000;
 const SEND_BUFFER_LIMIT = 1 << 20;  // bytes waiting in the socket: beyond this, streamed publishes are skipped
 
 export class Rosbridge {
-  /** url: ws:// or wss://; token: the access token (null when the server is open). */
-  constructor(url, {token = null, idPrefix = "operator"} = {}) {
+  /** url: ws:// or wss://; token: the access token (null when the server is open); idPrefix: of call ids. */
+  constructor(url, {token = null, idPrefix = "page"} = {}) {
     this.url = url;
     this.token = token;
     this.idPrefix = idPrefix;
@@ -24,10 +46,10 @@ export class Rosbridge {
     this.onclose = () => {};
     this.onstatus = () => {};
     this.stopped = false;
-    this.connect();
+    this.open();
   }
 
-  connect() {
+  open() {
     if (this.stopped) return;
     let ws;
     try {
@@ -42,7 +64,7 @@ export class Rosbridge {
       this.attempt = 0;
       this.nextRetryAt = null;
       if (this.token) this.raw({op: "auth", mac: this.token});
-      this.raw({op: "set_level", level: "warning"});  // clamps and refusals reach us as status warnings
+      this.raw({op: "set_level", level: "warning"});
       for (const [topic, type] of this.advertised) this.raw({op: "advertise", topic, type});
       for (const frame of this.subscriptions.values()) this.raw(frame);
       this.onopen();
@@ -75,7 +97,7 @@ export class Rosbridge {
     this.attempt += 1;
     this.nextRetryAt = performance.now() + delay;
     this.onclose(reason, delay);
-    setTimeout(() => this.connect(), delay);
+    setTimeout(() => this.open(), delay);
   }
 
   close() {
@@ -101,11 +123,11 @@ export class Rosbridge {
       if (!waiter) return;
       this.pending.delete(msg.id);
       clearTimeout(waiter.timer);
-      // a refusal is a successful call whose response says so (success/status false, message why)
-      const refused = msg.result && msg.values && (msg.values.success === false || msg.values.status === false);
-      if (refused) waiter.reject(Object.assign(new Error(String(msg.values.message || "refused")), {refused: true}));
-      else if (msg.result) waiter.resolve(msg.values);
-      else waiter.reject(new Error(typeof msg.values === "string" ? msg.values : JSON.stringify(msg.values)));
+      try {
+        waiter.resolve(outcome(msg));
+      } catch (err) {
+        waiter.reject(err);
+      }
     } else if (msg.op === "status") {
       this.onstatus(msg);
     }
@@ -132,7 +154,7 @@ export class Rosbridge {
     return true;
   }
 
-  call(service, args = {}, timeoutMs = 10000) {
+  call(service, args = {}, timeoutMs = CALL_TIMEOUT_MS) {
     if (!this.connected) return Promise.reject(new Error("not connected to the server"));
     const id = `${this.idPrefix}:${++this.ids}`;
     return new Promise((resolve, reject) => {
@@ -144,6 +166,30 @@ export class Rosbridge {
       this.raw({op: "call_service", id, service, args});
     });
   }
+
+  /** call, under roslibjs's name. */
+  callService(service, args = {}, timeoutMs = CALL_TIMEOUT_MS) {
+    return this.call(service, args, timeoutMs);
+  }
+}
+
+/** A client connecting to `url` at once (see the top of this module). */
+export function connect(url, options = {}) {
+  return new Rosbridge(url, options);
+}
+
+/** A service_response frame's values, or the Error saying why the call did not do what was asked (the refusal
+ * rule: a successful response that says success/status false is a refusal, its message the reason). */
+export function outcome(msg) {
+  const values = msg.values;
+  if (msg.result && values && (values.success === false || values.status === false)) {
+    throw Object.assign(new Error(String(values.message || "refused")), {refused: true, values});
+  }
+  if (!msg.result) {
+    throw Object.assign(new Error(typeof values === "string" ? values : JSON.stringify(values)),
+                        {refused: false, values});
+  }
+  return values;
 }
 
 /** The server's header stamp ({secs, nsecs} or {sec, nanosec}) in seconds. */
