@@ -17,7 +17,7 @@ import yaml
 from robot_models import load_qtrobot
 from scipy import stats
 from study_support import small_study
-from support import RunningServer, patient_teleop
+from support import patient_teleop
 
 from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.tools import synth
@@ -58,15 +58,6 @@ def test_two_simulated_replays_of_a_session_give_identical_reports(nod, tmp_path
     assert camera["frames"] >= int(first["session_s"] * 30) and first["errors"]["count"] == 0
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("speed_max_server")
-    running = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a",
-                                           teleop=patient_teleop()))
-    yield running
-    running.stop()
-
-
 def timing_free_teleop() -> TeleopSettings:
     """The mapping without its time-dependent parts (filters pass through, caps out of reach, no ramp): its
     commands follow from the poses alone, so a loaded machine's delays in a real-time replay cannot move them.
@@ -78,12 +69,8 @@ def timing_free_teleop() -> TeleopSettings:
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("speed_max_server")
-    running = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a",
-                                           teleop=timing_free_teleop()))
-    yield running
-    running.stop()
+def server(module_servers):
+    return module_servers(backend="sim", teleop=timing_free_teleop())
 
 
 def test_a_simulated_replay_agrees_with_a_real_time_replay(nod, server, tmp_path):
