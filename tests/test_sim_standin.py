@@ -277,15 +277,15 @@ def test_physics_never_runs_ahead_of_real_time_and_drops_a_backlog(standin):
     assert stats.lag_s >= 0.0
 
     # Stall the physics loop (it steps under the state lock) for well over MAX_LAG_S.
-    stall = standin.MAX_LAG_S * 4
+    stall = standin.physics.MAX_LAG_S * 4
     before, wall0 = standin.physics_stats(), time.monotonic()
-    with standin._lock:
+    with standin.physics.lock:
         time.sleep(stall)
     assert wait_until(lambda: standin.physics_stats().resyncs > before.resyncs, 30.0), "the backlog was not dropped"
     assert wait_until(lambda: standin.physics_stats().steps > before.steps + 10, 30.0)  # and it goes on
     stats, wall = standin.physics_stats(), time.monotonic()
     # It dropped more than MAX_LAG_S of backlog instead of catching up: simulated time now trails wall time by it.
-    assert stats.sim_time - before.sim_time <= wall - wall0 - standin.MAX_LAG_S, (stats, before, wall - wall0)
+    assert stats.sim_time - before.sim_time <= wall - wall0 - standin.physics.MAX_LAG_S, (stats, before, wall - wall0)
 
 
 def test_close_stops_threads_and_the_render_process_promptly():
