@@ -35,6 +35,8 @@ from support import (
 
 from client_protocol import names
 
+pytestmark = pytest.mark.slow  # a fake QTrobot v3 hub, over ZeroMQ and MQTT
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -28,6 +28,8 @@ from support import (
 
 from client_protocol import names
 
+pytestmark = pytest.mark.slow  # a robot-side server, dropped and back
+
 
 def free_port() -> int:
     with socket.socket() as s:

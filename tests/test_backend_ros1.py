@@ -16,6 +16,8 @@ from support import RawClient, RunningServer, Watch, call, wait_for
 
 from client_protocol import names
 
+pytestmark = pytest.mark.slow  # a ROS 1 robot-side rosbridge
+
 SAY = names.SPEECH_SAY_SERVICE
 STOP = names.SPEECH_STOP_SERVICE
 

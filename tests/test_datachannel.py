@@ -16,7 +16,7 @@ from aiortc import RTCPeerConnection
 from media_client import MediaPeer, Rosbridge
 from support import IDENTITY, RunningServer, pose_msg, unity_yaw_pitch
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
 
 HEAD_POSE = "/vr/head/pose"
 HEAD_COMMAND = "/qt_robot/head_position/command"

@@ -31,6 +31,8 @@ from websockets.sync.client import connect as sync_connect
 
 from client_protocol import names
 
+pytestmark = pytest.mark.slow  # a minute of churn, stalled clients, memory traced
+
 ROOT = Path(__file__).resolve().parent.parent
 MIB = 1024 * 1024
 CHURN_SECONDS = float(os.environ.get("CHURN_SECONDS", "60"))  # the issue asks for a minute

@@ -49,6 +49,8 @@ from websockets.exceptions import ConnectionClosed
 from robot_models import load_qtrobot
 from vr_teleop_server.core.bus import SERVER_NODE
 
+pytestmark = pytest.mark.slow  # campaigns of thousands of frames
+
 FIXED_SEED = 20261123
 FRAMES_PER_SEED = 5_000 if os.environ.get("FUZZ_FRAMES") is None else int(os.environ["FUZZ_FRAMES"])
 RANDOM_SEED = None if os.environ.get("FUZZ_SEED") is None else int(os.environ["FUZZ_SEED"])  # fixes the "random" run

@@ -21,7 +21,7 @@ from media_client import MediaPeer, Rosbridge, Tone
 from support import RunningServer
 from test_frame_ring import holds_ring
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
 
 
 @pytest.fixture(scope="module")

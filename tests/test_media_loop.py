@@ -16,7 +16,7 @@ from media_client import MediaPeer, Rosbridge
 from test_datachannel import HEAD_POSE, engage_over_websocket, head_pose, release, whoami
 from vr_teleop_server.media.media_loop import THREAD_NAME, MediaLoop
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
 
 POSES = 60
 

@@ -19,6 +19,8 @@ from support import Headset, RawClient, call, engage, patient_teleop, unity_yaw_
 from vr_teleop_server.tools import synth
 from vr_teleop_server.recording.format import read_recording
 
+pytestmark = pytest.mark.slow  # recorded sessions replayed in real time
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]  # roslibpy's own suite, run whole
 
 NOT_RUN = ("test_core.py", "test_tf.py")
 ISSUE18_CORE = "issue 18 core: "

@@ -19,6 +19,8 @@ from vr_teleop_server.recording.format import read_recording
 from vr_teleop_server.tools.replay import load_steps, plot, report, run_replay
 from vr_teleop_server.tools.synth import build, menu_tour, write
 
+pytestmark = pytest.mark.slow  # sessions replayed in real time
+
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
 
 

@@ -24,6 +24,8 @@ from vr_teleop_server.tools import synth
 from vr_teleop_server.teleop.settings import OneEuroSettings, TeleopSettings
 from vr_teleop_server.tools.replay import ENGAGE_LAGS, load_steps, report, run_replay, run_simulated
 
+pytestmark = pytest.mark.slow  # replays and studies, real-time and simulated
+
 ROOT = Path(__file__).resolve().parent.parent
 WALL_FIELDS = ("replay_s", "speed_achieved", "served_s", "speed_served")  # how long it took: the machine's
 

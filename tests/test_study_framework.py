@@ -24,6 +24,8 @@ from vr_teleop_server.tools.study_runner import recorded_metrics
 from vr_teleop_server.study.runtime import TrialResult, TrialRuntime
 from vr_teleop_server.study.studyfile import Study, StudyFileError, load_study
 
+pytestmark = pytest.mark.slow  # study trials run whole
+
 
 @pytest.fixture(scope="module")
 def server(module_servers, tmp_path_factory: pytest.TempPathFactory):
