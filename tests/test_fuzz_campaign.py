@@ -298,8 +298,7 @@ def fuzz_server(module_servers):
     server = module_servers(backend="sim", max_message_size=MAX_MESSAGE, hard_frame_factor=HARD_FACTOR,
                             fragment_timeout=2.0, camera_width=64, camera_height=48, camera_fps=5,
                             service_timeout=2.0)
-    log = CommandLog(server)
-    yield server, log
+    return server, CommandLog(server)
 
 
 class Run:

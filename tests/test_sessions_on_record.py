@@ -53,7 +53,7 @@ def test_synth_sessions_are_seeded_and_the_classroom_lasts_five_minutes(tmp_path
 def recording_server(module_servers, tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("recording_server")
     server = module_servers(backend="sim", record=tmp / "session.mcap", record_camera_fps=5, teleop=patient_teleop())
-    yield server, tmp / "session.mcap"
+    return server, tmp / "session.mcap"
 
 
 def test_replay_reports_latency_tracking_camera_and_the_recording_holds_it_all(recording_server, tmp_path):
