@@ -7,8 +7,9 @@ moves continuously with a little tracking jitter (so the IK cache seldom helps) 
   sides  hands sweep out towards a T-pose, where many targets lie beyond the arm's limits and the IK falls
          back to a bounded Levenberg-Marquardt search;
   mixed  half of each.
-Each frame runs through today's TeleopMapper and through the step as it was before issue 28, kept verbatim in
-bench/teleop_reference/ (same poses, the two interleaved frame by frame, their commands compared as they go).
+Each frame runs through today's TeleopMapper and through the step as it was before issue 28, taken from git at
+BASELINE_COMMIT (same poses, the two interleaved frame by frame, their commands compared as they go; see
+reference_mapper: a clone without that commit, a shallow one, stops with the fix).
 Costs are this thread's CPU time (time.thread_time_ns), so that the scheduler's pauses on a busy machine, which
 land on whichever implementation happens to run, stay out of the ratio; wall-clock percentiles are printed too.
 The targets: now/reference <= 0.25 at p50 and p99, and one operator at 90 Hz under 5% of a core (process CPU
@@ -26,11 +27,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import gc
+import io
 import json
 import math
 import socket
 import subprocess
 import sys
+import tarfile
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -39,11 +43,56 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from robot_models import load_qtrobot
-from teleop_reference import TeleopMapper as ReferenceMapper  # the step before issue 28, verbatim
 from vr_teleop_server.teleop import TeleopMapper
 
 RATE = 90.0
 ROOT = Path(__file__).resolve().parent.parent
+# The last commit whose vr_teleop_server/teleop/ is the step before issue 28 (its parent of 5dbce16 made the plain-
+# float step): the baseline this bench divides by, never to be fixed or sped up.
+BASELINE_COMMIT = "377e5c021e157f2de2abd326406038672b53b691"
+# The baseline's only changes, imports: the IK it called lived in robot_models then (it comes along, as
+# kinematics.py, on today's robot model), and the settings model is today's (read once, on no frame's path).
+BASELINE_IMPORTS = {
+    "mapper.py": {"from robot_models import RobotModel, arm_ik, load_qtrobot":
+                  "from robot_models import RobotModel, load_qtrobot\n\nfrom .kinematics import arm_ik",
+                  "from .settings import TeleopSettings": "from vr_teleop_server.teleop.settings import TeleopSettings"},
+    "kinematics.py": {"from .qtrobot import": "from robot_models.qtrobot import"},
+}
+
+
+def reference_mapper(workdir: Path) -> type:
+    """TeleopMapper as it was at BASELINE_COMMIT, materialised from this clone's history into `workdir` as the
+    package teleop_reference and imported from there."""
+    if subprocess.run(["git", "-C", str(ROOT), "cat-file", "-e", f"{BASELINE_COMMIT}^{{commit}}"],
+                      capture_output=True).returncode != 0:
+        shallow = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--is-shallow-repository"],
+                                 capture_output=True, text=True).stdout.strip() == "true"
+        raise SystemExit(f"bench/teleop.py compares against the teleop step at commit {BASELINE_COMMIT[:7]}, which "
+                         f"this {'shallow clone' if shallow else 'checkout'} does not have: "
+                         f"{'`git fetch --unshallow`' if shallow else 'run it from a clone of the repository'}")
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", BASELINE_COMMIT,
+                              "vr_teleop_server/teleop", "robot_models/kinematics.py"],
+                             capture_output=True, check=True).stdout
+    tree = workdir / "tree"
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(tree, filter="data")
+    package = workdir / "teleop_reference"
+    (tree / "vr_teleop_server" / "teleop").rename(package)
+    (tree / "robot_models" / "kinematics.py").rename(package / "kinematics.py")
+    (package / "settings.py").unlink()
+    (package / "__init__.py").write_text(f'"""The teleop step at {BASELINE_COMMIT[:7]}."""\n'
+                                         "from .mapper import TeleopMapper\n")
+    for name, imports in BASELINE_IMPORTS.items():
+        text = (package / name).read_text()
+        for was, now in imports.items():
+            if was not in text:
+                raise RuntimeError(f"{BASELINE_COMMIT[:7]}'s {name} has no line {was!r}")
+            text = text.replace(was, now)
+        (package / name).write_text(text)
+    sys.path.insert(0, str(workdir))
+    from teleop_reference import TeleopMapper as reference  # made just above
+
+    return reference
 
 
 def pose_msg(pos, quat) -> dict:
@@ -107,11 +156,11 @@ def one_frame(mapper: Any, t: float, head: dict, left: dict, right: dict) -> tup
     return (w2 - w0) / 1e3, (t2 - t0) / 1e3, (t2 - t1) / 1e3, out
 
 
-def run(scenario: str, frames: int, seed: int = 0) -> dict[str, dict[str, np.ndarray] | float]:
+def run(reference: type, scenario: str, frames: int, seed: int = 0) -> dict[str, dict[str, np.ndarray] | float]:
     """Both implementations over the same poses, frame by frame in alternating order (neither always goes first
     on a busy machine); their commands are compared as they go."""
     poses = frames_of(scenario, frames, seed)
-    mappers = {"reference": engaged(ReferenceMapper), "now": engaged(TeleopMapper)}
+    mappers = {"reference": engaged(reference), "now": engaged(TeleopMapper)}
     times = {k: {"wall": np.empty(frames), "cpu": np.empty(frames), "step": np.empty(frames)} for k in mappers}
     worst = 0.0
     gc.collect()
@@ -129,12 +178,12 @@ def run(scenario: str, frames: int, seed: int = 0) -> dict[str, dict[str, np.nda
     return {**times, "worst_deg": worst}
 
 
-def cpu_per_operator(frames: int) -> tuple[float, float]:
+def cpu_per_operator(reference: type, frames: int) -> tuple[float, float]:
     """(process CPU seconds per second of operator at 90 Hz, as a fraction of one core) for each implementation:
     the mixed scenario's frames fed back to back, CPU time by the process clock (not wall time)."""
     poses = frames_of("mixed", frames, 1)
     out = []
-    for cls in (ReferenceMapper, TeleopMapper):
+    for cls in (reference, TeleopMapper):
         mapper = engaged(cls)
         gc.collect()
         c0 = time.process_time()
@@ -253,11 +302,20 @@ def main(argv: list[str] | None = None) -> int:
     frames = 2_000 if args.quick else args.frames
     scenarios = ["front", "sides", "mixed"] if args.scenario == "all" else [args.scenario]
     budget = 1e6 / RATE
+    with tempfile.TemporaryDirectory(prefix="teleop-baseline-") as workdir:
+        reference = reference_mapper(Path(workdir))
+        mapping(reference, scenarios, frames, budget)
+    if not args.skip_wire:
+        wire(5.0 if args.quick else args.duration)
+    return 0
+
+
+def mapping(reference: type, scenarios: list[str], frames: int, budget: float) -> None:
     print(f"teleop mapping, {frames} frames at {RATE:g} Hz per scenario (budget {budget:.0f} us per frame), head and "
-          "both arms following; the reference is the step before issue 28 (bench/teleop_reference), same poses, "
+          f"both arms following; the reference is the step before issue 28 (git {BASELINE_COMMIT[:7]}), same poses, "
           "frames interleaved")
     for sc in scenarios:
-        r = run(sc, frames)
+        r = run(reference, sc, frames)
         row = {}
         for k in ("reference", "now"):
             cpu, wall, st = r[k]["cpu"], r[k]["wall"], r[k]["step"]
@@ -268,12 +326,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {sc:6s} now/reference  frame CPU p50 {row['now'][0] / row['reference'][0]:5.3f}  "
               f"p99 {row['now'][1] / row['reference'][1]:5.3f}   (target <= 0.25; commands differ by at most "
               f"{r['worst_deg']:.2g} deg)")
-    ref_cpu, now_cpu = cpu_per_operator(frames)
+    ref_cpu, now_cpu = cpu_per_operator(reference, frames)
     print(f"  CPU per operator at {RATE:g} Hz (process time, mixed): reference {100 * ref_cpu:4.1f}% of a core, "
           f"now {100 * now_cpu:4.2f}% (target < 5%)")
-    if not args.skip_wire:
-        wire(5.0 if args.quick else args.duration)
-    return 0
 
 
 if __name__ == "__main__":

@@ -5,36 +5,34 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Callable, Iterator
-from typing import Any
 
 import pytest
 import roslibpy
 
-from support import RawClient, RunningServer, Watch
-from vr_teleop_server.settings import ServerSettings
+from support import RawClient, RunningServer, ServerFactory, Watch
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 @pytest.fixture
-def server_factory() -> Iterator[Callable[..., RunningServer]]:
-    servers: list[RunningServer] = []
+def servers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerFactory]:
+    """Servers for one test (support.ServerFactory: keywords are ServerSettings'), stopped after it."""
+    factory = ServerFactory(tmp_path_factory.mktemp)
+    yield factory
+    factory.stop_all()
 
-    def make(**overrides: Any) -> RunningServer:
-        """A server on a free port; without the robot unless backend="sim" is given (the spine needs none)."""
-        settings = ServerSettings(**{"port": 0, "backend": "none", **overrides})
-        s = RunningServer(settings)
-        servers.append(s)
-        return s
 
-    yield make
-    for s in servers:
-        s.stop()
+@pytest.fixture(scope="module")
+def module_servers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerFactory]:
+    """Servers shared by a module's tests (which must leave them as they found them), stopped after the module."""
+    factory = ServerFactory(tmp_path_factory.mktemp)
+    yield factory
+    factory.stop_all()
 
 
 @pytest.fixture
-def server(server_factory: Callable[..., RunningServer]) -> RunningServer:
-    return server_factory()
+def server(servers: ServerFactory) -> RunningServer:
+    return servers()
 
 
 @pytest.fixture
@@ -63,13 +61,9 @@ def client(client_factory: Callable[[], RawClient]) -> RawClient:
 
 
 @pytest.fixture(scope="module")
-def sim_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
-    """One server with the MuJoCo stand-in per test module (it takes about a second to start); recordings and
-    audio logs go to the module's own temporary directory."""
-    tmp = tmp_path_factory.mktemp("sim_server")
-    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "gestures", audio_dir=tmp / "audio"))
-    yield server
-    server.stop()
+def sim_server(module_servers: ServerFactory) -> RunningServer:
+    """One server with the MuJoCo stand-in per test module (it takes about a second to start)."""
+    return module_servers(backend="sim")
 
 
 @pytest.fixture
@@ -93,6 +87,14 @@ def watch(ros: roslibpy.Ros) -> Iterator[Callable[[str, str], Watch]]:
     yield make
     for w in made:
         w.close()
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that opens pages is a browser test (and a slow one: Chromium and SwiftShader start per module)."""
+    for item in items:
+        if "browser" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.browser)
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(scope="module")

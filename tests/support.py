@@ -8,6 +8,7 @@ import threading
 import re
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import roslibpy
@@ -96,6 +97,34 @@ class RunningServer:
             asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(30)  # a loaded 2-core machine
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(10)
+
+    def __enter__(self) -> RunningServer:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.stop()
+
+
+class ServerFactory:
+    """The tests' one way to start servers (conftest's `servers` and `module_servers`): settings from keywords
+    (port 0, no robot unless backend="sim" or another is given), gestures and audio logs in a directory of the
+    test's own unless given; every server it made is stopped by `stop_all`, a test's own `stop` first or not."""
+
+    def __init__(self, tmp: Callable[[str], Path]) -> None:
+        self._tmp = tmp  # makes a fresh temporary directory for a server
+        self.made: list[RunningServer] = []
+
+    def __call__(self, **overrides: Any) -> RunningServer:
+        tmp = self._tmp("server")
+        settings = ServerSettings(**{"port": 0, "backend": "none", "gesture_dir": tmp / "gestures",
+                                     "audio_dir": tmp / "audio", **overrides})
+        server = RunningServer(settings)
+        self.made.append(server)
+        return server
+
+    def stop_all(self) -> None:
+        for server in reversed(self.made):
+            server.stop()
 
 
 class RawClient:

@@ -23,6 +23,7 @@ from operator_voice import VoiceSender, logged, pitch, tone
 from support import (
     Headset,
     RunningServer,
+    ServerFactory,
     Watch,
     call,
     engage,
@@ -35,22 +36,21 @@ from support import (
 
 from client_protocol import names
 from vr_teleop_server.robot.interface import VoiceActivity
-from vr_teleop_server.settings import ServerSettings
+
+pytestmark = pytest.mark.slow  # a fake QTrobot v3 hub, over ZeroMQ and MQTT
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def luxai_server(hub: FakeQtrobotV3, tmp: Path, **settings) -> RunningServer:
-    return RunningServer(ServerSettings(port=0, backend="luxai", gesture_dir=tmp / "g", audio_dir=tmp / "a",
-                                        bystander_interval=0, **settings))
+def luxai_server(servers: ServerFactory, **settings) -> RunningServer:
+    return servers(backend="luxai", bystander_interval=0, **settings)
 
 
 @pytest.fixture(scope="module")
-def zmq_robot(tmp_path_factory):
+def zmq_robot(module_servers):
     """One fake hub (with its camera plugin) and one server on it, over ZeroMQ, for the module."""
     hub = FakeQtrobotV3().start()
-    tmp = tmp_path_factory.mktemp("luxai")
-    server = luxai_server(hub, tmp, robot_url=f"tcp://127.0.0.1:{hub.hub_port}",
+    server = luxai_server(module_servers, robot_url=f"tcp://127.0.0.1:{hub.hub_port}",
                           camera_url=f"tcp://127.0.0.1:{hub.camera_port}")
     ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
     ros.run(timeout=10)
@@ -353,11 +353,11 @@ def test_the_robot_lost_and_back(zmq_robot):
         events.close()
 
 
-def test_a_robot_without_the_camera_plugin_runs_without_a_camera(tmp_path):
+def test_a_robot_without_the_camera_plugin_runs_without_a_camera(servers):
     hub = FakeQtrobotV3(camera=False).start()
     server = None
     try:
-        server = luxai_server(hub, tmp_path, robot_url=f"tcp://127.0.0.1:{hub.hub_port}",
+        server = luxai_server(servers, robot_url=f"tcp://127.0.0.1:{hub.hub_port}",
                               camera_url=f"tcp://127.0.0.1:{free_port()}")
         ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
         ros.run(timeout=10)
@@ -428,11 +428,11 @@ class Mosquitto:
 
 
 @pytest.fixture(scope="module")
-def mqtt_robot(tmp_path_factory):
+def mqtt_robot(module_servers, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("mqtt")
     broker = Mosquitto(tmp).start()
     hub = FakeQtrobotV3(broker=f"mqtt://127.0.0.1:{broker.port}", zmq=False).start()
-    server = luxai_server(hub, tmp, robot_url=f"mqtt://127.0.0.1:{broker.port}", robot_id=hub.robot_id)
+    server = luxai_server(module_servers, robot_url=f"mqtt://127.0.0.1:{broker.port}", robot_id=hub.robot_id)
     ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
     ros.run(timeout=10)
     yield broker, hub, server, ros
@@ -488,7 +488,7 @@ def test_a_broker_restart_is_the_robot_lost_and_back(mqtt_robot):
         events.close()
 
 
-def test_a_tls_broker_with_a_login(tmp_path, monkeypatch):
+def test_a_tls_broker_with_a_login(servers, tmp_path, monkeypatch):
     """mqtts:// with a CA file and a username and password (as a school's or a cloud broker wants): the robot is
     reached and moves; the gateway of the fake robot logs in the same way."""
     from luxai.robot import MqttAuthOptions, MqttOptions, MqttTlsOptions
@@ -507,7 +507,7 @@ def test_a_tls_broker_with_a_login(tmp_path, monkeypatch):
     hub = server = None
     try:
         hub = FakeQtrobotV3(broker=url, broker_options=login, zmq=False, camera=False).start()
-        server = luxai_server(hub, tmp_path, robot_url=url, robot_id=hub.robot_id, mqtt_ca_file=cert.certfile,
+        server = luxai_server(servers, robot_url=url, robot_id=hub.robot_id, mqtt_ca_file=cert.certfile,
                               mqtt_username="teacher", mqtt_password="s3cret")
         assert server.call(lambda: server.server.robot.set_joint_targets({"HeadPitch": 12.0})).ok
         assert wait_for(lambda: abs(hub.positions["HeadPitch"] - 12.0) < 0.5, 10), hub.positions

@@ -16,6 +16,7 @@ from media_client import MediaPeer, Rosbridge, Tone
 from support import (
     Headset,
     RunningServer,
+    ServerFactory,
     Watch,
     call,
     refused,
@@ -26,7 +27,8 @@ from support import (
 )
 
 from client_protocol import names
-from vr_teleop_server.settings import ServerSettings
+
+pytestmark = pytest.mark.slow  # a robot-side server, dropped and back
 
 
 def free_port() -> int:
@@ -35,16 +37,15 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def robot_side(port: int, tmp) -> RunningServer:
-    return RunningServer(ServerSettings(port=port, backend="sim", gesture_dir=tmp / "rg", audio_dir=tmp / "ra"))
+def robot_side(servers: ServerFactory, port: int) -> RunningServer:
+    return servers(port=port, backend="sim")
 
 
 @pytest.fixture
-def robot_and_server(tmp_path):
+def robot_and_server(servers):
     port = free_port()
-    robot = robot_side(port, tmp_path)
-    server = RunningServer(ServerSettings(port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}",
-                                          gesture_dir=tmp_path / "g", audio_dir=tmp_path / "a"))
+    robot = robot_side(servers, port)
+    server = servers(backend="ros", robot_url=f"ws://127.0.0.1:{port}")
     state = {"robot": robot}
     yield state, server, port
     server.stop()
@@ -74,7 +75,7 @@ def test_commands_camera_and_services_reach_the_robot(robot_and_server):
         ros.close()
 
 
-def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, tmp_path):
+def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, servers):
     state, server, port = robot_and_server
     ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
     ros.run(timeout=10)
@@ -93,7 +94,7 @@ def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, tmp_
         refused(call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True}), "disconnected")
         # refused, not queued (emotion_show has only `status`)
         refused(call(ros, "/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": "QT/sad"}))
-        state["robot"] = robot_side(port, tmp_path)  # back, on the same port
+        state["robot"] = robot_side(servers, port)  # back, on the same port
         assert wait_for(lambda: teleop.latest.get("robot_connected"), 20), teleop.latest
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), 5)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 5)
@@ -158,20 +159,18 @@ def rms(frame: np.ndarray) -> float:
     return float(np.sqrt(np.mean(mono(frame).astype(np.float32) ** 2)))
 
 
-async def test_the_robots_microphone_reaches_a_webrtc_peer(tmp_path):
+async def test_the_robots_microphone_reaches_a_webrtc_peer(servers):
     """qt_respeaker_app's channel 0 on the robot's rosbridge is mixed into the robot's WebRTC audio: a peer on our
     server hears the tone the robot's microphone hears, at its pitch, only while it sounds; the backend reads the
     microphone only while a peer listens."""
     port = free_port()
-    robot = robot_side(port, tmp_path)
+    robot = robot_side(servers, port)
     firmware = roslibpy.Ros(host="127.0.0.1", port=port)
     await asyncio.to_thread(firmware.run, 10)
     respeaker = RespeakerApp(firmware).start()
     server = peer = ros = None
     try:
-        server = await asyncio.to_thread(RunningServer, ServerSettings(
-            port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}", gesture_dir=tmp_path / "g",
-            audio_dir=tmp_path / "a"))
+        server = await asyncio.to_thread(servers, backend="ros", robot_url=f"ws://127.0.0.1:{port}")
         backend = server.server.robot
         assert not backend.microphone_read  # nobody listens yet
         ros = await Rosbridge.open(server.url)
@@ -207,12 +206,12 @@ async def test_the_robots_microphone_reaches_a_webrtc_peer(tmp_path):
         await asyncio.to_thread(robot.stop)
 
 
-async def test_the_operators_voice_goes_to_the_robots_speaker_topic(tmp_path):
+async def test_the_operators_voice_goes_to_the_robots_speaker_topic(servers):
     """A tone from an aiortc peer on our server reaches the robot's rosbridge as 16 kHz mono S16LE AudioData on the
     speaker topic (what audio_play on a QTrobot plays), at its pitch; the telemetry reports the level the robot
     plays, and a silenced tone is silence there too."""
     port = free_port()
-    robot = robot_side(port, tmp_path)
+    robot = robot_side(servers, port)
     listener = roslibpy.Ros(host="127.0.0.1", port=port)
     await asyncio.to_thread(listener.run, 10)
     chunks: list[np.ndarray] = []
@@ -221,9 +220,7 @@ async def test_the_operators_voice_goes_to_the_robots_speaker_topic(tmp_path):
     server = peer = ros = None
     tone = Tone(440.0, 0.5)
     try:
-        server = await asyncio.to_thread(RunningServer, ServerSettings(
-            port=0, backend="ros", robot_url=f"ws://127.0.0.1:{port}", gesture_dir=tmp_path / "g",
-            audio_dir=tmp_path / "a"))
+        server = await asyncio.to_thread(servers, backend="ros", robot_url=f"ws://127.0.0.1:{port}")
         ros = await Rosbridge.open(server.url)
         peer = MediaPeer(video=False, mic=tone)
         reply = await peer.negotiate(ros)

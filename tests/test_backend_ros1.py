@@ -19,7 +19,8 @@ from support import RawClient, RunningServer, Watch, call, refused, wait_for, wa
 
 from client_protocol import names
 from vr_teleop_server.robot.interface import VoiceActivity
-from vr_teleop_server.settings import ServerSettings
+
+pytestmark = pytest.mark.slow  # a ROS 1 robot-side rosbridge
 
 SAY = names.SPEECH_SAY_SERVICE
 STOP = names.SPEECH_STOP_SERVICE
@@ -33,12 +34,8 @@ def robot() -> Iterator[Ros1QTrobot]:
 
 
 @pytest.fixture(scope="module")
-def server(robot: Ros1QTrobot, tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
-    tmp = tmp_path_factory.mktemp("ros1")
-    running = RunningServer(ServerSettings(port=0, backend="ros", robot_url=robot.url, gesture_dir=tmp / "g",
-                                           audio_dir=tmp / "a"))
-    yield running
-    running.stop()
+def server(robot: Ros1QTrobot, module_servers) -> RunningServer:
+    return module_servers(backend="ros", robot_url=robot.url)
 
 
 @pytest.fixture

@@ -38,6 +38,12 @@ async def until(predicate, timeout: float) -> bool:
     return predicate()
 
 
+async def simulated_time_passes(robot: SimRobot, seconds: float) -> None:
+    """Until the stand-in's simulation has advanced by `seconds` (what a joint has had to move in)."""
+    start = robot.standin.joint_state().sim_time
+    assert await until(lambda: robot.standin.joint_state().sim_time >= start + seconds, 30), "the simulation stopped"
+
+
 async def at_home(robot: SimRobot) -> None:
     robot.set_control_mode(list(MODEL.parts), MotorMode.ON)
     robot.home()
@@ -114,7 +120,7 @@ async def test_motor_modes_and_status(robot):
     robot.set_control_mode(["head"], MotorMode.BRAKE)
     report = robot.set_part_targets("head", [30.0, 10.0])
     assert report.ignored == ("HeadYaw", "HeadPitch") and not report.ok
-    await asyncio.sleep(0.3)
+    await simulated_time_passes(robot, 0.3)
     assert abs(robot.joint_state().as_dict()["HeadYaw"]) < 0.5
     status = {m.name: m for m in robot.motor_status()}
     assert set(status) == set(MODEL.names)
@@ -130,7 +136,7 @@ async def test_motor_modes_and_status(robot):
 
 async def test_home_brings_every_part_back(robot):
     robot.set_part_targets("left_arm", [0.0, -20.0, -20.0])
-    await asyncio.sleep(0.3)
+    await simulated_time_passes(robot, 0.3)
     reports = robot.home()
     assert set(reports) == set(MODEL.parts) and all(r.ok for r in reports.values())
     assert await until(lambda: abs(robot.joint_state().as_dict()["LeftShoulderPitch"] - 90.0) < 0.5, 3)
@@ -149,8 +155,7 @@ async def test_say_returns_when_done_and_stop_cuts_it_short(robot):
     expected = robot.speech_duration(text)
     assert expected == pytest.approx(6 * 60 / 150)
     task = asyncio.create_task(robot.say(text))
-    await asyncio.sleep(0.2)
-    assert robot.standin.is_talking()
+    assert await until(robot.standin.is_talking, 5)
     robot.stop_speech()
     result = await asyncio.wait_for(task, 1.0)
     assert not result.completed and result.duration_s < 1.0 and result.audible is False

@@ -8,17 +8,12 @@ from __future__ import annotations
 import pytest
 import roslibpy
 from operator_voice import VoiceSender, logged, tone
-from support import RunningServer, wait_for
-
-from vr_teleop_server.settings import ServerSettings
+from support import wait_for
 
 
 @pytest.fixture
-def server(tmp_path):
-    running = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp_path / "g",
-                                           audio_dir=tmp_path / "a", bystander_interval=0))
-    yield running
-    running.stop()
+def server(servers):
+    return servers(backend="sim", bystander_interval=0)
 
 
 def test_a_clients_voice_over_rosbridge_moves_the_standins_mouth_and_is_logged(server):

@@ -13,12 +13,10 @@ import urllib.request
 from cryptography import x509
 from websockets.sync.client import connect
 
-from support import RunningServer
 from vr_teleop_server.cli import main
-from vr_teleop_server.settings import ServerSettings
 
 
-def test_cert_names_the_machine_and_serve_speaks_https_and_wss(tmp_path, capsys):
+def test_cert_names_the_machine_and_serve_speaks_https_and_wss(servers, tmp_path, capsys):
     assert main(["cert", "--out", str(tmp_path), "--name", "qt-classroom.example", "--ip", "10.1.2.3"]) == 0
     printed = capsys.readouterr().out
     certfile, keyfile = tmp_path / "vr-teleop.crt", tmp_path / "vr-teleop.key"
@@ -35,7 +33,7 @@ def test_cert_names_the_machine_and_serve_speaks_https_and_wss(tmp_path, capsys)
     assert main(["cert", "--out", str(tmp_path)]) == 1
     assert "--force" in capsys.readouterr().err
 
-    server = RunningServer(ServerSettings(port=0, backend="none", certfile=certfile, keyfile=keyfile))
+    server = servers(certfile=certfile, keyfile=keyfile)
     try:
         trust = ssl.create_default_context(cafile=str(certfile))  # the headset's "accept this certificate"
         with urllib.request.urlopen(f"https://127.0.0.1:{server.port}/operator", context=trust) as r:
@@ -51,7 +49,7 @@ def test_cert_names_the_machine_and_serve_speaks_https_and_wss(tmp_path, capsys)
         server.stop()
 
 
-def test_cert_with_a_local_authority_is_trusted_by_whoever_trusts_the_authority(tmp_path, capsys):
+def test_cert_with_a_local_authority_is_trusted_by_whoever_trusts_the_authority(servers, tmp_path, capsys):
     """`--ca DIR`: the authority is made once, then reused; a client trusting only the authority accepts the
     server's certificate (what a `turns:` relay needs: browsers accept no self-signed one there)."""
     ca_dir, out, again = tmp_path / "ca", tmp_path / "server", tmp_path / "relay"
@@ -68,8 +66,7 @@ def test_cert_with_a_local_authority_is_trusted_by_whoever_trusts_the_authority(
         cert.verify_directly_issued_by(ca)
     assert ca.extensions.get_extension_for_class(x509.BasicConstraints).value.ca
 
-    server = RunningServer(ServerSettings(port=0, backend="none", certfile=out / "vr-teleop.crt",
-                                          keyfile=out / "vr-teleop.key"))
+    server = servers(certfile=out / "vr-teleop.crt", keyfile=out / "vr-teleop.key")
     try:
         trust = ssl.create_default_context(cafile=str(authority))  # the authority only, not the server's own
         with urllib.request.urlopen(f"https://127.0.0.1:{server.port}/operator", context=trust) as r:

@@ -14,21 +14,16 @@ import roslibpy
 
 from support import Headset, RawClient, RunningServer, call, engage, wait_for
 from vr_teleop_server.recording.format import read_recording
-from vr_teleop_server.settings import ServerSettings
 
 TOKENS = {"operator": "op-secret-1", "supervisor": "sup-secret-2", "spectator": "spec-secret-3"}
 SCREENSHOTS = Path(__file__).resolve().parent.parent / ".pytest_cache" / "screenshots"
 
 
 @pytest.fixture(scope="module")
-def dashboard_server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("dashboard")
-    server = RunningServer(ServerSettings(
-        port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a", record=tmp / "session.mcap",
-        operator_token=TOKENS["operator"], supervisor_token=TOKENS["supervisor"],
-        spectator_token=TOKENS["spectator"]))
-    yield server
-    server.stop()
+def dashboard_server(module_servers, tmp_path_factory):
+    return module_servers(backend="sim", record=tmp_path_factory.mktemp("dashboard") / "session.mcap",
+                          operator_token=TOKENS["operator"], supervisor_token=TOKENS["supervisor"],
+                          spectator_token=TOKENS["spectator"])
 
 
 def open_page(browser, server: RunningServer, role: str, camera: str = "jpeg"):
@@ -233,7 +228,7 @@ def test_open_access_only_on_loopback(tmp_path):
     assert proc.returncode == 2 and "without tokens" in proc.stderr and "--insecure" in proc.stderr
 
 
-def test_tls_serves_https_and_wss(tmp_path):
+def test_tls_serves_https_and_wss(tmp_path, servers):
     import ssl
     import subprocess
 
@@ -242,15 +237,12 @@ def test_tls_serves_https_and_wss(tmp_path):
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
     subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key), "-out",
                     str(cert), "-days", "1", "-subj", "/CN=127.0.0.1"], check=True, capture_output=True)
-    server = RunningServer(ServerSettings(port=0, backend="none", certfile=cert, keyfile=key))
-    try:
-        assert server.url.startswith("wss://")
-        context = ssl.create_default_context(cafile=str(cert))
-        context.check_hostname = False
-        with urllib.request.urlopen(f"https://127.0.0.1:{server.port}/", context=context) as r:
-            assert r.status == 200 and b"dashboard.js" in r.read()
-        with connect(server.url, ssl=context) as ws:
-            ws.send('{"op": "call_service", "id": "t", "service": "/rosapi/get_time"}')
-            assert '"service_response"' in ws.recv(timeout=5)
-    finally:
-        server.stop()
+    server = servers(certfile=cert, keyfile=key)
+    assert server.url.startswith("wss://")
+    context = ssl.create_default_context(cafile=str(cert))
+    context.check_hostname = False
+    with urllib.request.urlopen(f"https://127.0.0.1:{server.port}/", context=context) as r:
+        assert r.status == 200 and b"dashboard.js" in r.read()
+    with connect(server.url, ssl=context) as ws:
+        ws.send('{"op": "call_service", "id": "t", "service": "/rosapi/get_time"}')
+        assert '"service_response"' in ws.recv(timeout=5)

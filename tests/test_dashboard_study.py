@@ -14,18 +14,14 @@ from support import RunningServer, wait_for
 from test_dashboard import SCREENSHOTS, TOKENS, open_page
 
 from vr_teleop_server.recording.format import read_recording
-from vr_teleop_server.settings import ServerSettings
 
 
 @pytest.fixture(scope="module")
-def study_server(tmp_path_factory):
+def study_server(module_servers, tmp_path_factory):
     tmp = tmp_path_factory.mktemp("dashboard_study")
-    server = RunningServer(ServerSettings(
-        port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a", record=tmp / "session.mcap",
-        record_camera_fps=0.0, operator_token=TOKENS["operator"], supervisor_token=TOKENS["supervisor"],
-        spectator_token=TOKENS["spectator"]))
-    yield server
-    server.stop()
+    return module_servers(backend="sim", record=tmp / "session.mcap", record_camera_fps=0.0,
+                          operator_token=TOKENS["operator"], supervisor_token=TOKENS["supervisor"],
+                          spectator_token=TOKENS["spectator"])
 
 
 def recorded(server: RunningServer, topic: str) -> list:

@@ -9,16 +9,14 @@ import asyncio
 import json
 import re
 import time
-from collections.abc import Iterator
 
 import pytest
 from aiortc import RTCPeerConnection
 
 from media_client import MediaPeer, Rosbridge
 from support import IDENTITY, RunningServer, pose_msg, unity_yaw_pitch
-from vr_teleop_server.settings import ServerSettings
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
 
 HEAD_POSE = "/vr/head/pose"
 HEAD_COMMAND = "/qt_robot/head_position/command"
@@ -26,12 +24,8 @@ ENGAGE = "/vr_teleop/control/engage"
 
 
 @pytest.fixture(scope="module")
-def dc_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
-    tmp = tmp_path_factory.mktemp("dc")
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, camera_fps=10,
-                                          gesture_dir=tmp / "gestures", audio_dir=tmp / "audio"))
-    yield server
-    server.stop()
+def dc_server(module_servers) -> RunningServer:
+    return module_servers(backend="sim", bystander_interval=0, camera_fps=10)
 
 
 def head_pose(yaw_left: float, stamp: float | None = None) -> dict:

@@ -28,7 +28,7 @@ DOCS = ROOT / "docs"
 # The site's agreed layout: every reader's way in has its page.
 LAYOUT = {"index.md", *(f"guides/{p}.md" for p in (
     "teacher", "dashboard", "unity-rossharp", "recordings-replays", "studies", "questionnaires", "real-robot",
-    "qtrobot-ros1", "qtrobot-v3", "deployment", "security")),
+    "qtrobot-ros1", "qtrobot-v3", "deployment", "security", "contributing")),
     *(f"reference/{p}.md" for p in ("protocol", "cli", "configuration", "python-api")),
     "explanation/architecture.md", "explanation/performance.md"}
 

@@ -31,6 +31,8 @@ from websockets.sync.client import connect as sync_connect
 
 from client_protocol import names
 
+pytestmark = pytest.mark.slow  # a minute of churn, stalled clients, memory traced
+
 ROOT = Path(__file__).resolve().parent.parent
 MIB = 1024 * 1024
 CHURN_SECONDS = float(os.environ.get("CHURN_SECONDS", "60"))  # the issue asks for a minute
@@ -52,8 +54,8 @@ def fragment_sets(server) -> int:
     return server.call(lambda: sum(len(s.fragments) for s in server.server.sessions.values()))
 
 
-def test_incomplete_fragment_sets_are_collected_and_memory_does_not_grow(server_factory, traced):
-    server = server_factory(fragment_timeout=2.0)
+def test_incomplete_fragment_sets_are_collected_and_memory_does_not_grow(servers, traced):
+    server = servers(fragment_timeout=2.0)
     client = RawClient(server.url)
     client.send({"op": "set_level", "level": "warning"})
     piece = "x" * 16_000
@@ -86,8 +88,8 @@ def test_incomplete_fragment_sets_are_collected_and_memory_does_not_grow(server_
     client.close()
 
 
-def test_a_client_that_stops_reading_costs_bounded_memory_and_slows_nobody(server_factory, traced):
-    server = server_factory()
+def test_a_client_that_stops_reading_costs_bounded_memory_and_slows_nobody(servers, traced):
+    server = servers()
     topic, count, size = "/flood", 2400, 10_000
     stalled = sync_connect(server.url, compression=None, max_size=None, max_queue=4).__enter__()  # then stops reading
     stalled.send(json.dumps({"op": "subscribe", "topic": topic, "type": "std_msgs/String"}))
@@ -213,12 +215,12 @@ def test_clients_coming_and_going_leak_nothing(server):
           f"closing); after them: {settled()}")
 
 
-def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watchdog_time(server_factory):
+def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watchdog_time(servers):
     """The operator's TCP connection vanishes while the head sweeps: the joint targets given to the simulation
     stop changing within the watchdog time, and the head comes to rest."""
     from scipy.spatial.transform import Rotation
 
-    server = server_factory(backend="sim")
+    server = servers(backend="sim")
     standin = server.server.robot.standin
     watchdog = server.settings.teleop.watchdog_timeout_s
     targets: list[tuple[float, float]] = []  # (when, HeadYaw target)

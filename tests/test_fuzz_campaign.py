@@ -48,7 +48,8 @@ from websockets.exceptions import ConnectionClosed
 
 from robot_models import load_qtrobot
 from vr_teleop_server.core.bus import SERVER_NODE
-from vr_teleop_server.settings import ServerSettings
+
+pytestmark = pytest.mark.slow  # campaigns of thousands of frames
 
 FIXED_SEED = 20261123
 FRAMES_PER_SEED = 5_000 if os.environ.get("FUZZ_FRAMES") is None else int(os.environ["FUZZ_FRAMES"])
@@ -293,15 +294,11 @@ class CommandLog:
 
 
 @pytest.fixture(scope="module")
-def fuzz_server(tmp_path_factory: pytest.TempPathFactory):
-    tmp = tmp_path_factory.mktemp("fuzz")
-    server = RunningServer(ServerSettings(
-        port=0, backend="sim", max_message_size=MAX_MESSAGE, hard_frame_factor=HARD_FACTOR, fragment_timeout=2.0,
-        camera_width=64, camera_height=48, camera_fps=5, service_timeout=2.0,
-        gesture_dir=tmp / "gestures", audio_dir=tmp / "audio"))
-    log = CommandLog(server)
-    yield server, log
-    server.stop()
+def fuzz_server(module_servers):
+    server = module_servers(backend="sim", max_message_size=MAX_MESSAGE, hard_frame_factor=HARD_FACTOR,
+                            fragment_timeout=2.0, camera_width=64, camera_height=48, camera_fps=5,
+                            service_timeout=2.0)
+    return server, CommandLog(server)
 
 
 class Run:

@@ -10,7 +10,6 @@ import re
 import threading
 import time
 import wave
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -21,19 +20,14 @@ from aiortc import RTCPeerConnection, RTCSessionDescription
 from media_client import MediaPeer, Rosbridge, Tone
 from support import RunningServer
 from test_frame_ring import holds_ring
-from vr_teleop_server.settings import ServerSettings
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
 
 
 @pytest.fixture(scope="module")
-def media_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
+def media_server(module_servers) -> RunningServer:
     """The stand-in with bystanders silent, so that the robot's audio holds only what the tests make it say."""
-    tmp = tmp_path_factory.mktemp("media")
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, gesture_dir=tmp / "gestures",
-                                          audio_dir=tmp / "audio"))
-    yield server
-    server.stop()
+    return module_servers(backend="sim", bystander_interval=0)
 
 
 def operator_wavs(audio_dir: Path, client: str) -> list[Path]:
@@ -163,8 +157,8 @@ async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -
         await ros.close()
 
 
-async def test_the_classroom_microphone_hears_the_bystanders(tmp_path: Path) -> None:
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=1.0, audio_dir=tmp_path))
+async def test_the_classroom_microphone_hears_the_bystanders(servers) -> None:
+    server = servers(backend="sim", bystander_interval=1.0)
     try:
         ros, peer = await connected(server.url, video=False)
         try:
@@ -355,9 +349,9 @@ async def test_a_peer_whose_packets_stop_is_torn_down_and_the_connection_may_off
         await ros.close()
 
 
-async def test_access_rules_are_the_cameras(tmp_path: Path) -> None:
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, operator_token="op-token",
-                                          spectator_token="spec-token", audio_dir=tmp_path))
+async def test_access_rules_are_the_cameras(servers, tmp_path: Path) -> None:
+    server = servers(backend="sim", bystander_interval=0, operator_token="op-token", spectator_token="spec-token",
+                     audio_dir=tmp_path)
     try:
         stranger = await Rosbridge.open(server.url)  # no token: no camera, no media
         peer = MediaPeer()
@@ -431,10 +425,10 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
     assert after["fds"] <= baseline["fds"] + 4, (baseline, after)
 
 
-async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_it_dies(tmp_path: Path) -> None:
+async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_it_dies(servers) -> None:
     """Encoding shares no GIL with the loop: it is a child process, at a lower priority than the server. Killed, it
     is replaced and the peer's video resumes (the new encoder starts with a keyframe); the server's stop ends it."""
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+    server = servers(backend="sim", bystander_interval=0)
     try:
         ros, peer = await connected(server.url, audio=False)
         await peer.wait_video(3)

@@ -8,18 +8,15 @@ import asyncio
 import json
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from media_client import MediaPeer, Rosbridge
-from support import RunningServer
 from test_datachannel import HEAD_POSE, engage_over_websocket, head_pose, release, whoami
 from vr_teleop_server.media.media_loop import THREAD_NAME, MediaLoop
-from vr_teleop_server.settings import ServerSettings
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
 
 POSES = 60
 
@@ -35,10 +32,9 @@ def task_names(loop: asyncio.AbstractEventLoop) -> set[str]:
 
 
 async def test_the_peers_run_on_the_media_loop_poses_reach_the_session_in_order_and_stop_leaves_no_thread(
-        tmp_path: Path) -> None:
+        servers) -> None:
     before = len(media_threads())
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, camera_fps=10,
-                                          gesture_dir=tmp_path / "gestures", audio_dir=tmp_path / "audio"))
+    server = servers(backend="sim", bystander_interval=0, camera_fps=10)
     stopped = False
     try:
         media = server.server.media

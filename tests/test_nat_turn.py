@@ -41,7 +41,7 @@ from vr_teleop_server.core.certs import make_authority, make_certificate
 from vr_teleop_server.media.turn import credentials
 
 pytestmark = [pytest.mark.skipif(edges_available() is not None, reason=edges_available() or ""),
-              pytest.mark.timeout(600)]
+              pytest.mark.timeout(600), pytest.mark.netns, pytest.mark.browser, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parent.parent
 needs_certutil = pytest.mark.skipif(shutil.which("certutil") is None, reason="a browser trusting the relay's "

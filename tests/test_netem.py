@@ -27,7 +27,11 @@ import pytest
 from netem import (DIRECTIONS, Direction, DirectionParams, Emulator, Stacked, available, cleanup_leftovers,
                    load_profiles)
 
-needs_netns = pytest.mark.skipif(available() is not None, reason=available() or "")
+
+def needs_netns(test):
+    """A test in network namespaces: marked netns (and slow), skipped where namespaces cannot be made."""
+    marked = pytest.mark.skipif(available() is not None, reason=available() or "")(test)
+    return pytest.mark.slow(pytest.mark.netns(marked))
 
 
 # ---- the impairment model, pure ------------------------------------------------------------------------------------

@@ -22,7 +22,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from support import RawClient, RunningServer, Headset, engage, wait_for
-from vr_teleop_server.settings import ServerSettings
 
 ROOT = Path(__file__).resolve().parent.parent
 IWER = ROOT / "node_modules" / "iwer" / "build" / "iwer.min.js"
@@ -437,8 +436,8 @@ def test_an_undrawable_menu_message_is_said_and_the_last_menus_stay(browser, sim
         close_page(page)
 
 
-def test_a_dropped_connection_is_said_and_the_page_reconnects_by_itself(browser, tmp_path):
-    first = RunningServer(ServerSettings(port=0, backend="none"))
+def test_a_dropped_connection_is_said_and_the_page_reconnects_by_itself(servers, browser):
+    first = servers()
     port = first.port
     page = open_page(browser, first, ready="window.operator && window.operator.ros.connected")
     try:
@@ -446,7 +445,7 @@ def test_a_dropped_connection_is_said_and_the_page_reconnects_by_itself(browser,
         page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').includes('DISCONNECTED')",
                                timeout=SLOW)
         frames(page, 5)  # still running
-        second = RunningServer(ServerSettings(port=port, backend="none"))
+        second = servers(port=port)
         try:
             page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').startsWith('● connected')",
                                    timeout=SLOW)

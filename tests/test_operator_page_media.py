@@ -9,7 +9,6 @@ import asyncio
 import shutil
 import time
 import wave
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,6 @@ import pytest
 from support import RunningServer, wait_for
 from test_operator_page import (SLOW, close_page, enter_vr, frames, hud, open_page, pixels_differ, screenshot,
                                 set_head, settles, take_control)
-from vr_teleop_server.settings import ServerSettings
 from test_operator_page import iwer  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.timeout(300)
@@ -40,13 +38,9 @@ NO_COMMON_CODEC = """(() => {
 
 
 @pytest.fixture(scope="module")
-def media_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningServer]:
+def media_server(module_servers) -> RunningServer:
     """The stand-in with its bystanders silent: the robot's audio holds only what the tests make it say."""
-    tmp = tmp_path_factory.mktemp("operator_media")
-    server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, gesture_dir=tmp / "g",
-                                          audio_dir=tmp / "a"))
-    yield server
-    server.stop()
+    return module_servers(backend="sim", bystander_interval=0)
 
 
 def peers(server: RunningServer) -> int:
@@ -186,10 +180,10 @@ def test_a_peer_connection_that_fails_later_falls_back_to_the_jpeg_topic(browser
         close_page(page)
 
 
-def test_a_reconnected_page_negotiates_webrtc_again(browser, tmp_path):
+def test_a_reconnected_page_negotiates_webrtc_again(servers, browser):
     """The server closes a connection's peer connection with it: after a dropped connection the page offers again
     on the new one, and does not fall back to JPEG for what was only the connection going."""
-    first = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+    first = servers(backend="sim", bystander_interval=0)
     port = first.port
     page = open_page(browser, first, camera="webrtc", ready="window.operator && window.operator.ros.connected")
     try:
@@ -198,7 +192,7 @@ def test_a_reconnected_page_negotiates_webrtc_again(browser, tmp_path):
         first.stop()
         page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').includes('DISCONNECTED')",
                                timeout=SLOW)
-        second = RunningServer(ServerSettings(port=port, backend="sim", bystander_interval=0, audio_dir=tmp_path))
+        second = servers(port=port, backend="sim", bystander_interval=0)
         try:
             page.wait_for_function("(document.getElementById('hud-connection')?.textContent ?? '').startsWith('● connected')",
                                    timeout=SLOW)

@@ -105,9 +105,9 @@ def test_uint8_arrays_go_out_as_base64_and_come_in_either_way(client):
     assert "0..255" in client.expect("status", id="bad")["msg"]
 
 
-def test_time_accepts_both_styles_and_sends_the_configured_one(server_factory, connect_raw):
+def test_time_accepts_both_styles_and_sends_the_configured_one(servers, connect_raw):
     for style, expected in (("ros1", {"secs": 5, "nsecs": 6}), ("ros2", {"sec": 5, "nanosec": 6})):
-        srv = server_factory(time_style=style)
+        srv = servers(time_style=style)
         c = connect_raw(srv.url)
         c.send({"op": "subscribe", "topic": "/h", "type": "std_msgs/Header"})
         for stamp in ({"secs": 5, "nsecs": 6}, {"sec": 5, "nanosec": 6}):
@@ -208,8 +208,8 @@ def test_fragment_errors(client):
     client.alive()
 
 
-def test_incomplete_fragments_are_discarded_after_the_timeout(server_factory, connect_raw):
-    srv = server_factory(fragment_timeout=0.3)
+def test_incomplete_fragments_are_discarded_after_the_timeout(servers, connect_raw):
+    srv = servers(fragment_timeout=0.3)
     c = connect_raw(srv.url)
     c.send({"op": "set_level", "level": "warning"})
     c.send({"op": "fragment", "id": "lost", "data": "{\"op\":", "num": 0, "total": 2})
@@ -394,8 +394,8 @@ def test_bad_frames_get_clear_errors_and_the_connection_goes_on(client):
     client.alive()
 
 
-def test_oversized_frame_gets_status_and_connection_survives(server_factory, connect_raw):
-    srv = server_factory(max_message_size=4096)
+def test_oversized_frame_gets_status_and_connection_survives(servers, connect_raw):
+    srv = servers(max_message_size=4096)
     c = connect_raw(srv.url)
     c.send({"op": "publish", "topic": "/x", "msg": {"data": "z" * 5000}})
     assert "over this server's limit of 4096 bytes" in c.expect("status", level="error")["msg"]
@@ -418,8 +418,8 @@ def test_set_level_filters_status_messages(client):
     assert client.silent()
 
 
-def test_slow_reader_is_bounded_and_does_not_slow_others(server_factory, connect_raw):
-    srv = server_factory(queue_bound=50)
+def test_slow_reader_is_bounded_and_does_not_slow_others(servers, connect_raw):
+    srv = servers(queue_bound=50)
     stalled, healthy, pub = connect_raw(srv.url), connect_raw(srv.url), connect_raw(srv.url)
     for c in (stalled, healthy):
         c.send({"op": "subscribe", "topic": "/flood", "type": "std_msgs/String"})

@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from support import Headset, RawClient, RunningServer, call, engage, patient_teleop, unity_yaw_pitch, wait_for
+from support import Headset, RawClient, call, engage, patient_teleop, unity_yaw_pitch, wait_for
 from vr_teleop_server.tools import synth
 from vr_teleop_server.recording.format import read_recording
-from vr_teleop_server.settings import ServerSettings
+
+pytestmark = pytest.mark.slow  # recorded sessions replayed in real time
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -142,12 +143,8 @@ def test_menu_tour_selects_every_item_once():
 
 
 @pytest.fixture(scope="module")
-def replay_server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("replay")
-    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a",
-                                          teleop=patient_teleop()))
-    yield server
-    server.stop()
+def replay_server(module_servers):
+    return module_servers(backend="sim", teleop=patient_teleop())
 
 
 def replay(file: Path, url: str, *extra: str) -> dict:
@@ -178,11 +175,10 @@ def test_replaying_a_synthesised_wave_reports_latency_tracking_and_camera(tmp_pa
     assert report["errors"]["count"] == 0
 
 
-def test_a_recorded_session_replays_against_another_server(tmp_path, replay_server):
+def test_a_recorded_session_replays_against_another_server(servers, tmp_path, replay_server):
     """Record an operator with `serve --record` settings, then replay the recording on a second server."""
     path = tmp_path / "operator.mcap"
-    recording = RunningServer(ServerSettings(port=0, backend="sim", record=path, gesture_dir=tmp_path / "g",
-                                             audio_dir=tmp_path / "a"))
+    recording = servers(backend="sim", record=path, gesture_dir=tmp_path / "g", audio_dir=tmp_path / "a")
     try:
         import roslibpy
 

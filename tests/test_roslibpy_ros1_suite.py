@@ -23,10 +23,8 @@ from pathlib import Path
 
 import pytest
 
-from support import RunningServer
-from vr_teleop_server.settings import ServerSettings
 
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.slow]  # roslibpy's own suite, run whole
 
 NOT_RUN = ("test_core.py", "test_tf.py")
 ISSUE18_CORE = "issue 18 core: "
@@ -88,12 +86,12 @@ def _extract_suite(sdist: Path, dest: Path, port: int) -> Path:
 
 
 @pytest.fixture(scope="module")
-def suite_results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]]:
+def suite_results(module_servers, tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[str, str]]:
     """Runs the suite once; test id (parameters dropped) -> (outcome, message)."""
     cache = Path(os.environ.get("VR_TELEOP_CACHE", Path.home() / ".cache" / "vr-teleop-server")) / "roslibpy-sdist"
     sdist = _sdist(cache)
     work = tmp_path_factory.mktemp("roslibpy_ros1")
-    server = RunningServer(ServerSettings(port=0, backend="none"))
+    server = module_servers()
     try:
         suite = _extract_suite(sdist, work, server.port)
         report = work / "report.xml"

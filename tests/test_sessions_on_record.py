@@ -13,12 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import RunningServer, patient_teleop
+from support import patient_teleop
 
 from vr_teleop_server.recording.format import read_recording
 from vr_teleop_server.tools.replay import load_steps, plot, report, run_replay
-from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.tools.synth import build, menu_tour, write
+
+pytestmark = pytest.mark.slow  # sessions replayed in real time
 
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
 
@@ -49,13 +50,10 @@ def test_synth_sessions_are_seeded_and_the_classroom_lasts_five_minutes(tmp_path
 
 # ---- replay against a recording stand-in ------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def recording_server(tmp_path_factory: pytest.TempPathFactory):
+def recording_server(module_servers, tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("recording_server")
-    server = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "gestures", audio_dir=tmp / "audio",
-                                          record=tmp / "session.mcap", record_camera_fps=5,
-                                          teleop=patient_teleop()))
-    yield server, tmp / "session.mcap"
-    server.stop()
+    server = module_servers(backend="sim", record=tmp / "session.mcap", record_camera_fps=5, teleop=patient_teleop())
+    return server, tmp / "session.mcap"
 
 
 def test_replay_reports_latency_tracking_camera_and_the_recording_holds_it_all(recording_server, tmp_path):

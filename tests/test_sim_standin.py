@@ -44,6 +44,13 @@ def wait_until(predicate, timeout: float, poll: float = 0.01) -> bool:
     return predicate()
 
 
+def let_simulated_time_pass(s: StandIn, seconds: float) -> None:
+    """Waits until the simulation's clock has advanced by `seconds` (a loaded machine stretches wall time, which
+    would leave a wall-clock sleep with less simulated time than it says)."""
+    start = s.joint_state().sim_time
+    assert wait_until(lambda: s.joint_state().sim_time >= start + seconds, 30.0), "the simulation stopped advancing"
+
+
 def settle_home(s: StandIn) -> None:
     s.set_targets(ROBOT.home_pose())
     assert wait_until(lambda: all(abs(s.joint_positions()[n] - ROBOT.joint(n).home) < 0.5 for n in ROBOT.names), 30.0)
@@ -79,10 +86,9 @@ def test_velocity_caps_are_configurable_at_run_time(standin):
     try:
         t0 = standin.joint_state().sim_time
         standin.set_targets({"HeadPitch": 20.0})
-        time.sleep(0.5)
+        let_simulated_time_pass(standin, 0.5)
         snap = standin.joint_state()
-        # At 20 deg/s the setpoint travels at most 20 degrees a simulated second (the simulation's clock: a loaded
-        # machine stretches the sleep, not the cap), and the joint follows the setpoint.
+        # At 20 deg/s the setpoint travels at most 20 degrees a simulated second, and the joint follows it.
         assert snap.setpoints[1] <= 20.0 * (snap.sim_time - t0) + 0.1
         assert snap.position("HeadPitch") <= 20.0 * (snap.sim_time - t0) + 2.0
     finally:
@@ -96,7 +102,7 @@ def test_out_of_range_targets_are_clamped(standin):
     assert applied == {"HeadYaw": 60.0, "LeftElbowRoll": -7.0}
     assert standin.targets()["HeadYaw"] == 60.0
     assert wait_until(lambda: abs(standin.joint_positions()["HeadYaw"] - 60.0) < 0.5, 30.0)
-    time.sleep(0.2)
+    let_simulated_time_pass(standin, 0.2)
     assert standin.joint_positions()["HeadYaw"] <= 60.5
     with pytest.raises(KeyError, match="HeadYaw"):
         standin.set_targets({"Neck": 1.0})
@@ -212,7 +218,7 @@ def test_head_camera_view_is_the_classroom_with_markers_at_their_true_poses(stan
     settle_home(standin)
     standin.set_targets({"HeadPitch": 18.0})
     assert wait_until(lambda: abs(standin.joint_positions()["HeadPitch"] - 18.0) < 0.3, 30.0)
-    time.sleep(0.2)
+    let_simulated_time_pass(standin, 0.2)
     angles = standin.joint_positions()
     rgb = standin.snapshot()
     out = tmp_path / "head_camera.png"
@@ -253,10 +259,10 @@ def test_motor_modes_off_brake_on(standin):
     standin.set_motor_mode(arm, MotorMode.BRAKE)
     held = standin.joint_positions()["LeftShoulderRoll"]
     standin.set_targets({"LeftShoulderRoll": -20.0})  # ignored while braked
-    time.sleep(0.4)
+    let_simulated_time_pass(standin, 0.4)
     assert abs(standin.joint_positions()["LeftShoulderRoll"] - held) < 1.0
     standin.set_motor_mode(arm, MotorMode.ON)
-    time.sleep(0.2)
+    let_simulated_time_pass(standin, 0.2)
     assert abs(standin.joint_positions()["LeftShoulderRoll"] - held) < 1.0  # going ON does not jump
     settle_home(standin)
     temps = standin.motor_temperatures()
@@ -277,15 +283,15 @@ def test_physics_never_runs_ahead_of_real_time_and_drops_a_backlog(standin):
     assert stats.lag_s >= 0.0
 
     # Stall the physics loop (it steps under the state lock) for well over MAX_LAG_S.
-    stall = standin.MAX_LAG_S * 4
+    stall = standin.physics.MAX_LAG_S * 4
     before, wall0 = standin.physics_stats(), time.monotonic()
-    with standin._lock:
+    with standin.physics.lock:
         time.sleep(stall)
     assert wait_until(lambda: standin.physics_stats().resyncs > before.resyncs, 30.0), "the backlog was not dropped"
     assert wait_until(lambda: standin.physics_stats().steps > before.steps + 10, 30.0)  # and it goes on
     stats, wall = standin.physics_stats(), time.monotonic()
     # It dropped more than MAX_LAG_S of backlog instead of catching up: simulated time now trails wall time by it.
-    assert stats.sim_time - before.sim_time <= wall - wall0 - standin.MAX_LAG_S, (stats, before, wall - wall0)
+    assert stats.sim_time - before.sim_time <= wall - wall0 - standin.physics.MAX_LAG_S, (stats, before, wall - wall0)
 
 
 def test_close_stops_threads_and_the_render_process_promptly():

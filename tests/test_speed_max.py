@@ -17,12 +17,14 @@ import yaml
 from robot_models import load_qtrobot
 from scipy import stats
 from study_support import small_study
-from support import RunningServer, patient_teleop
+from support import patient_teleop
 
 from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.tools import synth
 from vr_teleop_server.teleop.settings import OneEuroSettings, TeleopSettings
 from vr_teleop_server.tools.replay import ENGAGE_LAGS, load_steps, report, run_replay, run_simulated
+
+pytestmark = pytest.mark.slow  # replays and studies, real-time and simulated
 
 ROOT = Path(__file__).resolve().parent.parent
 WALL_FIELDS = ("replay_s", "speed_achieved", "served_s", "speed_served")  # how long it took: the machine's
@@ -58,15 +60,6 @@ def test_two_simulated_replays_of_a_session_give_identical_reports(nod, tmp_path
     assert camera["frames"] >= int(first["session_s"] * 30) and first["errors"]["count"] == 0
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("speed_max_server")
-    running = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a",
-                                           teleop=patient_teleop()))
-    yield running
-    running.stop()
-
-
 def timing_free_teleop() -> TeleopSettings:
     """The mapping without its time-dependent parts (filters pass through, caps out of reach, no ramp): its
     commands follow from the poses alone, so a loaded machine's delays in a real-time replay cannot move them.
@@ -78,12 +71,8 @@ def timing_free_teleop() -> TeleopSettings:
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("speed_max_server")
-    running = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a",
-                                           teleop=timing_free_teleop()))
-    yield running
-    running.stop()
+def server(module_servers):
+    return module_servers(backend="sim", teleop=timing_free_teleop())
 
 
 def test_a_simulated_replay_agrees_with_a_real_time_replay(nod, server, tmp_path):

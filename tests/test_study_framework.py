@@ -17,7 +17,6 @@ import yaml
 from study_support import EXAMPLE, on_loop, prepared, small_study
 from support import RawClient, RunningServer, wait_for
 
-from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.client import Client, Refused, connect
 from vr_teleop_server.study.people import SimulatedPeople
 from vr_teleop_server.study.perception import ArucoTracker
@@ -26,14 +25,13 @@ from vr_teleop_server.tools.study_runner import recorded_metrics
 from vr_teleop_server.study.runtime import TrialResult, TrialRuntime
 from vr_teleop_server.study.studyfile import Study, StudyFileError, load_study
 
+pytestmark = pytest.mark.slow  # study trials run whole
+
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory: pytest.TempPathFactory):
+def server(module_servers, tmp_path_factory: pytest.TempPathFactory):
     tmp = tmp_path_factory.mktemp("study")
-    s = RunningServer(ServerSettings(port=0, backend="sim", gesture_dir=tmp / "gestures", audio_dir=tmp / "audio",
-                                     record=tmp / "session.mcap", record_camera_fps=0.0))
-    yield s
-    s.stop()
+    return module_servers(backend="sim", record=tmp / "session.mcap", record_camera_fps=0.0)
 
 
 def run_with_people(server: RunningServer, runtime: TrialRuntime, *, people: bool = True, during=None,

@@ -68,7 +68,7 @@ def test_standin_commands_and_state_do_not_wait_for_a_physics_batch():
 
     standin = StandIn(camera_fps=1.0)
     try:
-        with standin._lock, concurrent.futures.ThreadPoolExecutor(1) as pool:
+        with standin.physics.lock, concurrent.futures.ThreadPoolExecutor(1) as pool:
             applied = pool.submit(standin.set_targets, {"HeadYaw": 12.5}).result(timeout=60)
             held = pool.submit(standin.joint_state).result(timeout=60)
         assert applied == {"HeadYaw": 12.5}

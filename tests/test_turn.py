@@ -16,10 +16,8 @@ from mcap.reader import make_reader
 
 from client_protocol import names
 from media_client import Rosbridge
-from support import RunningServer
 from vr_teleop_server.cli import main as cli_main
 from vr_teleop_server.media.turn import IceConfig, check_url, credentials
-from vr_teleop_server.settings import ServerSettings
 
 SECRET = "s3cret-shared-with-coturn"
 TURN = ("turns:relay.example:443?transport=tcp", "turn:relay.example:3478?transport=udp")
@@ -65,13 +63,12 @@ def test_serve_refuses_turn_without_a_secret_and_bad_urls(capsys: pytest.Capture
     assert "not an ICE server URL" in err and SECRET not in err
 
 
-async def test_the_service_gives_fresh_credentials_under_the_offers_rules(tmp_path: Path,
+async def test_the_service_gives_fresh_credentials_under_the_offers_rules(servers, tmp_path: Path,
                                                                           caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.DEBUG)
     record = tmp_path / "session.mcap"
-    server = RunningServer(ServerSettings(port=0, backend="none", operator_token="op-token",
-                                          spectator_token="spec-token", turn_urls=TURN, turn_secret=SECRET,
-                                          turn_ttl=120, record=record))
+    server = servers(operator_token="op-token", spectator_token="spec-token", turn_urls=TURN, turn_secret=SECRET,
+                     turn_ttl=120, record=record)
     seen: list[str] = []
     try:
         stranger = await Rosbridge.open(server.url)  # no token: no camera, no media, no credentials
@@ -106,8 +103,8 @@ async def test_the_service_gives_fresh_credentials_under_the_offers_rules(tmp_pa
         assert secret not in caplog.text, "a TURN credential reached the log"
 
 
-async def test_without_turn_the_list_is_empty_and_says_why() -> None:
-    server = RunningServer(ServerSettings(port=0, backend="none"))
+async def test_without_turn_the_list_is_empty_and_says_why(servers) -> None:
+    server = servers()
     try:
         ros = await Rosbridge.open(server.url)
         values = (await ros.call(names.MEDIA_ICE_SERVERS_SERVICE, {}))["values"]

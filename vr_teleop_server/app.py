@@ -219,7 +219,7 @@ class TeleopServer:
                                   bystander_interval=self.settings.bystander_interval,
                                   ice=self.settings.ice_config(), holds_control=self._holds_control,
                                   control=lambda connection: self.control.link_view(connection)
-                                  if self.control is not None else None)
+                                  if self.control is not None else None, clock=self.clock)
         self._start(self.media)
 
     @property
