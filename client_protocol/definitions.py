@@ -51,7 +51,8 @@ MESSAGES: dict[str, str] = {
     "vr_teleop_msgs/Event": (
         "# Something the server did or noticed that a supervisor, a recording or a study log should know:\n"
         "# engage and release, watchdog, e-stop, menu commands, backend connection, motivation limits.\n"
-        "# level is info, warning or danger; detail is free text (JSON where a feature documents it).\n"
+        "# level is info, warning or danger; detail is a JSON object whose fields each kind defines\n"
+        "# (client_protocol/events.py; the JSON Schemas event.<kind>.json; the protocol reference's Events).\n"
         "Header header\nstring source\nstring kind\nstring level\nstring detail"
     ),
     "vr_teleop_msgs/TeleopState": (

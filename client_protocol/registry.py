@@ -11,11 +11,11 @@ import base64
 import binascii
 import re
 import struct
-import time
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import cbor2
+from simclock import WALL, Clock
 from pydantic_core import SchemaSerializer, SchemaValidator
 from pydantic import (
     BaseModel,
@@ -194,8 +194,10 @@ class TypeRegistry:
         messages: dict[str, str] = MESSAGES,
         services: dict[str, str] = SERVICES,
         time_style: TimeStyle = "ros1",
+        clock: Clock = WALL,
     ) -> None:
         self.time_style = time_style
+        self.clock = clock  # the server's: every header it stamps is on it (simulated in a `--speed max` replay)
         self._specs: dict[str, MessageSpec] = {}
         for name, text in messages.items():
             self._specs[normalize_type_name(name)] = parse_definition(name, text)
@@ -302,12 +304,16 @@ class TypeRegistry:
         return self._element_annotation(owner, ftype)()
 
     def _now(self) -> BaseModel:
-        t = time.time_ns()
-        return self._time_models["time"](secs=t // 1_000_000_000, nsecs=t % 1_000_000_000)
+        return self.stamp(self.clock.time())
 
     def now(self) -> BaseModel:
-        """The current wall time as this registry's ROS time model."""
+        """The server clock's current time as this registry's ROS time model."""
         return self._now()
+
+    def stamp(self, t: float) -> BaseModel:
+        """A time on the server clock (Unix seconds) as this registry's ROS time model."""
+        ns = round(t * 1e9)
+        return self._time_models["time"](secs=ns // 1_000_000_000, nsecs=ns % 1_000_000_000)
 
     def codec(self, name: str) -> PlainCodec:
         """The known message type's validation to plain dicts and their JSON (the publish hot path)."""

@@ -448,7 +448,7 @@ class MediaService:
                 await self.media_loop.run(self._peer_stats(peer))
             # Read after the stats: poses keep arriving while the media loop answers, and an age is never negative.
             clients.append(self._client_entry(name, session, link, peer, time.monotonic()))
-        self.bus.publish(names.TELEMETRY_TOPIC, {"header": {"stamp": _stamp(time.time())}, "clients": clients})
+        self.bus.publish(names.TELEMETRY_TOPIC, {"header": {"stamp": self.bus.registry.now()}, "clients": clients})
 
     @staticmethod
     async def _peer_stats(peer: Peer) -> None:
@@ -601,8 +601,3 @@ def _with_rejected_media(answer: str, rejected: list[_Rejected]) -> str:
     for r in sorted(rejected, key=lambda r: r.index):
         sections.insert(r.index + 1, r.section)
     return "".join(sections)
-
-
-def _stamp(t: float) -> dict[str, int]:
-    secs = int(t)
-    return {"secs": secs, "nsecs": int((t - secs) * 1e9)}

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from client_protocol import names
+from client_protocol.events import EventKind, Label
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -31,6 +32,7 @@ from .metrics import FluencyResult, Intervention, LiveMetrics, StateUpdate
 log = logging.getLogger(__name__)
 
 METRICS_PERIOD_S = 1.0
+LABEL_KINDS = (EventKind.HUMAN_ACTION_START, EventKind.HUMAN_ACTION_STOP, EventKind.INTERVENTION)
 
 
 @dataclass
@@ -247,18 +249,16 @@ class TrialLog:
         """The dashboard's label buttons: Event kinds human_action_start, human_action_stop, intervention."""
         msg = published.value
         try:
-            detail = json.loads(msg.detail or "{}")
-            action = str(detail.get("action", "")) if isinstance(detail, dict) else ""
-        except json.JSONDecodeError:
-            action = ""
-        try:
+            if msg.kind not in LABEL_KINDS:
+                raise ValueError(f"kind {msg.kind!r} is not a label; labels are {', '.join(LABEL_KINDS)}")
+            action = Label.model_validate_json(msg.detail or "{}").action
             if not self.started or self.state != "running":
                 raise BusError(f"trial {self.trial} is not running")
-            if msg.kind == "human_action_start":
+            if msg.kind == EventKind.HUMAN_ACTION_START:
                 self.label_start(action)
-            elif msg.kind == "human_action_stop":
+            elif msg.kind == EventKind.HUMAN_ACTION_STOP:
                 self.label_stop(action)
-            elif msg.kind == "intervention":
+            else:
                 t = self.now()
                 self.intervention("label", action, t, t, "marked by the experimenter")
         except (BusError, ValueError) as exc:
