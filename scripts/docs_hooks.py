@@ -197,6 +197,21 @@ def value_of(action: argparse.Action) -> str:
     return code(action.metavar or (action.dest.upper() if action.option_strings else action.dest))
 
 
+def option_rows(actions: Iterable[argparse.Action], title: str, prog: str) -> list[list[str]]:
+    rows = []
+    for action in actions:
+        if isinstance(action, argparse._SubParsersAction):
+            rows += [[f"[{code(name)}](#{anchor(title + ' ' + name)})", "", "",
+                      cell(next((c.help for c in action._choices_actions if c.dest == name), "") or "")]
+                     for name in action.choices]
+            continue
+        names = ", ".join(code(s) for s in action.option_strings) or code(action.dest)
+        default = action.default
+        shown = "" if default in (None, argparse.SUPPRESS, False, []) or action.nargs == 0 else code(default)
+        rows.append([names, value_of(action), shown, cell(expanded_help(action, prog))])
+    return rows
+
+
 def cli() -> str:
     from vr_teleop_server.cli import build_parser
 
@@ -208,18 +223,13 @@ def cli() -> str:
         if parser.description:
             out.append(parser.description.strip() + "\n\n")
         out.append("```text\n" + parser.format_usage().strip() + "\n```\n\n")
-        rows = []
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                rows += [[f"[{code(name)}](#{anchor(title + ' ' + name)})", "", "",
-                          cell(next((c.help for c in action._choices_actions if c.dest == name), "") or "")]
-                         for name in action.choices]
-                continue
-            names = ", ".join(code(s) for s in action.option_strings) or code(action.dest)
-            default = action.default
-            shown = "" if default in (None, argparse.SUPPRESS, False, []) or action.nargs == 0 else code(default)
-            rows.append([names, value_of(action), shown, cell(expanded_help(action, parser.prog))])
-        out.append(table(["Option or subcommand", "Value", "Default", "What it does"], rows))
+        groups = [g for g in parser._action_groups if g._group_actions]
+        for group in groups:  # `serve`'s options come in groups (the robot, --backend luxai...): one table each
+            if len(groups) > 1 and group.title not in ("options", "positional arguments"):
+                out.append(f"\n**{group.title}**" + (f": {group.description}" if group.description else "")
+                           + "\n\n")
+            out.append(table(["Option or subcommand", "Value", "Default", "What it does"],
+                             option_rows(group._group_actions, title, parser.prog)))
         if parser.epilog:
             out.append("\n```text\n" + parser.epilog.strip() + "\n```\n")
     return "".join(out)
