@@ -118,9 +118,11 @@ MESSAGES: dict[str, str] = {
     "vr_teleop_msgs/TrialState": (
         "# A study trial as the runner sees it, on the latched /study/trial (on every change).\n"
         "# state: running, completed, preempted or failed. perception/decision/action: the implementations.\n"
-        "# current: the subtask running or awaited. planned_subtasks: robot subtasks in the plan.\n"
+        "# current: the subtask running or awaited, in words. planned_subtasks: robot subtasks in the plan.\n"
+        "# awaiting_human: the human action the trial waits for ('' when it waits for none).\n"
         "Header header\nstring study\nstring trial\nstring state\nstring perception\nstring decision\n"
-        "string action\nfloat64 elapsed\nstring current\nuint32 planned_subtasks\nstring message"
+        "string action\nfloat64 elapsed\nstring current\nuint32 planned_subtasks\nstring message\n"
+        "string awaiting_human"
     ),
     "vr_teleop_msgs/FluencyMetrics": (
         "# Live fluency metrics of the running trial, on /study/metrics (1 Hz, and once with final true).\n"

@@ -304,16 +304,17 @@ class TypeRegistry:
         return self._element_annotation(owner, ftype)()
 
     def _now(self) -> BaseModel:
+        return self._time_models["time"].model_validate(self.now())
+
+    def now(self) -> dict[str, int]:
+        """The server clock's current time as a header stamp in this registry's style (plain data, so that a
+        message stamped with it takes the bus's plain path)."""
         return self.stamp(self.clock.time())
 
-    def now(self) -> BaseModel:
-        """The server clock's current time as this registry's ROS time model."""
-        return self._now()
-
-    def stamp(self, t: float) -> BaseModel:
-        """A time on the server clock (Unix seconds) as this registry's ROS time model."""
-        ns = round(t * 1e9)
-        return self._time_models["time"](secs=ns // 1_000_000_000, nsecs=ns % 1_000_000_000)
+    def stamp(self, t: float) -> dict[str, int]:
+        """A time on the server clock (Unix seconds) as a header stamp in this registry's style."""
+        secs, nsecs = divmod(round(t * 1e9), 1_000_000_000)
+        return {"secs": secs, "nsecs": nsecs} if self.time_style == "ros1" else {"sec": secs, "nanosec": nsecs}
 
     def codec(self, name: str) -> PlainCodec:
         """The known message type's validation to plain dicts and their JSON (the publish hot path)."""

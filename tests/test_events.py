@@ -33,10 +33,10 @@ def test_a_detail_as_a_model_or_a_dict_reaches_the_wire_as_the_same_json_text():
     bus, got = bus_and_events()
     publish_event(bus, "teleop", EventKind.HEAD_OFF, "info", PartSwitch(by="c1", part="head", enabled=False))
     publish_event(bus, "teleop", "head_off", "info", {"by": "c1", "part": "head", "enabled": False})
-    first, second = (p.value for p in got)
-    assert first.kind == second.kind == "head_off" and first.level == "info"
-    assert first.detail == second.detail == '{"by": "c1", "enabled": false, "part": "head"}'
-    assert parse_detail(first.kind, first.detail) == PartSwitch(by="c1", part="head", enabled=False)
+    first, second = (p.data for p in got)
+    assert first["kind"] == second["kind"] == "head_off" and first["level"] == "info"
+    assert first["detail"] == second["detail"] == '{"by": "c1", "enabled": false, "part": "head"}'
+    assert parse_detail(first["kind"], first["detail"]) == PartSwitch(by="c1", part="head", enabled=False)
 
 
 def test_a_kind_or_a_detail_its_model_does_not_know_is_refused_before_the_bus():
@@ -57,8 +57,8 @@ def test_the_detail_keeps_the_fields_clients_read_today():
     publish_event(bus, "backend", "motor_error", "danger", {"motor": "RightElbowRoll", "faults": ["overload_limit"]})
     publish_event(bus, "gestures", EventKind.GESTURE_RECORDING, "info", GestureRecording(recording=True,
                                                                                          parts=["head"]))
-    assert json.loads(got[0].value.detail) == {"motor": "RightElbowRoll", "faults": ["overload_limit"]}
-    assert json.loads(got[1].value.detail) == {"recording": True, "parts": ["head"]}
+    assert json.loads(got[0].data["detail"]) == {"motor": "RightElbowRoll", "faults": ["overload_limit"]}
+    assert json.loads(got[1].data["detail"]) == {"recording": True, "parts": ["head"]}
 
 
 def test_event_headers_are_on_the_registrys_clock():
@@ -66,5 +66,6 @@ def test_event_headers_are_on_the_registrys_clock():
     clock.advance(12.5)
     bus, got = bus_and_events(clock)
     publish_event(bus, "teleop", EventKind.ENGAGE, "info", {"holder": "c1"})
-    stamp = got[0].value.header.stamp
-    assert (stamp.secs, stamp.nsecs) == (int(EPOCH) + 12, 500_000_000)
+    assert got[0].data["header"]["stamp"] == {"secs": int(EPOCH) + 12, "nsecs": 500_000_000}
+    assert got[0].plain is not None  # stamped as plain data: the server's own messages take the plain path too
+    assert TypeRegistry(clock=clock, time_style="ros2").now() == {"sec": int(EPOCH) + 12, "nanosec": 500_000_000}

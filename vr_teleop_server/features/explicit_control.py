@@ -123,7 +123,7 @@ class ExplicitControl:
             return
         now = self.clock.monotonic()
         try:
-            if not self.mapper.on_head_pose(_message(published), now):
+            if not self.mapper.on_head_pose(published.data, now):
                 return  # stamped before the newest pose taken: never replayed
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
@@ -136,7 +136,7 @@ class ExplicitControl:
         if not self._admit(published):
             return
         try:
-            self.mapper.on_controller_pose(side, _message(published), self.clock.monotonic())
+            self.mapper.on_controller_pose(side, published.data, self.clock.monotonic())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
 
@@ -144,8 +144,8 @@ class ExplicitControl:
         if not self._admit(published):
             return
         was = self.mapper.state
-        msg = _message(published)
-        axes, buttons = (msg["axes"], msg["buttons"]) if isinstance(msg, dict) else (msg.axes, msg.buttons)
+        msg = published.data
+        axes, buttons = msg["axes"], msg["buttons"]
         try:
             self.mapper.on_joy(side, axes, buttons, self.clock.monotonic())
         except ValueError as exc:
@@ -399,8 +399,3 @@ class ExplicitControl:
         if self._summary() != self._last_summary:
             self._publish_state()
 
-
-def _message(published: Published) -> Any:
-    """The message as the validated plain dict a client's publish carries (no model built and dumped again per
-    pose), else the model."""
-    return published.plain if published.plain is not None else published.value

@@ -92,7 +92,7 @@ class LuxaiApi:
     def _on_part_command(self, part: str, published: Published) -> None:
         try:
             # a plain dict when validated from a client or a feature: no model built for the one field read
-            data = published.plain["data"] if published.plain is not None else published.value.data
+            data = published.data["data"]
             report = self.robot.set_part_targets(part, data)
         except (ValueError, KeyError) as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
@@ -178,7 +178,7 @@ class LuxaiApi:
 
     def _on_emotion_topic(self, published: Published) -> None:
         try:
-            self._show(published.value.data)
+            self._show(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
@@ -191,7 +191,7 @@ class LuxaiApi:
 
     async def _say_reporting(self, published: Published) -> None:
         try:
-            await self.speaker.say(published.value.data)
+            await self.speaker.say(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
@@ -221,7 +221,7 @@ class LuxaiApi:
         return self.gestures.names() + [n for n in self.robot.own_gestures() if n not in self.gestures]
 
     def _on_gesture_topic(self, published: Published) -> None:
-        name = published.value.data
+        name = published.data["data"]
         if name not in self.gestures and name in self.robot.own_gestures():
             self._spawn(self._play_own(name, 1.0, published.sender))
             return

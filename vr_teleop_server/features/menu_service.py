@@ -115,7 +115,7 @@ class MenuService:
     def _on_selection(self, published: Published) -> None:
         async def run() -> None:
             try:
-                await self.select(published.value.data, "", published.sender)
+                await self.select(published.data["data"], "", published.sender)
             except BusError as exc:
                 self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 

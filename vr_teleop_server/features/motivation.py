@@ -114,11 +114,11 @@ class Motivation:
 
     # ---- inputs -------------------------------------------------------------------------------------------------
     def _on_event(self, published: Published) -> None:
-        if published.value.kind in REFUSAL_KINDS:
+        if published.data["kind"] in REFUSAL_KINDS:
             self._bump("per_refusal")
 
     def _on_state(self, published: Published) -> None:
-        self._engaged = bool(published.value.engaged)
+        self._engaged = bool(published.data["engaged"])
 
     def new_face(self) -> None:
         """A face not seen before came into view (for perception to call)."""

@@ -65,6 +65,7 @@ class TrialLog:
         self.listeners: list[Callable[[str, str, str], None]] = []
         self.state = "waiting"
         self.current = ""
+        self.awaiting_human = ""  # the human action awaited (TrialState.awaiting_human)
         self.final: FluencyResult | None = None
         self._task: asyncio.Task[None] | None = None
         self._subscription: int | None = None
@@ -173,16 +174,18 @@ class TrialLog:
 
     # ---- trial state and metrics --------------------------------------------------------------------------------
     def set_state(self, state: str, *, current: str | None = None, message: str = "",
-                  elapsed: float | None = None) -> None:
+                  elapsed: float | None = None, awaiting_human: str = "") -> None:
+        """`current` (words for people) changes only when given; `awaiting_human` goes with it."""
         self.state = state
         if current is not None:
-            self.current = current
+            self.current, self.awaiting_human = current, awaiting_human
         perception, decision, action = self.modules
         self.bus.publish(names.STUDY_TRIAL_TOPIC, {
             "study": self.study, "trial": self.trial, "state": state, "perception": perception,
             "decision": decision, "action": action,
             "elapsed": elapsed if elapsed is not None else (self.now() if self.started else 0.0),
-            "current": self.current, "planned_subtasks": self.planned_subtasks, "message": message})
+            "current": self.current, "planned_subtasks": self.planned_subtasks, "message": message,
+            "awaiting_human": self.awaiting_human})
 
     def snapshot(self, now: float | None = None) -> FluencyResult:
         return self.live.snapshot(self.now() if now is None else now, interventions=self.interventions,
@@ -247,16 +250,16 @@ class TrialLog:
 
     def _on_label_event(self, published: Published) -> None:
         """The dashboard's label buttons: Event kinds human_action_start, human_action_stop, intervention."""
-        msg = published.value
+        kind, detail = published.data["kind"], published.data["detail"]
         try:
-            if msg.kind not in LABEL_KINDS:
-                raise ValueError(f"kind {msg.kind!r} is not a label; labels are {', '.join(LABEL_KINDS)}")
-            action = Label.model_validate_json(msg.detail or "{}").action
+            if kind not in LABEL_KINDS:
+                raise ValueError(f"kind {kind!r} is not a label; labels are {', '.join(LABEL_KINDS)}")
+            action = Label.model_validate_json(detail or "{}").action
             if not self.started or self.state != "running":
                 raise BusError(f"trial {self.trial} is not running")
-            if msg.kind == EventKind.HUMAN_ACTION_START:
+            if kind == EventKind.HUMAN_ACTION_START:
                 self.label_start(action)
-            elif msg.kind == EventKind.HUMAN_ACTION_STOP:
+            elif kind == EventKind.HUMAN_ACTION_STOP:
                 self.label_stop(action)
             else:
                 t = self.now()
