@@ -73,7 +73,7 @@ class Holder(EventDetail):
 
 
 class HolderBy(Holder):
-    by: str = Field(description="the connection (or `server`) that asked")
+    by: str = Field(description="the connection that asked (/vr_teleop_server: the server itself)")
 
 
 class Refused(Holder):
