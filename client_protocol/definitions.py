@@ -51,7 +51,8 @@ MESSAGES: dict[str, str] = {
     "vr_teleop_msgs/Event": (
         "# Something the server did or noticed that a supervisor, a recording or a study log should know:\n"
         "# engage and release, watchdog, e-stop, menu commands, backend connection, motivation limits.\n"
-        "# level is info, warning or danger; detail is free text (JSON where a feature documents it).\n"
+        "# level is info, warning or danger; detail is a JSON object whose fields each kind defines\n"
+        "# (client_protocol/events.py; the JSON Schemas event.<kind>.json; the protocol reference's Events).\n"
         "Header header\nstring source\nstring kind\nstring level\nstring detail"
     ),
     "vr_teleop_msgs/TeleopState": (
@@ -117,9 +118,11 @@ MESSAGES: dict[str, str] = {
     "vr_teleop_msgs/TrialState": (
         "# A study trial as the runner sees it, on the latched /study/trial (on every change).\n"
         "# state: running, completed, preempted or failed. perception/decision/action: the implementations.\n"
-        "# current: the subtask running or awaited. planned_subtasks: robot subtasks in the plan.\n"
+        "# current: the subtask running or awaited, in words. planned_subtasks: robot subtasks in the plan.\n"
+        "# awaiting_human: the human action the trial waits for ('' when it waits for none).\n"
         "Header header\nstring study\nstring trial\nstring state\nstring perception\nstring decision\n"
-        "string action\nfloat64 elapsed\nstring current\nuint32 planned_subtasks\nstring message"
+        "string action\nfloat64 elapsed\nstring current\nuint32 planned_subtasks\nstring message\n"
+        "string awaiting_human"
     ),
     "vr_teleop_msgs/FluencyMetrics": (
         "# Live fluency metrics of the running trial, on /study/metrics (1 Hz, and once with final true).\n"

@@ -100,11 +100,13 @@ ENDPOINTS: tuple[Endpoint, ...] = (
               "clamped": ["HeadYaw"], "velocity_limited": [], "pose_age": 0.004, "left_pose_age": 0.006,
               "right_pose_age": 0.005, "robot_connected": True}),
     Endpoint(names.EVENT_TOPIC, "vr_teleop_msgs/Event", "subscribe",
-             "Server events: engage, release, calibrate, head_on/off, arms_on/off, estop, watchdog_stalled, "
-             "watchdog_active, watchdog_disconnected, robot_lost, robot_back, and others' features' events.",
+             "Server events: engage, release, calibrate, head_on/off, arms_on/off, estop, watchdog_*, robot_lost, "
+             "robot_back, menu selections, gesture recording, motivation limits, the backend's news; every kind "
+             "and its detail's fields are listed under Events below.",
              "on event",
              {"header": _stamp(), "source": "teleop", "kind": "watchdog_stalled", "level": "warning",
-              "detail": "{\"holder\": \"client_3_127.0.0.1:50312\"}"}),
+              "detail": "{\"holder\": \"client_3_127.0.0.1:50312\", \"pose_age_s\": 0.412, "
+                        "\"pose_made_age_s\": 0.431, \"threshold_s\": 0.25}"}),
     Endpoint(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", "subscribe",
              "A joint command that did not apply as sent: clamped to a limit, or ignored (motor not on).",
              "on clamp",

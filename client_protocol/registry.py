@@ -11,11 +11,11 @@ import base64
 import binascii
 import re
 import struct
-import time
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import cbor2
+from simclock import WALL, Clock
 from pydantic_core import SchemaSerializer, SchemaValidator
 from pydantic import (
     BaseModel,
@@ -194,8 +194,10 @@ class TypeRegistry:
         messages: dict[str, str] = MESSAGES,
         services: dict[str, str] = SERVICES,
         time_style: TimeStyle = "ros1",
+        clock: Clock = WALL,
     ) -> None:
         self.time_style = time_style
+        self.clock = clock  # the server's: every header it stamps is on it (simulated in a `--speed max` replay)
         self._specs: dict[str, MessageSpec] = {}
         for name, text in messages.items():
             self._specs[normalize_type_name(name)] = parse_definition(name, text)
@@ -302,12 +304,17 @@ class TypeRegistry:
         return self._element_annotation(owner, ftype)()
 
     def _now(self) -> BaseModel:
-        t = time.time_ns()
-        return self._time_models["time"](secs=t // 1_000_000_000, nsecs=t % 1_000_000_000)
+        return self._time_models["time"].model_validate(self.now())
 
-    def now(self) -> BaseModel:
-        """The current wall time as this registry's ROS time model."""
-        return self._now()
+    def now(self) -> dict[str, int]:
+        """The server clock's current time as a header stamp in this registry's style (plain data, so that a
+        message stamped with it takes the bus's plain path)."""
+        return self.stamp(self.clock.time())
+
+    def stamp(self, t: float) -> dict[str, int]:
+        """A time on the server clock (Unix seconds) as a header stamp in this registry's style."""
+        secs, nsecs = divmod(round(t * 1e9), 1_000_000_000)
+        return {"secs": secs, "nsecs": nsecs} if self.time_style == "ros1" else {"sec": secs, "nanosec": nsecs}
 
     def codec(self, name: str) -> PlainCodec:
         """The known message type's validation to plain dicts and their JSON (the publish hot path)."""

@@ -1,5 +1,5 @@
-"""JSON Schemas of every op and every known ROS type, for client developers (the Unity team codes against them),
-and the `.msg`/`.srv` files of the non-standard packages in a ROS package layout (ROS#'s message generation and
+"""JSON Schemas of every op, every known ROS type and every event kind's detail, for client developers (the Unity
+team codes against them), and the `.msg`/`.srv` files of the non-standard packages in a ROS package layout (ROS#'s message generation and
 other code generators read those, not JSON Schemas).
 
 A copy lives in client_protocol/schemas/ (the ROS packages under schemas/msg/); a test regenerates both and fails
@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from .definitions import MESSAGES, SERVICES
+from .events import KINDS, EventKind, EventLevel
 from .interface import endpoints
 from .ops import CLIENT_OPS, SERVER_OPS, op_name
 from .registry import TypeRegistry, normalize_type_name
@@ -46,6 +47,19 @@ def all_schemas() -> dict[str, dict[str, Any]]:
         schemas[f"srv.{service.replace('/', '.')}.Request.json"] = _type_schema(registry, request, f"{service} request")
         schemas[f"srv.{service.replace('/', '.')}.Response.json"] = _type_schema(registry, response,
                                                                                   f"{service} response")
+    for kind, spec in KINDS.items():
+        schema = spec.model.model_json_schema()
+        schema["title"] = f"event {kind.value}"
+        schema["description"] = (f"vr_teleop_msgs/Event kind {kind.value!r} (source {spec.source!r}): {spec.doc}. "
+                                 "This is its detail, a JSON object sent as a string.")
+        schemas[f"event.{kind.value}.json"] = schema
+    schemas["events.json"] = {
+        "title": "the server's event kinds",
+        "description": "vr_teleop_msgs/Event's kind and level values; each kind's detail is described by "
+                       "event.<kind>.json beside this file.",
+        "kind": {"enum": [k.value for k in EventKind]}, "level": {"enum": [v.value for v in EventLevel]},
+        "sources": {k.value: spec.source for k, spec in KINDS.items()},
+    }
     schemas["interface.json"] = {
         "title": "the server's topics and services",
         "description": "Every topic and service a client uses: type, direction (client's side), rate, and one "

@@ -4,7 +4,8 @@ A page asks for a part with a marker line `<!-- generated: NAME -->`; the hook r
 GENERATORS[NAME] makes. An unknown name stops the build. Parts:
 
 - protocol: every topic and service of client_protocol/interface.py (type, direction, rate, who may use it,
-  what it does, an example frame) and the definition of every type they use, from client_protocol/definitions.py;
+  what it does, an example frame), every event kind and its detail's fields (client_protocol/events.py), and the
+  definition of every type they use, from client_protocol/definitions.py;
 - cli: every subcommand of `vr-teleop` and its options, read from the argparse parsers;
 - config-*: the configuration files' fields (and the menu commands), from their pydantic models' JSON Schemas.
 """
@@ -130,6 +131,7 @@ def protocol() -> str:
                    f"rate {e.rate or 'on call'}; who may use it: {', '.join(who_may(policy, e)) or 'nobody'}.\n")
         out.append(f"\n{e.doc}\n")
         out.append("\nExample frame:\n\n```json\n" + json.dumps(e.example_frame(), indent=2) + "\n```\n")
+    out.append(events())
     out.append("\n## Types\n\nEach type as ROS writes it (`.msg`, or `.srv` with the request above `---` and the "
                "response below). `vr-teleop schema` writes the non-standard ones as files (with a `package.xml` "
                "each) under `client_protocol/schemas/msg/`, and a JSON Schema per type beside them.\n")
@@ -138,6 +140,30 @@ def protocol() -> str:
         used = uses(name, kind, text)
         if used:
             out.append("\nUses " + ", ".join(f"[`{u}`](#{anchor(u)})" for u in used) + ".\n")
+    return "".join(out)
+
+
+def events() -> str:
+    """Every event kind on vr_teleop_msgs/Event with its source and its detail's fields (client_protocol/events.py)."""
+    from client_protocol.events import KINDS, EventLevel
+
+    out = ["\n## Events {#events}\n\n",
+           f"[`/vr_teleop/events`](#{anchor('/vr_teleop/events')}) (and the experimenter's labels on "
+           f"[`/study/labels`](#{anchor('/study/labels')})) carry `vr_teleop_msgs/Event`: `source`, `kind`, `level` "
+           f"(one of {', '.join(code(v.value) for v in EventLevel)}) and `detail`, a JSON object in a string whose "
+           "fields each kind defines. The server checks every event it sends against its kind's fields; "
+           "`vr-teleop schema` writes them as `event.<kind>.json` (and the lists of kinds and levels as "
+           "`events.json`). Read states from these fields, never from a sentence.\n\n"]
+    rows = []
+    for kind, spec in KINDS.items():
+        schema = spec.model.model_json_schema()
+        required = set(schema.get("required", ()))
+        fields = "<br>".join(
+            f"{code(key)}: {schema_type(prop, schema.get('$defs'))}" + ("" if key in required else " (optional)")
+            + (f"; {cell(prop['description'])}" if prop.get("description") else "")
+            for key, prop in schema.get("properties", {}).items())
+        rows.append([code(kind.value), code(spec.source), cell(spec.doc), fields or "none"])
+    out.append(table(["Kind", "Source", "When", "Detail fields"], rows))
     return "".join(out)
 
 
@@ -171,6 +197,21 @@ def value_of(action: argparse.Action) -> str:
     return code(action.metavar or (action.dest.upper() if action.option_strings else action.dest))
 
 
+def option_rows(actions: Iterable[argparse.Action], title: str, prog: str) -> list[list[str]]:
+    rows = []
+    for action in actions:
+        if isinstance(action, argparse._SubParsersAction):
+            rows += [[f"[{code(name)}](#{anchor(title + ' ' + name)})", "", "",
+                      cell(next((c.help for c in action._choices_actions if c.dest == name), "") or "")]
+                     for name in action.choices]
+            continue
+        names = ", ".join(code(s) for s in action.option_strings) or code(action.dest)
+        default = action.default
+        shown = "" if default in (None, argparse.SUPPRESS, False, []) or action.nargs == 0 else code(default)
+        rows.append([names, value_of(action), shown, cell(expanded_help(action, prog))])
+    return rows
+
+
 def cli() -> str:
     from vr_teleop_server.cli import build_parser
 
@@ -182,18 +223,13 @@ def cli() -> str:
         if parser.description:
             out.append(parser.description.strip() + "\n\n")
         out.append("```text\n" + parser.format_usage().strip() + "\n```\n\n")
-        rows = []
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                rows += [[f"[{code(name)}](#{anchor(title + ' ' + name)})", "", "",
-                          cell(next((c.help for c in action._choices_actions if c.dest == name), "") or "")]
-                         for name in action.choices]
-                continue
-            names = ", ".join(code(s) for s in action.option_strings) or code(action.dest)
-            default = action.default
-            shown = "" if default in (None, argparse.SUPPRESS, False, []) or action.nargs == 0 else code(default)
-            rows.append([names, value_of(action), shown, cell(expanded_help(action, parser.prog))])
-        out.append(table(["Option or subcommand", "Value", "Default", "What it does"], rows))
+        groups = [g for g in parser._action_groups if g._group_actions]
+        for group in groups:  # `serve`'s options come in groups (the robot, --backend luxai...): one table each
+            if len(groups) > 1 and group.title not in ("options", "positional arguments"):
+                out.append(f"\n**{group.title}**" + (f": {group.description}" if group.description else "")
+                           + "\n\n")
+            out.append(table(["Option or subcommand", "Value", "Default", "What it does"],
+                             option_rows(group._group_actions, title, parser.prog)))
         if parser.epilog:
             out.append("\n```text\n" + parser.epilog.strip() + "\n```\n")
     return "".join(out)

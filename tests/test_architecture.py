@@ -29,14 +29,14 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 LEAVES = LAYERS[0][1]
 # Narrower rules than the layer order: whom these packages may import at all (besides themselves).
 MAY_IMPORT: dict[str, tuple[str, ...]] = {
-    "client_protocol": (),
+    "client_protocol": ("simclock",),  # the registry stamps headers on the server's one clock
     "robot_models": ("client_protocol",),
     "menus": ("client_protocol",),
     "sim": ("client_protocol", "robot_models", "worker_process", "simclock"),
     "netem": (),
     "worker_process": (),
     "simclock": (),
-    f"{SERVER}.core": ("client_protocol",),
+    f"{SERVER}.core": ("client_protocol", "simclock"),
     f"{SERVER}.robot": LEAVES,  # knows nothing of the bus
     f"{SERVER}.teleop": LEAVES,  # pure mapping maths
     f"{SERVER}.recording.format": LEAVES,  # reading a recording needs no bus

@@ -272,7 +272,7 @@ class CommandLog:
         def tap(published) -> None:
             if published.sender == SERVER_NODE and published.topic.endswith("_position/command"):
                 with self.lock:
-                    self.published.append((published.topic, list(published.value.data)))
+                    self.published.append((published.topic, list(published.data["data"])))
 
         server.call(lambda: app.bus.taps.append(tap))
 

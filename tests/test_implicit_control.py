@@ -203,21 +203,25 @@ def test_motivation_crossing_its_limit_sends_the_event(ros, events):
     assert select(ros, "status.motivation")["success"]
     call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
          {"name": "frustration", "value": 10})
-    assert wait_for(lambda: events.any(lambda e: e["source"] == "motivation" and e["kind"] == "frustration_high"
-                                       and e["level"] == "warning"), 5)
-    detail = json.loads(next(e for e in events.messages if e["kind"] == "frustration_high")["detail"])
-    assert detail["limit"] == 80 and detail["value"] >= 80
+    def frustration(kind: str, level: str | None = None) -> list[dict]:
+        """The variable is the detail's `variable` field (its kind is one of the fixed motivation_*)."""
+        return [e for e in events.messages if e["source"] == "motivation" and e["kind"] == kind
+                and json.loads(e["detail"])["variable"] == "frustration" and level in (None, e["level"])]
+
+    assert wait_for(lambda: frustration("motivation_high", "warning"), 5)
+    detail = json.loads(frustration("motivation_high")[0]["detail"])
+    assert detail["limit"] == 80 and detail["value"] >= 80 and detail["side"] == "high"
     assert wait_for(lambda: dict(zip(state.latest.get("name", []), state.latest.get("level", []))).get(
         "frustration") == "high", 5)
     reply = call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
                  {"name": "frustration", "value": 100})
     assert reply["value"] == 90 and "clamped" in reply["message"]
-    assert wait_for(lambda: events.any(lambda e: e["kind"] == "frustration_high" and e["level"] == "danger"), 5)
+    assert wait_for(lambda: frustration("motivation_high", "danger"), 5)
     refused(call(ros, "/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange",
                  {"name": "boredom", "value": 1}),
             "unknown motivation variable 'boredom'")
     call(ros, "/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", {"name": "frustration"})
-    assert wait_for(lambda: events.any(lambda e: e["kind"] == "frustration_ok"), 5)
+    assert wait_for(lambda: frustration("motivation_ok"), 5)
     state.close()
 
 

@@ -45,7 +45,7 @@ async def test_the_peers_run_on_the_media_loop_poses_reach_the_session_in_order_
         published: list[tuple[str, float, bool]] = []  # (sender, x, on the server's loop's thread)
 
         def on_pose(message: Any) -> None:
-            x = message.plain["pose"]["position"]["x"] if message.plain is not None else message.value.pose.position.x
+            x = message.data["pose"]["position"]["x"]
             published.append((message.sender, x, threading.current_thread() is server.thread))
 
         token = server.call(lambda: server.server.bus.subscribe("/test", HEAD_POSE, "geometry_msgs/PoseStamped",

@@ -549,3 +549,42 @@ def browser_type_with_fake_microphone(browser):
                                           "--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream"])
     yield b
     b.close()
+
+
+def test_the_hud_shows_gesture_recording_from_the_typed_event_whatever_the_menus_say(browser, sim_server, ros,
+                                                                                     watch):
+    """The recording state is the gesture_recording event's `recording` field: rewording the menu's answer (or
+    recording without the menu at all) cannot change what the HUD shows."""
+    from support import call
+
+    events = watch("/vr_teleop/events", "vr_teleop_msgs/Event")
+    menu = next(f for f in sim_server.server.features if type(f).__name__ == "MenuService")
+    toggle = menu._do_record_toggle
+
+    async def reworded(args, caller):
+        await toggle(args, caller)
+        return "okay"  # no "recording ..." in it: a page reading sentences would miss the start
+
+    sim_server.call(lambda: setattr(menu, "_do_record_toggle", reworded))
+    page = open_page(browser, sim_server)
+    try:
+        assert page.evaluate("document.getElementById('hud-recording')") is None
+        reply = call(ros, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": "motion.record", "args": ""})
+        assert reply == {"success": True, "message": "okay"}
+        page.wait_for_function("(document.getElementById('hud-recording')?.textContent ?? '')"
+                               ".startsWith('● RECORDING a gesture')", timeout=SLOW)
+        started = next(e for e in events.messages if e["kind"] == "gesture_recording")
+        assert started["source"] == "gestures" and json.loads(started["detail"])["recording"] is True
+        assert "head" in hud(page, "recording")  # the parts recorded, from the detail's `parts`
+        assert page.evaluate("window.operator.state.recording") is True  # the menu's Record switch shows on
+        screenshot(page, "operator_hud_recording.png")
+        # stopped without the menu: its service answers {status: true}, no sentence at all
+        assert call(ros, "/qt_robot/gesture/stop", "qt_gesture_controller/gesture_stop") == {"status": True}
+        page.wait_for_function("document.getElementById('hud-recording') === null", timeout=SLOW)
+        assert page.evaluate("window.operator.state.recording") is False
+        stopped = [json.loads(e["detail"]) for e in events.messages if e["kind"] == "gesture_recording"]
+        assert stopped[-1] == {"recording": False, "parts": []}
+        assert page.errors == []
+    finally:
+        sim_server.call(lambda: setattr(menu, "_do_record_toggle", toggle))
+        close_page(page)

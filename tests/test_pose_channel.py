@@ -48,9 +48,24 @@ def deliver(channel: PoseChannel, *messages: str) -> None:
     asyncio.run(run())
 
 
+class Ticking:
+    """A clock two seconds later at each reading (simclock.Clock's shape)."""
+    simulated = True
+
+    def __init__(self, step: float) -> None:
+        self.step, self.now = step, -step
+
+    def monotonic(self) -> float:
+        self.now += self.step
+        return self.now
+
+    def time(self) -> float:
+        return self.monotonic()
+
+
 def test_good_frames_are_handed_over_in_order_and_bad_ones_refused_and_counted() -> None:
     session = FakeSession()
-    channel = PoseChannel(session, lambda name: name == "client-1", clock=iter(range(0, 100, 2)).__next__)
+    channel = PoseChannel(session, lambda name: name == "client-1", clock=Ticking(2.0))
     deliver(channel, json.dumps(publish(HEAD, 100.0)),
             json.dumps({"op": "publish", "topic": "/qt_robot/head_position/command", "msg": {}}),
             json.dumps(publish(JOY, 100.0)), json.dumps({"op": "subscribe", "topic": HEAD}),

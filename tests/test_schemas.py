@@ -37,6 +37,11 @@ def test_schema_command_writes_one_file_per_op_and_type(tmp_path):
     state = (tmp_path / "msg" / "vr_teleop_msgs" / "msg" / "TeleopState.msg").read_text()
     assert "string holder" in state
     assert (tmp_path / "msg" / "vr_teleop_msgs" / "srv" / "MenuSelect.srv").is_file()
+    kinds = json.loads((tmp_path / "events.json").read_text())
+    assert "gesture_recording" in kinds["kind"]["enum"] and kinds["level"]["enum"] == ["info", "warning", "danger"]
+    recording = json.loads((tmp_path / "event.gesture_recording.json").read_text())
+    assert recording["properties"]["recording"]["type"] == "boolean" and recording["required"] == ["recording"]
+    assert {f"event.{kind}.json" for kind in kinds["kind"]["enum"]} <= names
 
 
 def test_checked_in_message_files_match_the_definitions():

@@ -160,3 +160,46 @@ def test_study_repeat_runs_a_trial_with_successive_seeds_and_summarises_each_met
     again = json.loads(proc.stdout)["teleoperated"]
     assert {k: v for k, v in again.items() if k not in ("outcome", "modules")} == \
         {k: v for k, v in result["runs"][1].items() if k not in ("seed", "outcome")}
+
+
+def _stamps(value, path: str = ""):
+    """(path, seconds) of every header stamp in a message, however deep."""
+    if isinstance(value, dict):
+        stamp = value.get("stamp") if isinstance(value.get("stamp"), dict) else None
+        if stamp is not None and path.endswith("header"):
+            yield path, stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9
+        for key, item in value.items():
+            yield from _stamps(item, f"{path}.{key}" if path else key)
+    elif isinstance(value, list):
+        for item in value:
+            yield from _stamps(item, path)
+
+
+def test_a_simulated_replay_stamps_every_header_on_the_simulated_clock(nod, tmp_path):
+    """Every header the server writes, and every log time of its recording, is on the server's (simulated) clock,
+    which starts at simclock.EPOCH: none is wall time."""
+    import time
+
+    from simclock import EPOCH
+    from vr_teleop_server.core.bus import SERVER_NODE
+    from vr_teleop_server.recording.format import read_recording
+
+    wall = time.time()
+    assert wall - EPOCH > 3600, "the machine's clock must be well past the simulated epoch for this test to tell"
+    out = tmp_path / "replayed.mcap"
+    settings = ServerSettings(port=0, backend="sim", record=out, record_camera_fps=5, gesture_dir=tmp_path / "g",
+                              audio_dir=tmp_path / "a")
+    steps, _client = load_steps(nod)
+    run_simulated(steps, camera=True, progress=False, settings=settings)
+    duration = (max(s.t for s in steps) + 120.0)  # the replay, its start and drain: well under an hour
+    ours: dict[str, int] = {}
+    for message in read_recording(out):
+        assert EPOCH <= message.time_ns / 1e9 <= EPOCH + duration, (message.topic, message.time_ns)
+        if message.sender != SERVER_NODE:
+            continue  # a client's headers are its own
+        for path, seconds in _stamps(message.data):
+            assert EPOCH <= seconds <= EPOCH + duration, (message.topic, path, seconds)
+            ours[message.topic] = ours.get(message.topic, 0) + 1
+    # the server's own stamps were all looked at: events, teleop state, joint states, commands' sources...
+    assert {"/vr_teleop/events", "/vr_teleop/teleop_state", "/qt_robot/joints/state",
+            "/camera/color/image_raw/compressed"} <= set(ours), ours

@@ -50,7 +50,7 @@ class TeleopServer:
                              "robot moves in real time")
         self.settings = settings
         self.clock = clock
-        self.registry = TypeRegistry(time_style=settings.time_style)
+        self.registry = TypeRegistry(time_style=settings.time_style, clock=clock)
         self.bus = Bus(self.registry, reporter=self._report)
         self.model = load_qtrobot()
         self.sessions: dict[str, Session] = {}
@@ -159,7 +159,7 @@ class TeleopServer:
         self._start(self.luxai)
         self.control = ExplicitControl(
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
-            operator_of=self._operator, operator_online=self._operator_online, clock=self.clock.monotonic)
+            operator_of=self._operator, operator_online=self._operator_online, clock=self.clock)
         self._start(self.control)
         self._start(OperatorVoiceIn(self.bus, robot, audio_dir))
         status = StatusPublisher(self.bus, robot)

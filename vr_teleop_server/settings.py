@@ -3,59 +3,80 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, SecretStr, ValidationInfo, field_validator
 
-from .core.settings import MIB, CoreSettings
+from .core.settings import MIB, Cli, CoreSettings
 from .media.turn import DEFAULT_TTL_S, IceConfig, check_url
 from .robot.backends import BACKEND_NAMES, BACKENDS
 from .teleop.settings import TeleopSettings
 
-__all__ = ["MIB", "CoreSettings", "ServerSettings"]
+__all__ = ["MIB", "Cli", "CoreSettings", "ServerSettings"]
 
 
 class ServerSettings(CoreSettings):
-    backend: Literal[BACKEND_NAMES] = Field(  # type: ignore[valid-type]
-        "sim", description="the robot: " + "; ".join(f"'{b.name}', {b.summary}" for b in BACKENDS.values()))
-    robot_url: str | None = Field(
-        None, description="the real robot: its rosbridge for backend 'ros', ws://ROBOT:9090; for 'luxai' its service "
-                          "hub, tcp://ROBOT:50500, or an MQTT broker (mqtt://, mqtts://, wss://) with robot_id. "
-                          "Default: " + ", ".join(f"{b.default_url} ({b.name})" for b in BACKENDS.values()
-                                                  if b.default_url))
-    robot_id: str | None = Field(None, description="the QTrobot v3's id (e.g. QTRD000320), for 'luxai' over MQTT")
-    mqtt_ca_file: Path | None = Field(None, description="for 'luxai' through a TLS broker (mqtts://, wss://): the CA "
-                                                        "certificate (PEM) to trust; default: the system's")
-    mqtt_username: str | None = Field(None, description="for 'luxai' through a broker that wants a login")
-    mqtt_password: str | None = Field(None, description="its password (the CLI reads $VR_TELEOP_MQTT_PASSWORD)")
-    camera_url: str | None = Field(
-        None, description="the QTrobot v3's realsense-driver plugin over ZeroMQ, tcp://HOST:PORT (default: the "
-                          "robot's host, port 50655); over MQTT it is found under its node id")
-    camera_width: int = Field(640, ge=16, le=4096)
+    backend: Annotated[Literal[BACKEND_NAMES], Cli("robot")] = Field(  # type: ignore[valid-type]
+        "sim", description="the robot: " + "; ".join(f"{b.summary} ({b.name})" for b in BACKENDS.values()))
+    robot_url: Annotated[str | None, Cli("robot", metavar="URL")] = Field(
+        None, description="the real robot. --backend ros: its rosbridge, ws://ROBOT:9090 (default "
+                          f"{BACKENDS['ros'].default_url}). --backend luxai: its service hub, tcp://ROBOT:50500 "
+                          f"(default {BACKENDS['luxai'].default_url}), or an MQTT broker, mqtt://BROKER:1883 (also "
+                          "mqtts://, wss://), with --robot-id")
+    robot_id: Annotated[str | None, Cli("luxai", metavar="QTRD000320")] = Field(
+        None, description="the QTrobot v3's id, for --backend luxai through an MQTT broker")
+    mqtt_ca_file: Annotated[Path | None, Cli("luxai", metavar="CA.pem")] = Field(
+        None, description="through a TLS broker (mqtts://, wss://): the CA certificate to trust (default: the "
+                          "system's)")
+    mqtt_username: Annotated[str | None, Cli("luxai", metavar="NAME")] = Field(
+        None, description="through a broker that wants a login; the password is read from $VR_TELEOP_MQTT_PASSWORD "
+                          "(never from the command line, where other users could read it)")
+    mqtt_password: Annotated[str | None, Cli("luxai", flag="", env="VR_TELEOP_MQTT_PASSWORD")] = Field(
+        None, description="the broker login's password")
+    camera_url: Annotated[str | None, Cli("luxai", metavar="tcp://ROBOT:50655")] = Field(
+        None, description="the QTrobot v3's realsense-driver plugin over ZeroMQ (default: the robot's host, port "
+                          "50655); through MQTT it is found under its node id qtrobot-realsense-driver")
+    camera_width: int = Field(640, ge=16, le=4096)  # `serve --camera-size WxH`
     camera_height: int = Field(480, ge=16, le=4096)
-    camera_fps: float = Field(30.0, gt=0, le=120, description="head-camera frames a second while someone watches")
-    gesture_dir: Path | None = Field(
-        None, description="where recorded gestures are saved and extra gesture files are loaded from")
-    menu_dir: Path | None = Field(None, description="the radial menu files (*.yaml); default: the packaged menus")
-    audio_dir: Path | None = Field(None, description="where operator audio is logged; default: a directory in "
-                                                     "the system's temporary directory")
-    motivation_config: Path | None = Field(None, description="motivation variables file; default: the packaged")
-    bystander_interval: float = Field(20.0, ge=0, description="seconds between the stand-in's bystanders' lines "
-                                                              "in the robot's WebRTC audio (0: none)")
-    turn_urls: tuple[str, ...] = Field((), description="TURN relays for WebRTC (turn:HOST:3478?transport=udp, "
-                                                     "turns:HOST:443?transport=tcp...); need turn_secret")
-    turn_secret: SecretStr | None = Field(None, description="the relay's shared secret (coturn static-auth-secret): "
-                                                            "time-limited TURN credentials are made from it")
-    turn_ttl: float = Field(DEFAULT_TTL_S, gt=0, description="seconds a TURN credential stays valid")
-    ice_servers: tuple[str, ...] = Field((), description="STUN servers for WebRTC (stun:HOST:PORT); none on a "
-                                                       "LAN, where host candidates reach the client")
-    record: Path | None = Field(None, description="record the session to this MCAP file")
-    record_camera_fps: float = Field(2.0, ge=0, le=120, description="camera frames a second kept in the "
-                                                                     "recording (0: none)")
-    operator_token: str | None = Field(None, description="token of the operator role (auth op)")
-    supervisor_token: str | None = Field(None, description="token of the supervisor role")
-    spectator_token: str | None = Field(None, description="token of the spectator role")
-    insecure: bool = Field(False, description="allow open access (no tokens) on a non-loopback address")
+    camera_fps: Annotated[float, Cli("robot")] = Field(
+        30.0, gt=0, le=120, description="head-camera frames a second while someone watches")
+    gesture_dir: Annotated[Path | None, Cli("files")] = Field(
+        None, description="directory for recorded gestures and extra LuxAI gesture files")
+    menu_dir: Annotated[Path | None, Cli("files", metavar="DIR")] = Field(
+        None, description="radial menu files (*.yaml) to use instead of the packaged ones (see menus/data)")
+    audio_dir: Annotated[Path | None, Cli("files", metavar="DIR")] = Field(
+        None, description="where the operator's voice is logged, one WAV per client (default: a temporary "
+                          "directory)")
+    motivation_config: Annotated[Path | None, Cli("files", metavar="FILE")] = Field(
+        None, description="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
+    bystander_interval: Annotated[float, Cli("sim", metavar="S")] = Field(
+        20.0, ge=0, description="the stand-in's bystanders speak a line every S seconds in the robot's WebRTC "
+                                "audio; 0: never")
+    turn_urls: Annotated[tuple[str, ...], Cli("media", metavar="URL", flag="--turn-url")] = Field(
+        (), description="a TURN relay for WebRTC media (repeatable): turn:HOST:3478?transport=udp, "
+                        "turn:HOST:3478?transport=tcp, turns:HOST:443?transport=tcp. Clients get them with fresh "
+                        "credentials from /vr_teleop/media/ice_servers; the server's own peer uses the first one "
+                        "(put first the one the server can reach: turns:...:443 behind a firewall that blocks UDP)")
+    turn_secret: Annotated[SecretStr | None, Cli("media", metavar="SECRET", env="VR_TELEOP_TURN_SECRET")] = Field(
+        None, description="the relay's shared secret (coturn: use-auth-secret, static-auth-secret=SECRET), or "
+                          "$VR_TELEOP_TURN_SECRET; TURN credentials are made from it, valid for --turn-ttl")
+    turn_ttl: Annotated[float, Cli("media", metavar="S")] = Field(
+        DEFAULT_TTL_S, gt=0, description="seconds a TURN credential stays valid")
+    ice_servers: Annotated[tuple[str, ...], Cli("media", metavar="URL", flag="--ice-server")] = Field(
+        (), description="a STUN server for WebRTC media, e.g. stun:stun.example.org:3478 (repeatable; default "
+                        "none: host candidates, enough on a LAN)")
+    record: Annotated[Path | None, Cli("recording", metavar="FILE.mcap")] = Field(
+        None, description="record every message of the session, both ways, per client, to an MCAP file")
+    record_camera_fps: Annotated[float, Cli("recording", metavar="FPS")] = Field(
+        2.0, ge=0, le=120, description="camera frames a second kept in the recording; 0 keeps none")
+    operator_token: Annotated[str | None, Cli("access")] = Field(
+        None, description="token of the operator role (or $VR_TELEOP_OPERATOR_TOKEN)")
+    supervisor_token: Annotated[str | None, Cli("access")] = Field(
+        None, description="token of the supervisor role (or $VR_TELEOP_SUPERVISOR_TOKEN)")
+    spectator_token: Annotated[str | None, Cli("access")] = Field(
+        None, description="token of the read-only spectator role (or $VR_TELEOP_SPECTATOR_TOKEN)")
+    insecure: Annotated[bool, Cli("access")] = Field(
+        False, description="allow open access (no tokens) on a non-loopback address")
     teleop: TeleopSettings = Field(default_factory=TeleopSettings, description="explicit control (teleop/settings.py)")
 
     @field_validator("ice_servers", "turn_urls")
@@ -79,7 +100,5 @@ class ServerSettings(CoreSettings):
 
     @property
     def resolved_robot_url(self) -> str:
-        """robot_url, or the backend's default."""
-        if self.robot_url:
-            return self.robot_url
-        return BACKENDS[self.backend].default_url or ""
+        """robot_url, or the backend's default (robot/backends' table; empty for a backend without a robot URL)."""
+        return self.robot_url or BACKENDS[self.backend].default_url or ""

@@ -2,8 +2,10 @@
 
 Clients (through their sessions) and the server's own features are equal parties here: a feature publishes,
 subscribes and provides services exactly as a client does, so nothing reaches the robot by a back door.
-Messages of known types travel as validated pydantic models; messages of types the server does not know travel
-as the JSON value the client sent, untouched.
+Subscribers read a message one way, `Published.data`: validated plain data (dicts with the type's field names)
+for known types, however the message was published; the JSON value the client sent, untouched, for types the
+server does not know. Plain data is what the publish hot path makes anyway (PlainCodec), so reading it costs
+nothing; pydantic models (`Published.value`) are made only for the encoders that need one (CBOR, raw ROS 1).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ class CallFailed(BusError):
 class Published:
     """One message as published, with its wire encodings computed once and shared by every subscriber."""
 
-    __slots__ = ("topic", "type", "_value", "known", "sender", "encoded", "plain", "codec")
+    __slots__ = ("topic", "type", "_value", "known", "sender", "encoded", "plain", "codec", "_data")
 
     def __init__(self, topic: str, type_name: str, value: Any, known: bool, sender: str,
                  plain: dict[str, Any] | None = None, codec: PlainCodec | None = None) -> None:
@@ -51,10 +53,20 @@ class Published:
         # it on never need the model (see PlainCodec).
         self.plain = plain
         self.codec = codec
+        self._data = plain if plain is not None else None if known else value
+
+    @property
+    def data(self) -> Any:
+        """The message as subscribers read it: validated plain data for a known type (the type's field names, times
+        in the registry's style, byte arrays as bytes), the JSON value as sent for the others."""
+        if self._data is None:
+            self._data = self._value.model_dump()  # published as a model: dumped once, on first read
+        return self._data
 
     @property
     def value(self) -> Any:
-        """A pydantic model for known types, the JSON value as sent for the others."""
+        """A pydantic model for known types, the JSON value as sent for the others (for encoders; subscribers
+        read `data`)."""
         if self._value is None and self.plain is not None:
             self._value = self.codec.to_model(self.plain)
         return self._value

@@ -174,8 +174,8 @@ def publish_cbor(published: Published, registry: TypeRegistry, raw: bool) -> byt
     frame = published.encoded.get(key)
     if frame is None:
         if raw:
-            stamp = registry.now()
-            msg: Any = {"secs": stamp.secs, "nsecs": stamp.nsecs,
+            secs, nsecs = registry.now().values()
+            msg: Any = {"secs": secs, "nsecs": nsecs,
                         "bytes": registry.serialize_ros1(published.type, published.value)}
         elif published.known:
             msg = registry.to_cbor_value(published.type, published.value)

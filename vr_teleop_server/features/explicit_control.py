@@ -23,12 +23,14 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 from client_protocol import names
+from client_protocol.events import (Calibration, EStop, EventDetail, EventKind, EventLevel, Holder, HolderBy,
+                                    PartSwitch, Refused, Watchdog)
+from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.events import declare_event_topic, publish_event
@@ -42,11 +44,15 @@ log = logging.getLogger(__name__)
 STATE_RATE_HZ = 30.0
 REFUSAL_INTERVAL_S = 1.0  # a refused client hears about it at most this often, not 90 times a second
 HOLDS_WINDOW_S = 60.0  # link_view counts the watchdog's holds over this long
+WATCHDOG_KINDS = {WatchdogState.RELEASED: EventKind.WATCHDOG_RELEASED, WatchdogState.ACTIVE: EventKind.WATCHDOG_ACTIVE,
+                  WatchdogState.STALLED: EventKind.WATCHDOG_STALLED,
+                  WatchdogState.DISCONNECTED: EventKind.WATCHDOG_DISCONNECTED,
+                  WatchdogState.ESTOPPED: EventKind.WATCHDOG_ESTOPPED}
 
 
 class ExplicitControl:
     def __init__(self, bus: Bus, robot: Robot, settings: TeleopSettings | None = None,
-                 clock: Callable[[], float] = time.monotonic,
+                 clock: Clock = WALL,
                  may_override: Callable[[str], bool] = lambda caller: False,
                  operator_of: Callable[[str], str] = lambda owner: owner,
                  operator_online: Callable[[str, str], bool] = lambda operator, gone: False) -> None:
@@ -103,20 +109,21 @@ class ExplicitControl:
         sender = published.sender
         if self.holder is None or self.operator_of(sender) == self.holder:
             return True
-        now = self.clock()
+        now = self.clock.monotonic()
         if now - self._last_refusal.get(sender, -1e9) >= REFUSAL_INTERVAL_S:
             self._last_refusal[sender] = now
             self.bus.report(sender, "error", f"{published.topic}: refused: control is held by another client "
                             f"({self.holder}); it must release control or disconnect first")
-            self._event("refused", "warning", {"client": sender, "topic": published.topic, "holder": self.holder})
+            self._event(EventKind.REFUSED, EventLevel.WARNING,
+                        Refused(client=sender, topic=published.topic, holder=self.holder))
         return False
 
     def _on_head_pose(self, published: Published) -> None:
         if not self._admit(published):
             return
-        now = self.clock()
+        now = self.clock.monotonic()
         try:
-            if not self.mapper.on_head_pose(_message(published), now):
+            if not self.mapper.on_head_pose(published.data, now):
                 return  # stamped before the newest pose taken: never replayed
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
@@ -129,7 +136,7 @@ class ExplicitControl:
         if not self._admit(published):
             return
         try:
-            self.mapper.on_controller_pose(side, _message(published), self.clock())
+            self.mapper.on_controller_pose(side, published.data, self.clock.monotonic())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
 
@@ -137,15 +144,15 @@ class ExplicitControl:
         if not self._admit(published):
             return
         was = self.mapper.state
-        msg = _message(published)
-        axes, buttons = (msg["axes"], msg["buttons"]) if isinstance(msg, dict) else (msg.axes, msg.buttons)
+        msg = published.data
+        axes, buttons = msg["axes"], msg["buttons"]
         try:
-            self.mapper.on_joy(side, axes, buttons, self.clock())
+            self.mapper.on_joy(side, axes, buttons, self.clock.monotonic())
         except ValueError as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: rejected: {exc}")
             return
         if was is not WatchdogState.ESTOPPED and self.mapper.state is WatchdogState.ESTOPPED:
-            self._event("estop", "warning", {"by": published.sender, "how": "both thumbsticks"})
+            self._event(EventKind.ESTOP, EventLevel.WARNING, EStop(by=published.sender, how="both thumbsticks"))
             self._publish_state()
 
     # ---- the control step ---------------------------------------------------------------------------------------
@@ -156,14 +163,14 @@ class ExplicitControl:
         for part, values in out.commands.items():
             self.bus.publish(names.PART_COMMAND_TOPICS[part], {"data": list(values)})
         if out.state is not before:
-            level = "info" if out.state is WatchdogState.ACTIVE else "warning"
+            level = EventLevel.INFO if out.state is WatchdogState.ACTIVE else EventLevel.WARNING
             if out.state is WatchdogState.STALLED:
                 self._holds.append(now)
             age, made = self.mapper.head_pose_age(now), self.mapper.head_pose_made_age(now)
-            self._event(f"watchdog_{out.state.value}", level, {
-                "holder": self.holder, "threshold_s": round(out.watchdog_timeout_s, 4),
-                "pose_age_s": None if age is None else round(age, 4),
-                "pose_made_age_s": None if made is None else round(made, 4)})
+            self._event(WATCHDOG_KINDS[out.state], level, Watchdog(
+                holder=self.holder, threshold_s=round(out.watchdog_timeout_s, 4),
+                pose_age_s=None if age is None else round(age, 4),
+                pose_made_age_s=None if made is None else round(made, 4)))
         self._publish_state_if_changed()
 
     async def _tick(self) -> None:
@@ -172,7 +179,7 @@ class ExplicitControl:
             await asyncio.sleep(period)
             try:
                 self._check_robot()
-                now = self.clock()
+                now = self.clock.monotonic()
                 age = self.mapper.head_pose_age(now)
                 if self.mapper.state is WatchdogState.ACTIVE and (
                         age is None or age > self.mapper.watchdog_timeout_s):
@@ -187,13 +194,13 @@ class ExplicitControl:
             return
         self._robot_connected = connected
         if not connected:
-            self._event("robot_lost", "danger", {"holder": self.holder})
+            self._event(EventKind.ROBOT_LOST, EventLevel.DANGER, Holder(holder=self.holder))
             if self.holder is not None:
                 self.mapper.release()
                 self.bus.report(self.holder, "error", "the robot backend is disconnected: the robot holds; "
                                 "engage again once it is back")
         else:
-            self._event("robot_back", "info", {"holder": self.holder})
+            self._event(EventKind.ROBOT_BACK, EventLevel.INFO, Holder(holder=self.holder))
         self._publish_state()
 
     # ---- services -----------------------------------------------------------------------------------------------
@@ -217,7 +224,7 @@ class ExplicitControl:
         if self._head_sender != caller:
             raise BusError("cannot engage: no head pose from this operator yet; stream /vr/head/pose (from any "
                            "connection of this operator), then engage")
-        now = self.clock()
+        now = self.clock.monotonic()
         try:
             self.mapper.engage(now, self.robot.joint_state().as_dict())
         except TeleopError as exc:
@@ -225,12 +232,12 @@ class ExplicitControl:
         self.holder = caller
         self._holds.clear()  # link_view counts this engagement's holds
         self._ever_engaged = True
-        self._event("engage", "info", {"holder": caller})
+        self._event(EventKind.ENGAGE, EventLevel.INFO, Holder(holder=caller))
         self._publish_state()
         return {"success": True, "message": "engaged: your head orientation is the robot's head zero; hold a "
                                             "grip to move that arm"}
 
-    def release(self, caller: str = SERVER_NODE, reason: str = "release") -> dict[str, Any]:
+    def release(self, caller: str = SERVER_NODE) -> dict[str, Any]:
         """Ends control; the robot keeps its pose. Only the holder (or the server itself) may release."""
         if self.holder is None:
             return {"success": True, "message": "nobody held control"}
@@ -240,7 +247,7 @@ class ExplicitControl:
                            "release control")
         holder, self.holder = self.holder, None
         self.mapper.release()
-        self._event(reason, "info", {"holder": holder, "by": caller})
+        self._event(EventKind.RELEASE, EventLevel.INFO, HolderBy(holder=holder, by=caller))
         self._publish_state()
         return {"success": True, "message": "released: the robot holds its pose"}
 
@@ -253,7 +260,7 @@ class ExplicitControl:
             # where the joints are, within the limits: the physical joints may sit a hair beyond them
             self.bus.publish(names.PART_COMMAND_TOPICS[part],
                              {"data": [self.robot.model.clamp(n, state[n]) for n in joints]})
-        self._event("estop", "danger", {"holder": holder, "by": caller})
+        self._event(EventKind.ESTOP, EventLevel.DANGER, EStop(holder=holder, by=caller))
         self._publish_state()
         return {"success": True, "message": "stopped: the robot holds where it is and control is released"}
 
@@ -276,10 +283,10 @@ class ExplicitControl:
         if self._head_sender != self.holder:
             raise BusError("cannot recenter: no head pose from the operator holding control")
         try:
-            self.mapper.engage(self.clock(), self.robot.joint_state().as_dict())
+            self.mapper.engage(self.clock.monotonic(), self.robot.joint_state().as_dict())
         except TeleopError as exc:
             raise BusError(str(exc)) from None
-        self._event("recenter", "info", {"holder": self.holder, "by": caller})
+        self._event(EventKind.RECENTER, EventLevel.INFO, HolderBy(holder=self.holder, by=caller))
         self._publish_state()
         return {"success": True, "message": "recentered: your current head orientation is straight ahead"}
 
@@ -288,20 +295,23 @@ class ExplicitControl:
         if self.holder is not None and caller != SERVER_NODE and self.operator_of(caller) != self.holder:
             raise BusError(f"control is held by another client ({self.holder}); only it can calibrate")
         try:
-            body = self.mapper.calibrate(self.clock())
+            body = self.mapper.calibrate(self.clock.monotonic())
         except TeleopError as exc:
             raise BusError(str(exc)) from None
         detail = {"shoulder_half_width_m": round(body.shoulder_half_width_m, 3),
                   "arm_length_m": round(body.arm_length_m, 3),
                   "eye_to_shoulder_drop_m": round(body.eye_to_shoulder_drop_m, 3)}
-        self._event("calibrate", "info", {"by": caller, **detail})
+        self._event(EventKind.CALIBRATE, EventLevel.INFO, Calibration(by=caller, **detail))
         return {"success": True, "message": json.dumps(detail, sort_keys=True)}
 
     async def _part_service(self, parts: tuple[str, ...], request: Any) -> dict[str, Any]:
         for part in parts:
             self.mapper.set_part_enabled(part, request.data)
         what = "head" if parts == ("head",) else "arms"
-        self._event(f"{what}_{'on' if request.data else 'off'}", "info", {"by": self.bus.caller()})
+        kinds = {("head", True): EventKind.HEAD_ON, ("head", False): EventKind.HEAD_OFF,
+                 ("arms", True): EventKind.ARMS_ON, ("arms", False): EventKind.ARMS_OFF}
+        self._event(kinds[what, bool(request.data)], EventLevel.INFO,
+                    PartSwitch(by=self.bus.caller(), part=what, enabled=bool(request.data)))
         self._publish_state()
         return {"success": True, "message": f"{what} {'follow' if request.data else 'hold'}"}
 
@@ -316,7 +326,7 @@ class ExplicitControl:
             return
         self.holder = None
         self.mapper.disconnect()
-        self._event("watchdog_disconnected", "warning", {"holder": owner})
+        self._event(EventKind.WATCHDOG_DISCONNECTED, EventLevel.WARNING, Watchdog(holder=owner))
         self._publish_state()
 
     # ---- telemetry ----------------------------------------------------------------------------------------------
@@ -329,7 +339,7 @@ class ExplicitControl:
         it engaged, over the last minute); else None."""
         if not self.holds(connection):
             return None
-        now = self.clock()
+        now = self.clock.monotonic()
         while self._holds and now - self._holds[0] > HOLDS_WINDOW_S:
             self._holds.popleft()
         settings = self.mapper.settings
@@ -337,7 +347,7 @@ class ExplicitControl:
                            floor_s=settings.watchdog_timeout_s, ceiling_s=settings.watchdog_ceiling_s,
                            holds_last_minute=len(self._holds))
 
-    def _event(self, kind: str, level: str, detail: Any) -> None:
+    def _event(self, kind: EventKind, level: EventLevel, detail: EventDetail) -> None:
         log.info("teleop %s %s", kind, detail)
         publish_event(self.bus, "teleop", kind, level, detail)
 
@@ -363,7 +373,7 @@ class ExplicitControl:
                 *self._following()[:4], self._robot_connected)
 
     def _state_message(self) -> dict[str, Any]:
-        now = self.clock()
+        now = self.clock.monotonic()
         head, left, right, clamped, limited = self._following()
 
         def age(key: str) -> float:
@@ -389,8 +399,3 @@ class ExplicitControl:
         if self._summary() != self._last_summary:
             self._publish_state()
 
-
-def _message(published: Published) -> Any:
-    """The message as the validated plain dict a client's publish carries (no model built and dumped again per
-    pose), else the model."""
-    return published.plain if published.plain is not None else published.value

@@ -11,14 +11,17 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
+import time
 from collections.abc import Callable
 from typing import Any
 
 from client_protocol import names
 from client_protocol.errors import Refusal
+from client_protocol.events import EventKind, GestureRecording
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..core.events import declare_event_topic, publish_event
 from ..core.tasks import cancel_and_wait
 from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
 from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
@@ -55,6 +58,7 @@ class LuxaiApi:
         bus.declare_topic(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
         camera = bus.declare_topic(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", persistent=True, queue_bound=1)
         camera.on_subscriber_count = self._on_camera_watchers
+        declare_event_topic(bus)  # gesture recording starts and stops (the operator's HUD shows it)
 
         for name, handler in ((names.EMOTION_SHOW_SERVICE, self._on_emotion_topic),
                               (names.SPEECH_SAY_SERVICE, self._on_speech_topic),
@@ -88,7 +92,7 @@ class LuxaiApi:
     def _on_part_command(self, part: str, published: Published) -> None:
         try:
             # a plain dict when validated from a client or a feature: no model built for the one field read
-            data = published.plain["data"] if published.plain is not None else published.value.data
+            data = published.data["data"]
             report = self.robot.set_part_targets(part, data)
         except (ValueError, KeyError) as exc:
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
@@ -174,7 +178,7 @@ class LuxaiApi:
 
     def _on_emotion_topic(self, published: Published) -> None:
         try:
-            self._show(published.value.data)
+            self._show(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
@@ -187,7 +191,7 @@ class LuxaiApi:
 
     async def _say_reporting(self, published: Published) -> None:
         try:
-            await self.speaker.say(published.value.data)
+            await self.speaker.say(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
@@ -217,7 +221,7 @@ class LuxaiApi:
         return self.gestures.names() + [n for n in self.robot.own_gestures() if n not in self.gestures]
 
     def _on_gesture_topic(self, published: Published) -> None:
-        name = published.value.data
+        name = published.data["data"]
         if name not in self.gestures and name in self.robot.own_gestures():
             self._spawn(self._play_own(name, 1.0, published.sender))
             return
@@ -278,6 +282,7 @@ class LuxaiApi:
         self.recorder.start(parts)
         self._recorded = None
         self._record_task = asyncio.ensure_future(self._sample(wait_s, timeout_s))
+        self._recording_changed()
 
     async def _sample(self, wait_s: float, timeout_s: float) -> None:
         await asyncio.sleep(wait_s)
@@ -303,6 +308,12 @@ class LuxaiApi:
             if self._record_task is not None and self._record_task is not asyncio.current_task():
                 self._record_task.cancel()
             self._record_task = None
+            self._recording_changed()
+
+    def _recording_changed(self) -> None:
+        publish_event(self.bus, "gestures", EventKind.GESTURE_RECORDING, "info",
+                      GestureRecording(recording=self.recorder.recording,
+                                       parts=list(self.recorder.parts) if self.recorder.recording else []))
 
     @property
     def recording(self) -> bool:
@@ -322,7 +333,7 @@ class LuxaiApi:
         if self._recorded is None:
             raise BusError("nothing recorded to save; record with /qt_robot/gesture/record first")
         gesture, parts = self._recorded
-        name = name or time.strftime("recording_%Y%m%d_%H%M%S")
+        name = name or time.strftime("recording_%Y%m%d_%H%M%S", time.localtime(self.clock.time()))
         try:
             check_save_name(name)
             path = self.gestures.save(dataclasses.replace(gesture, name=name), parts)

@@ -20,6 +20,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from client_protocol import names
+from client_protocol.events import EventKind, EventLevel, MenuFailure, MenuSelection
 from menus import COMMANDS, Item, LoadedMenu, read_sentences, walk
 from robot_models.types import MotorMode
 
@@ -114,7 +115,7 @@ class MenuService:
     def _on_selection(self, published: Published) -> None:
         async def run() -> None:
             try:
-                await self.select(published.value.data, "", published.sender)
+                await self.select(published.data["data"], "", published.sender)
             except BusError as exc:
                 self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
@@ -140,13 +141,13 @@ class MenuService:
             message = await getattr(self, f"_do_{command}")(parsed, caller)
         except BusError as exc:
             raise self._failed(item_id, command, caller, str(exc)) from None
-        publish_event(self.bus, "menu", "select", "info",
-                      {"id": item_id, "command": command, "by": caller, "result": message})
+        publish_event(self.bus, "menu", EventKind.SELECT, EventLevel.INFO,
+                      MenuSelection(id=item_id, command=command, by=caller, result=message))
         return message
 
     def _failed(self, item_id: str, command: str, caller: str, reason: str) -> BusError:
-        publish_event(self.bus, "menu", "menu_failed", "warning",
-                      {"id": item_id, "command": command, "by": caller, "reason": reason})
+        publish_event(self.bus, "menu", EventKind.MENU_FAILED, EventLevel.WARNING,
+                      MenuFailure(id=item_id, command=command, by=caller, reason=reason))
         return BusError(f"menu item {item_id!r}: {reason}")
 
     async def _call(self, service: str, args: dict[str, Any], caller: str) -> Any:

@@ -6,8 +6,9 @@ every refused command (events of kind "refused" or "menu_failed") and decays; cu
 (new_face(), for perception to call) and otherwise decays. Every variable decays towards its `rest` value (default:
 its initial value for pain, its min otherwise) at decay_per_min.
 
-Crossing a limit publishes a vr_teleop_msgs/Event (source "motivation", kind "<name>_high" or "<name>_low",
-level warning; danger once the variable reaches its min or max; kind "<name>_ok", info, on the way back).
+Crossing a limit publishes a vr_teleop_msgs/Event (source "motivation", kind "motivation_high" or
+"motivation_low", level warning; danger once the variable reaches its min or max; kind "motivation_ok", info, on
+the way back; the detail names the variable).
 Services (vr_teleop_msgs/MotivationChange): /vr_teleop/motivation/increment, /set, /reset (empty name: all).
 """
 
@@ -21,6 +22,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from client_protocol import names
+from client_protocol.events import EventKind, EventLevel, MotivationLimit
 from client_protocol.files import load_model_file
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -28,7 +30,8 @@ from ..core.events import declare_event_topic, publish_event
 from ..core.tasks import cancel_and_wait
 
 DEFAULT_CONFIG = Path(__file__).with_name("motivation.yaml")
-REFUSAL_KINDS = ("refused", "menu_failed")
+REFUSAL_KINDS = (EventKind.REFUSED, EventKind.MENU_FAILED)
+SIDE_KINDS = {"high": EventKind.MOTIVATION_HIGH, "low": EventKind.MOTIVATION_LOW, "ok": EventKind.MOTIVATION_OK}
 RATE_HZ = 2.0
 
 
@@ -111,11 +114,11 @@ class Motivation:
 
     # ---- inputs -------------------------------------------------------------------------------------------------
     def _on_event(self, published: Published) -> None:
-        if published.value.kind in REFUSAL_KINDS:
+        if published.data["kind"] in REFUSAL_KINDS:
             self._bump("per_refusal")
 
     def _on_state(self, published: Published) -> None:
-        self._engaged = bool(published.value.engaged)
+        self._engaged = bool(published.data["engaged"])
 
     def new_face(self) -> None:
         """A face not seen before came into view (for perception to call)."""
@@ -170,9 +173,9 @@ class Motivation:
             self._levels[name] = level
             side, extreme = level
             limit = cfg.high if side == "high" else cfg.low if side == "low" else None
-            publish_event(self.bus, "motivation", f"{name}_{side}",
-                          "info" if side == "ok" else "danger" if extreme else "warning",
-                          {"variable": name, "value": round(self.values[name], 3), "side": side, "limit": limit})
+            publish_event(self.bus, "motivation", SIDE_KINDS[side],
+                          EventLevel.INFO if side == "ok" else EventLevel.DANGER if extreme else EventLevel.WARNING,
+                          MotivationLimit(variable=name, value=round(self.values[name], 3), side=side, limit=limit))
             self.publish()
         return self.values[name]
 

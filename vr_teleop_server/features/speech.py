@@ -251,18 +251,18 @@ class OperatorVoiceIn:
         self.bus.owner_dropped.append(self._close_for)
 
     def _on_info(self, published: Published) -> None:
-        info = published.value
-        if info.sample_format.upper() not in ("S16LE", "") or info.channels not in (1, 2) or info.sample_rate <= 0:
+        info = published.data
+        sample_format, channels, rate = info["sample_format"], info["channels"], info["sample_rate"]
+        if sample_format.upper() not in ("S16LE", "") or channels not in (1, 2) or rate <= 0:
             self.bus.report(published.sender, "error", f"{published.topic}: only PCM S16LE, 1 or 2 channels, is "
-                            f"logged (got {info.sample_format or '?'}, {info.channels} channel(s), "
-                            f"{info.sample_rate} Hz)")
+                            f"logged (got {sample_format or '?'}, {channels} channel(s), {rate} Hz)")
             return
         if published.sender in self._files:
             self._close_for(published.sender)  # a new format starts a new file
-        self._formats[published.sender] = (info.sample_rate, info.channels)
+        self._formats[published.sender] = (rate, channels)
 
     def _on_chunk(self, published: Published) -> None:
-        data: bytes = bytes(published.value.data)
+        data: bytes = bytes(published.data["data"])
         rate, channels = self._formats.get(published.sender, (self.default_rate, 1))
         if len(data) % (2 * channels):
             self.bus.report(published.sender, "error", f"{published.topic}: a chunk of {len(data)} bytes is not a "

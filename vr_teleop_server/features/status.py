@@ -60,8 +60,7 @@ class StatusPublisher:
         await cancel_and_wait(task)
 
     def _on_dialog(self, published: Published) -> None:
-        value = published.value.model_dump(mode="json")
-        value.pop("header", None)
+        value = {k: v for k, v in published.data.items() if k != "header"}
         self._dialog = value
         self.bus.publish(names.DIALOG_STATUS_TOPIC, self.dialog())
 

@@ -146,15 +146,15 @@ class AudioMixer:
         ]
 
     def _on_info(self, published: Published) -> None:
-        info = published.value
-        if info.sample_rate > 0 and info.channels in (1, 2):
-            self._speech_format = (int(info.sample_rate), int(info.channels))
+        info = published.data
+        if info["sample_rate"] > 0 and info["channels"] in (1, 2):
+            self._speech_format = (int(info["sample_rate"]), int(info["channels"]))
 
     def _on_speech(self, published: Published) -> None:
         if not self._tracks:
             return  # nobody listens: nothing accumulates
         rate, channels = self._speech_format
-        self._speech.push(to_mono48k(bytes(published.value.data), rate, channels))
+        self._speech.push(to_mono48k(bytes(published.data["data"]), rate, channels))
 
     def _on_heard(self, pcm: bytes, rate: int, channels: int) -> None:
         self._heard.push(to_mono48k(pcm, rate, channels))

@@ -22,12 +22,12 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from client_protocol import names, pose_frame
+from simclock import WALL, Clock
 
 OPERATOR_TOPICS = frozenset({names.HEAD_POSE_TOPIC, *names.CONTROLLER_POSE_TOPICS.values(),
                              *names.JOY_TOPICS.values()})
@@ -65,7 +65,7 @@ class PoseChannel:
 
     session: ChannelSession
     holds_control: Callable[[str], bool]  # the session's name -> whether its operator holds control
-    clock: Callable[[], float] = time.monotonic
+    clock: Clock = WALL  # the server's: refusals are told at most once a second of it
     counts: ChannelCounts = field(default_factory=ChannelCounts)
     _newest: dict[str, float] = field(default_factory=dict)  # topic -> newest stamp taken
     _last_told: float = -1e9
@@ -137,7 +137,7 @@ class PoseChannel:
     def _refuse(self, reason: str) -> None:
         self.counts.refused += 1
         self.counts.last_refusal = reason
-        now = self.clock()
+        now = self.clock.monotonic()
         if now - self._last_told >= REFUSAL_INTERVAL_S:
             self._last_told = now
             self.session.status("error", f"{names.POSES_CHANNEL} data channel: refused: {reason}")

@@ -69,7 +69,7 @@ class MediaService:
         self.access = access
         self.sessions = sessions
         self.ice = ice or IceConfig()
-        self.video = VideoHub(robot, camera_fps) if robot is not None else None
+        self.video = VideoHub(robot, camera_fps, clock=clock) if robot is not None else None
         self.audio = AudioMixer(bus, robot=robot, render_line=render_line, bystander_interval=bystander_interval)
         self.peers: dict[str, Peer] = {}
         self._tasks: set[asyncio.Task[Any]] = set()

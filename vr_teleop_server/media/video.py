@@ -21,8 +21,8 @@ The shared encoder's bitrate is the lowest of its peers' bandwidth estimates (RE
 RTCP), clamped to [MIN_BITRATE, MAX_BITRATE]: a congested peer lowers the quality for the peers that share its
 codec rather than building a backlog (simulcast would separate them; not done).
 
-RTP timestamps are send times: the wall clock when the frame goes to its sender, in 90 kHz ticks (plus aiortc's
-random origin per sender, which a track learns from its sender after the first frame: `RTCRtpSender`'s private
+RTP timestamps are send times: the server's clock (simclock) when the frame goes to its sender, in 90 kHz ticks
+(plus aiortc's random origin per sender, which a track learns from its sender after the first frame: `RTCRtpSender`'s private
 last RTP timestamp, so aiortc's version is bounded in pyproject). Stamping the render time instead made Chromium's
 jitter buffer absorb the server's variable render-to-send delay (173 ms a frame against 45 on a loaded machine,
 measured with getStats' jitterBufferDelay). Each frame's render time goes out with the telemetry, keyed by its
@@ -35,7 +35,6 @@ import asyncio
 import contextlib
 import fractions
 import logging
-import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ from aiortc.mediastreams import MediaStreamError
 from aiortc.rtp import RTCP_PSFB_APP, RTCP_PSFB_FIR, RTCP_PSFB_PLI, RtcpPsfbPacket, unpack_remb_fci
 
 from robot_models.types import CameraFrame
+from simclock import WALL, Clock
 
 from ..robot.interface import Robot
 from .encoder_process import VIDEO_CLOCK_RATE, EncoderProcess, EncoderProcessError
@@ -78,9 +78,10 @@ class EncodedFrame:
 class VideoHub:
     """One per server: the camera pump and one shared encoder per codec, for every attached CameraTrack."""
 
-    def __init__(self, robot: Robot, fps: float = 30.0) -> None:
+    def __init__(self, robot: Robot, fps: float = 30.0, clock: Clock = WALL) -> None:
         self.robot = robot
         self.fps = fps
+        self.clock = clock  # the server's: frames are stamped on it, so pts and ages are too
         self._tracks: dict[str, set[CameraTrack]] = {codec: set() for codec in CODECS}
         self._keyframe: set[str] = set()
         self._keyframe_at: dict[str, float] = {}
@@ -88,7 +89,7 @@ class VideoHub:
         self._executor: ThreadPoolExecutor | None = None
         self._task: asyncio.Task[None] | None = None
         self.home: asyncio.AbstractEventLoop | None = None  # the server's loop, where the hub lives (start)
-        self.epoch = time.time()
+        self.epoch = clock.time()
         self.encoded = {codec: 0 for codec in CODECS}  # frames each codec's encoder produced
         self.encoder_bitrate = {codec: 0 for codec in CODECS}  # each encoder's target at its latest frame
 
@@ -146,7 +147,7 @@ class VideoHub:
     def _take_keyframe(self, codec: str) -> bool:
         if codec not in self._keyframe:
             return False
-        now = time.monotonic()
+        now = self.clock.monotonic()
         if now - self._keyframe_at.get(codec, -1e9) < KEYFRAME_INTERVAL_S:
             return False  # kept asked: granted when the interval has passed
         self._keyframe.discard(codec)
@@ -308,12 +309,13 @@ class CameraTrack(MediaStreamTrack):
             raise MediaStreamError
         item = self._queue.popleft()
         packet = av.Packet(item.data)
-        self.last_pts = max(self.last_pts + 1, round((time.time() - self.hub.epoch) * VIDEO_CLOCK_RATE))
+        now = self.hub.clock.time()
+        self.last_pts = max(self.last_pts + 1, round((now - self.hub.epoch) * VIDEO_CLOCK_RATE))
         packet.pts = self.last_pts
         packet.time_base = VIDEO_TIME_BASE
         self.sent.append((self.last_pts, item.render_wall))
         self.frames_sent += 1
-        self.age_sum += max(0.0, time.time() - item.render_wall)
+        self.age_sum += max(0.0, now - item.render_wall)
         return packet
 
     def _learn_rtp_origin(self) -> None:

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from client_protocol import names
+from client_protocol.events import EventKind, Label
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -31,6 +32,7 @@ from .metrics import FluencyResult, Intervention, LiveMetrics, StateUpdate
 log = logging.getLogger(__name__)
 
 METRICS_PERIOD_S = 1.0
+LABEL_KINDS = (EventKind.HUMAN_ACTION_START, EventKind.HUMAN_ACTION_STOP, EventKind.INTERVENTION)
 
 
 @dataclass
@@ -63,6 +65,7 @@ class TrialLog:
         self.listeners: list[Callable[[str, str, str], None]] = []
         self.state = "waiting"
         self.current = ""
+        self.awaiting_human = ""  # the human action awaited (TrialState.awaiting_human)
         self.final: FluencyResult | None = None
         self._task: asyncio.Task[None] | None = None
         self._subscription: int | None = None
@@ -171,16 +174,18 @@ class TrialLog:
 
     # ---- trial state and metrics --------------------------------------------------------------------------------
     def set_state(self, state: str, *, current: str | None = None, message: str = "",
-                  elapsed: float | None = None) -> None:
+                  elapsed: float | None = None, awaiting_human: str = "") -> None:
+        """`current` (words for people) changes only when given; `awaiting_human` goes with it."""
         self.state = state
         if current is not None:
-            self.current = current
+            self.current, self.awaiting_human = current, awaiting_human
         perception, decision, action = self.modules
         self.bus.publish(names.STUDY_TRIAL_TOPIC, {
             "study": self.study, "trial": self.trial, "state": state, "perception": perception,
             "decision": decision, "action": action,
             "elapsed": elapsed if elapsed is not None else (self.now() if self.started else 0.0),
-            "current": self.current, "planned_subtasks": self.planned_subtasks, "message": message})
+            "current": self.current, "planned_subtasks": self.planned_subtasks, "message": message,
+            "awaiting_human": self.awaiting_human})
 
     def snapshot(self, now: float | None = None) -> FluencyResult:
         return self.live.snapshot(self.now() if now is None else now, interventions=self.interventions,
@@ -245,20 +250,18 @@ class TrialLog:
 
     def _on_label_event(self, published: Published) -> None:
         """The dashboard's label buttons: Event kinds human_action_start, human_action_stop, intervention."""
-        msg = published.value
+        kind, detail = published.data["kind"], published.data["detail"]
         try:
-            detail = json.loads(msg.detail or "{}")
-            action = str(detail.get("action", "")) if isinstance(detail, dict) else ""
-        except json.JSONDecodeError:
-            action = ""
-        try:
+            if kind not in LABEL_KINDS:
+                raise ValueError(f"kind {kind!r} is not a label; labels are {', '.join(LABEL_KINDS)}")
+            action = Label.model_validate_json(detail or "{}").action
             if not self.started or self.state != "running":
                 raise BusError(f"trial {self.trial} is not running")
-            if msg.kind == "human_action_start":
+            if kind == EventKind.HUMAN_ACTION_START:
                 self.label_start(action)
-            elif msg.kind == "human_action_stop":
+            elif kind == EventKind.HUMAN_ACTION_STOP:
                 self.label_stop(action)
-            elif msg.kind == "intervention":
+            else:
                 t = self.now()
                 self.intervention("label", action, t, t, "marked by the experimenter")
         except (BusError, ValueError) as exc:

@@ -170,8 +170,8 @@ def menu_item_ids(menu_dir: Path | None = None) -> list[str]:
     MenuService(bus, menus, gestures=gestures, emotions=model.emotions, status=lambda _which: {},
                 luxai=None).start()
     got: list[Any] = []
-    bus.subscribe(SERVER_NODE, names.MENUS_TOPIC, None, lambda published: got.append(published.value))
-    ids = [item.id for item in got[-1].items if item.command]
+    bus.subscribe(SERVER_NODE, names.MENUS_TOPIC, None, lambda published: got.append(published.data))
+    ids = [item["id"] for item in got[-1]["items"] if item["command"]]
     # Leave the robot as found: emergency stop, release and motors off come last, then motors on and engage.
     last = ("motion.robot.stop", "motion.robot.release", "motion.robot.motors_off", "motion.robot.motors_on",
             "motion.robot.engage")

@@ -282,9 +282,9 @@ ros.subscribe(names.STUDY_TRIAL_TOPIC, "vr_teleop_msgs/TrialState", (t) => {
   $("trial-modules").textContent = `${t.perception} / ${t.decision} / ${t.action}`;
   $("trial-current").textContent = t.current || "–";
   $("trial-elapsed").textContent = `${t.elapsed.toFixed(1)} s`;
-  const human = (t.current || "").match(/^awaiting human: (.+)$/);
-  if (human && human[1] !== awaitedHuman && document.activeElement !== $("label-action")) $("label-action").value = human[1];
-  awaitedHuman = human ? human[1] : "";
+  const human = t.awaiting_human || "";  // a typed field: the words in `current` are for people
+  if (human && human !== awaitedHuman && document.activeElement !== $("label-action")) $("label-action").value = human;
+  awaitedHuman = human;
 });
 ros.subscribe(names.STUDY_METRICS_TOPIC, "vr_teleop_msgs/FluencyMetrics", (m) => {
   for (const key of ["h_idle", "r_idle", "c_act", "f_del"]) $(`m-${key}`).textContent = m.defined ? fixed(m[key]) : "–";

@@ -54,7 +54,7 @@ class HumanStep(py_trees.behaviour.Behaviour):
             return Status.SUCCESS
         if self.ctx.current.task is None or self.ctx.current.task.done():
             self.ctx.current.human = self.action
-            self.ctx.log.set_state("running", current=f"awaiting human: {self.action}")
+            self.ctx.log.set_state("running", current=f"awaiting human: {self.action}", awaiting_human=self.action)
         return Status.RUNNING
 
 

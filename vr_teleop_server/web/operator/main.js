@@ -47,7 +47,8 @@ const state = {
   link: null,                          // our entry of the newest /vr_teleop/telemetry: the link's quality
   claimHolder: false, engaging: false, pulses: 0, disconnectReason: "",
   rtt: null, message: null, menusProblem: null, footer: null,
-  headOn: true, armsOn: true, recording: false,  // the menu switches' states, from the events
+  headOn: true, armsOn: true, recording: false,  // the menu switches' states, from the events' typed details
+  recordingParts: [],
   zero: {yaw: 0, pitch: 0},            // the operator's head (XR yaw, pitch) when control was taken
   robotHead: {yaw: 0, pitch: 0},       // degrees, from the joint states
   head: {position: new THREE.Vector3(0, EYE_HEIGHT, 0), quaternion: new THREE.Quaternion()},
@@ -243,20 +244,22 @@ ros.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", (js) => {
   });
 }, {throttle_rate: 30, queue_length: 1});
 ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
+  // Each kind's detail has typed fields (client_protocol/events.py): states come from those, never from wording.
   let detail = {};
-  try { detail = e.detail ? JSON.parse(e.detail) : {}; } catch { /* free text */ }
-  if (e.source === "backend") {  // a real robot's own news: its motors' faults, a voice in the room
-    if (e.kind === "motor_error") state.motorFaults[detail.motor] = (detail.faults || []).join(", ");
-    else if (e.kind === "motor_ok") delete state.motorFaults[detail.motor];
-    else if (e.kind === "voice_activity") state.voice = detail.activity ? detail : null;
-    return;
+  try { detail = e.detail ? JSON.parse(e.detail) : {}; } catch { return; /* not one of the server's events */ }
+  switch (e.kind) {
+    case "motor_error": state.motorFaults[detail.motor] = (detail.faults || []).join(", "); return;
+    case "motor_ok": delete state.motorFaults[detail.motor]; return;
+    case "voice_activity": state.voice = detail.activity ? detail : null; return;
+    case "head_on": case "head_off": case "arms_on": case "arms_off":
+      state[detail.part === "head" ? "headOn" : "armsOn"] = detail.enabled === true;
+      break;
+    case "gesture_recording":
+      state.recording = detail.recording === true;
+      state.recordingParts = detail.parts || [];
+      break;
+    default: return;
   }
-  if (e.source === "teleop" && /^(head|arms)_(on|off)$/.test(e.kind)) {
-    state[e.kind.startsWith("head") ? "headOn" : "armsOn"] = e.kind.endsWith("_on");
-  } else if (e.source === "menu" && e.kind === "select") {
-    if (detail.command === "record_toggle") state.recording = String(detail.result).startsWith("recording");
-    if (detail.command === "save_recording") state.recording = false;
-  } else return;
   menuDirty = true;
 });
 
@@ -548,6 +551,10 @@ function hudLines() {
   if (faults.length) {
     lines.push({id: "motors", text: `MOTOR FAULT: ${faults.map(([m, f]) => `${m} (${f})`).join(", ")}`,
                 level: "error"});
+  }
+  if (state.recording) {
+    const parts = state.recordingParts.length ? ` (${state.recordingParts.join(", ")})` : "";
+    lines.push({id: "recording", text: `● RECORDING a gesture${parts}`, level: "warning"});
   }
   if (state.voice) {
     const from = Number.isFinite(state.voice.direction_deg) ? ` (from ${state.voice.direction_deg}°)` : "";
