@@ -17,7 +17,7 @@ __all__ = ["MIB", "Cli", "CoreSettings", "ServerSettings"]
 
 class ServerSettings(CoreSettings):
     backend: Annotated[Literal[BACKEND_NAMES], Cli("robot")] = Field(  # type: ignore[valid-type]
-        "sim", description="the robot: " + "; ".join(f"{b.summary} ({b.name})" for b in BACKENDS.values()))
+        "sim", description="the robot: " + "; ".join(f"'{b.name}', {b.summary}" for b in BACKENDS.values()))
     robot_url: Annotated[str | None, Cli("robot", metavar="URL")] = Field(
         None, description="the real robot. --backend ros: its rosbridge, ws://ROBOT:9090 (default "
                           f"{BACKENDS['ros'].default_url}). --backend luxai: its service hub, tcp://ROBOT:50500 "
