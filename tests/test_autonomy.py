@@ -341,15 +341,16 @@ def test_a_spectator_may_not_set_the_level_nor_decide(tmp_path):
         for client, service, args in ((spectator, names.AUTONOMY_LEVEL_SERVICE, {"level": "autonomous"}),
                                       (spectator, names.AUTONOMY_DECIDE_SERVICE, {"id": "p-1", "decision": "accept"})):
             client.send({"op": "call_service", "id": "s", "service": service, "args": args})
-            status = client.expect("status", id="s")
+            status = client.expect("status", WAIT, id="s")
             assert status["level"] == "error" and f"role spectator may not call service {service}" in status["msg"]
-            reply = client.expect("service_response", id="s")  # the refusal inside the response, too
+            reply = client.expect("service_response", WAIT, id="s")  # the refusal inside the response, too
             assert reply["values"]["success"] is False and "spectators only watch" in reply["values"]["message"]
         operator.send({"op": "call_service", "id": "o", "service": names.AUTONOMY_LEVEL_SERVICE,
                        "args": {"level": "teleoperated"}})
-        reply = operator.expect("service_response", id="o")
+        reply = operator.expect("service_response", WAIT, id="o")
         assert reply["result"] and reply["values"]["success"], reply
-        spectator.alive()
+        spectator.send({"op": "call_service", "id": "w", "service": names.WHOAMI_SERVICE})  # still connected
+        assert spectator.expect("service_response", WAIT, id="w")["values"]["role"] == "spectator"
         spectator.close()
         operator.close()
     finally:
