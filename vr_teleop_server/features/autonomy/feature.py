@@ -3,7 +3,7 @@
 It acts as a client would: head commands on the head command topic (the Robot interface clamps them), actions as
 menu items through the menu service. Before each head command it asks the ownership arbiter (core/ownership.py):
 autonomy moves only a part nobody claims, and only once it has been free for the release grace. Everything runs
-on the server's clock, at the attention's rate (the control tick): a proposal's time-out is kept to one tick.
+on the server's clock: attention at its rate (the control tick), each proposal's time-out on a timer of its own.
 """
 
 from __future__ import annotations
@@ -78,6 +78,7 @@ class Proposal:
     situation: Situation
     created: float
     stamp: Any = None
+    timer: asyncio.TimerHandle | None = None
 
     def message(self) -> dict[str, Any]:
         return {"header": {"stamp": self.stamp}, "id": self.id, "action": self.action, "label": self.label,
@@ -262,6 +263,10 @@ class Autonomy:
         if activity.speaking:
             if self.voice is None or (activity.who and activity.who != self.voice.who):
                 self.voice = Voice(activity.who, activity.direction_deg, now)
+                # the speaker takes the attention when the confirmation time is up, not at the tick after it
+                loop = asyncio.get_running_loop()
+                delay = max(0.0, now + self.cfg.confirm_s - self.clock.monotonic()) + 1e-3
+                loop.call_later(delay, lambda: self._attend(self.clock.monotonic()))
             else:
                 self.voice.direction = activity.direction_deg
             self._silence_fired = False
@@ -361,6 +366,8 @@ class Autonomy:
             self._end(proposal, "accepted", "autonomy", now, execute=True)
         else:
             self.pending[proposal.id] = proposal
+            # its own timer on the server's clock (the loop's): the time-out is kept to the loop's latency
+            proposal.timer = asyncio.get_running_loop().call_later(proposal.timeout, self._timed_out, proposal)
         self._publish_state()
         return proposal
 
@@ -368,15 +375,20 @@ class Autonomy:
         if self.level == "supervised" and self.pending and not self.may_decide():
             for p in list(self.pending.values()):
                 self._end(p, "dropped", "server", now)
-        for p in list(self.pending.values()):
-            if now >= p.created + p.timeout:
-                if p.on_timeout == "execute":
-                    self._end(p, "timed_out_executed", "timeout", now, execute=True)
-                else:
-                    self._end(p, "dropped", "timeout", now)
+
+    def _timed_out(self, p: Proposal) -> None:
+        if self.pending.get(p.id) is not p:
+            return
+        now = self.clock.monotonic()
+        if p.on_timeout == "execute":
+            self._end(p, "timed_out_executed", "timeout", now, execute=True)
+        else:
+            self._end(p, "dropped", "timeout", now)
 
     def _end(self, p: Proposal, outcome: str, by: str, now: float, *, execute: bool = False) -> None:
         self.pending.pop(p.id, None)
+        if p.timer is not None:
+            p.timer.cancel()
         if execute and not self._may_act(p.action):
             outcome, execute = "dropped", False
         self._outcome(p.id, p.action, outcome, "robot", by, now - p.created, p.situation)
