@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -73,6 +75,7 @@ def server(tmp_path_factory):
     rules.write_text(RULES)
     running = RunningServer(ServerSettings(port=0, backend="sim", autonomy="supervised", bystander_interval=0,
                                            camera_fps=10, autonomy_rules=rules, autonomy_memory=tmp / "memory.json",
+                                           record=tmp / "session.mcap", record_camera_fps=0,
                                            gesture_dir=tmp / "g", audio_dir=tmp / "a"))
     running.taps = Taps(running)
     yield running
@@ -355,3 +358,23 @@ def test_a_spectator_may_not_set_the_level_nor_decide(tmp_path):
         operator.close()
     finally:
         server.stop()
+
+
+def test_the_recording_holds_it_all_and_metrics_autonomy_measures_it(server, tmp_path):
+    """Last in the module: stops the module's server to read its recording."""
+    server.stop()
+    out = tmp_path / "autonomy.json"
+    done = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "metrics", "autonomy",
+                           str(server.settings.record), "--json", str(out)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "proposals" in done.stdout and "onset to pointing" in done.stdout
+    m = json.loads(out.read_text())
+    assert all(m["outcomes"][k] >= 1 for k in ("accepted", "rejected", "forbidden", "timed_out_executed"))
+    assert m["proposals"] >= sum(m["outcomes"].values()) - m["outcomes"]["dropped"] > 0
+    assert m["teacher_initiated"] >= 2 and m["decisions"] >= 3 and m["decision_s_median"] is not None
+    assert [level["level"] for level in m["levels"]][-3:] == ["teleoperated", "autonomous", "supervised"]
+    assert m["attention"]["speeches"] >= 2 and m["attention"]["onset_to_pointing_s_p50"] is not None
+    bad = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "metrics", "autonomy"], capture_output=True,
+                         text=True, timeout=120)
+    assert bad.returncode == 2 and "needs a session recording" in bad.stderr
