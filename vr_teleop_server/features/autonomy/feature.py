@@ -24,7 +24,7 @@ from simclock import WALL, Clock
 from ...core.bus import Bus, BusError, Published
 from ...core.events import declare_event_topic, publish_event
 from ...core.ownership import Ownership
-from ...core.tasks import cancel_and_wait
+from ...core.tasks import cancel_and_wait, every
 from ...robot.interface import Robot, VoiceActivity
 from .attention import Attention, AttentionConfig, Candidate, Target
 from .learner import Learner, Situation
@@ -185,19 +185,7 @@ class Autonomy:
 
     # ---- the tick -------------------------------------------------------------------------------------------
     async def _run(self) -> None:
-        loop = asyncio.get_running_loop()
-        period = 1.0 / self.cfg.rate_hz
-        next_at = loop.time()
-        while True:
-            try:
-                self.tick(self.clock.monotonic())
-            except Exception:  # the tick must survive anything one step does
-                log.exception("autonomy tick failed")
-            next_at += period
-            delay = next_at - loop.time()
-            if delay < -period:
-                next_at = loop.time()
-            await asyncio.sleep(max(0.0, delay))
+        await every(1.0 / self.cfg.rate_hz, lambda: self.tick(self.clock.monotonic()), "autonomy tick")
 
     def tick(self, now: float) -> None:
         self._remember_head()
