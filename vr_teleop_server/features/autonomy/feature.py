@@ -15,7 +15,7 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from client_protocol import names
@@ -91,7 +91,6 @@ class _Published:
     summary: tuple = ()
     attention_key: tuple = ()
     attention_at: float = -math.inf
-    running: list[str] = field(default_factory=list)
 
 
 class Autonomy:
@@ -135,6 +134,7 @@ class Autonomy:
         self._event_token: int | None = None
         self._unlisten: Callable[[], None] | None = None
         self._task: asyncio.Task[None] | None = None
+        self._confirm: asyncio.TimerHandle | None = None  # a new speaker's confirmation time
         self._save: asyncio.Task[None] | None = None
         self._pub = _Published()
         self._started = 0.0
@@ -161,6 +161,9 @@ class Autonomy:
         self._task = asyncio.ensure_future(self._run())
 
     async def stop(self) -> None:
+        for handle in [self._confirm] + [p.timer for p in self.pending.values()]:
+            if handle is not None:
+                handle.cancel()
         if self._on_owners in self.owners.changed:
             self.owners.changed.remove(self._on_owners)
         if self._unlisten is not None:
@@ -252,9 +255,11 @@ class Autonomy:
             if self.voice is None or (activity.who and activity.who != self.voice.who):
                 self.voice = Voice(activity.who, activity.direction_deg, now)
                 # the speaker takes the attention when the confirmation time is up, not at the tick after it
-                loop = asyncio.get_running_loop()
+                if self._confirm is not None:
+                    self._confirm.cancel()
                 delay = max(0.0, now + self.cfg.confirm_s - self.clock.monotonic()) + 1e-3
-                loop.call_later(delay, lambda: self._attend(self.clock.monotonic()))
+                self._confirm = asyncio.get_running_loop().call_later(
+                    delay, lambda: self._attend(self.clock.monotonic()))
             else:
                 self.voice.direction = activity.direction_deg
             self._silence_fired = False
