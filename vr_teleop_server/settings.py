@@ -50,8 +50,21 @@ class ServerSettings(CoreSettings):
     motivation_config: Annotated[Path | None, Cli("files", metavar="FILE")] = Field(
         None, description="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
     bystander_interval: Annotated[float, Cli("sim", metavar="S")] = Field(
-        20.0, ge=0, description="the stand-in's bystanders speak a line every S seconds in the robot's WebRTC "
-                                "audio; 0: never")
+        20.0, ge=0, description="the stand-in's simulated pupils take turns saying a line every S seconds, heard in "
+                                "the robot's microphone and reported as voice activity; 0: never")
+    autonomy: Annotated[Literal["teleoperated", "supervised", "autonomous"], Cli("autonomy")] = Field(
+        "supervised", description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
+                                  "'teleoperated', nothing moves unless someone moves it; 'supervised', the robot "
+                                  "looks at who speaks and proposes actions the teacher accepts, rejects or lets "
+                                  "time out (then done); 'autonomous', it does what it proposes")
+    autonomy_rules: Annotated[Path | None, Cli("autonomy", metavar="FILE")] = Field(
+        None, description="the proposal rules (YAML: situations to menu items); default: the packaged rules")
+    autonomy_memory: Annotated[Path | None, Cli("autonomy", metavar="PATH")] = Field(
+        None, description="the JSON file where autonomy keeps what it learned from the teacher (loaded at start, "
+                          "written on each decision); default: nothing kept between runs")
+    autonomy_attention: Annotated[Path | None, Cli("autonomy", metavar="FILE")] = Field(
+        None, description="the attention configuration (YAML: focus times, switching, speed); default: the packaged "
+                          "one")
     turn_urls: Annotated[tuple[str, ...], Cli("media", metavar="URL", flag="--turn-url")] = Field(
         (), description="a TURN relay for WebRTC media (repeatable): turn:HOST:3478?transport=udp, "
                         "turn:HOST:3478?transport=tcp, turns:HOST:443?transport=tcp. Clients get them with fresh "

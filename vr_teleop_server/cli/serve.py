@@ -31,6 +31,8 @@ GROUPS = {  # `serve --help`'s groups: title, description
                            "below)"),
     "luxai": ("--backend luxai", "a QTrobot v3 through LuxAI's SDK: these options only apply with it"),
     "sim": ("--backend sim", "the MuJoCo stand-in: these options only apply with it"),
+    "autonomy": ("autonomy", "the robot's own behaviour: attention to who speaks, proposals the teacher decides "
+                             "(docs: the autonomy guide)"),
     "files": ("data files", None),
     "media": ("WebRTC media", None),
     "recording": ("recording", None),

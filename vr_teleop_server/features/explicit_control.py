@@ -34,6 +34,7 @@ from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.events import declare_event_topic, publish_event
+from ..core.ownership import Ownership
 from ..core.tasks import cancel_and_wait
 from ..media.link_quality import ControlLink
 from ..robot.interface import Robot
@@ -55,7 +56,8 @@ class ExplicitControl:
                  clock: Clock = WALL,
                  may_override: Callable[[str], bool] = lambda caller: False,
                  operator_of: Callable[[str], str] = lambda owner: owner,
-                 operator_online: Callable[[str, str], bool] = lambda operator, gone: False) -> None:
+                 operator_online: Callable[[str, str], bool] = lambda operator, gone: False,
+                 owners: Ownership | None = None) -> None:
         self.bus = bus
         self.robot = robot
         self.mapper = TeleopMapper(robot.model, settings)
@@ -74,6 +76,9 @@ class ExplicitControl:
         # operator_of(owner) names it; operator_online(operator, gone) says whether it keeps another connection.
         self.operator_of = operator_of
         self.operator_online = operator_online
+        # who moves each part (core/ownership.py): the holder owns the parts they follow, from engage to release
+        self.owners = owners or Ownership(robot.model.parts)
+        self._parts_on = {part: True for part in robot.model.parts}
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -230,6 +235,8 @@ class ExplicitControl:
         except TeleopError as exc:
             raise BusError(str(exc)) from None
         self.holder = caller
+        self.owners.release("estop")  # engaging again resumes after an emergency stop
+        self._claim_parts()  # before the answer: no autonomous command reaches the head after it
         self._holds.clear()  # link_view counts this engagement's holds
         self._ever_engaged = True
         self._event(EventKind.ENGAGE, EventLevel.INFO, Holder(holder=caller))
@@ -247,6 +254,7 @@ class ExplicitControl:
                            "release control")
         holder, self.holder = self.holder, None
         self.mapper.release()
+        self._claim_parts()
         self._event(EventKind.RELEASE, EventLevel.INFO, HolderBy(holder=holder, by=caller))
         self._publish_state()
         return {"success": True, "message": "released: the robot holds its pose"}
@@ -255,6 +263,8 @@ class ExplicitControl:
         """Holds the robot and takes control away from whoever holds it; anyone may stop the robot."""
         holder, self.holder = self.holder, None
         self.mapper.estop()
+        self.owners.claim("estop", self.robot.model.parts, caller)  # autonomy stops too, until engage or a level
+        self._claim_parts()
         state = self.robot.joint_state().as_dict()
         for part, joints in self.robot.model.parts.items():
             # where the joints are, within the limits: the physical joints may sit a hair beyond them
@@ -307,6 +317,8 @@ class ExplicitControl:
     async def _part_service(self, parts: tuple[str, ...], request: Any) -> dict[str, Any]:
         for part in parts:
             self.mapper.set_part_enabled(part, request.data)
+            self._parts_on[part] = bool(request.data)
+        self._claim_parts()
         what = "head" if parts == ("head",) else "arms"
         kinds = {("head", True): EventKind.HEAD_ON, ("head", False): EventKind.HEAD_OFF,
                  ("arms", True): EventKind.ARMS_ON, ("arms", False): EventKind.ARMS_OFF}
@@ -326,8 +338,18 @@ class ExplicitControl:
             return
         self.holder = None
         self.mapper.disconnect()
+        self._claim_parts()
         self._event(EventKind.WATCHDOG_DISCONNECTED, EventLevel.WARNING, Watchdog(holder=owner))
         self._publish_state()
+
+    def _claim_parts(self) -> None:
+        """The holder owns the parts they follow (a part switched off is not followed); nobody holding, none."""
+        if self.holder is None:
+            self.owners.release("operator")
+            return
+        on = [part for part, enabled in self._parts_on.items() if enabled]
+        self.owners.release("operator", [part for part in self._parts_on if part not in on])
+        self.owners.claim("operator", on, self.holder)
 
     # ---- telemetry ----------------------------------------------------------------------------------------------
     def holds(self, connection: str) -> bool:

@@ -42,7 +42,7 @@ from ..core.access import AccessDenied, AccessPolicy, Role
 from ..core.bus import SERVER_NODE, Bus
 from ..robot.interface import Robot
 from . import link_quality, playout_delay, sdp
-from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
+from .audio import AudioMixer, OperatorVoice, RobotAudioTrack
 from .media_loop import MediaLoop, call_on
 from .peer import Peer
 from .poses import PoseChannel
@@ -58,7 +58,6 @@ class MediaService:
 
     def __init__(self, bus: Bus, robot: Robot | None, access: AccessPolicy,
                  sessions: Callable[[], Mapping[str, SessionView]], *, camera_fps: float = 30.0,
-                 render_line: Callable[[str], Awaitable[Rendered]] | None = None, bystander_interval: float = 0.0,
                  ice: IceConfig | None = None,
                  holds_control: Callable[[str], bool] = lambda _name: False,
                  control: Callable[[str], link_quality.ControlLink | None] = lambda connection: None,
@@ -70,7 +69,7 @@ class MediaService:
         self.sessions = sessions
         self.ice = ice or IceConfig()
         self.video = VideoHub(robot, camera_fps, clock=clock) if robot is not None else None
-        self.audio = AudioMixer(bus, robot=robot, render_line=render_line, bystander_interval=bystander_interval)
+        self.audio = AudioMixer(bus, robot=robot)
         self.peers: dict[str, Peer] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
         self.media_loop = MediaLoop()
