@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import os
 import shutil
 import signal
@@ -12,6 +13,9 @@ from pathlib import Path
 
 import pytest
 from websockets.sync.client import connect
+
+from vr_teleop_server.app import TeleopServer
+from vr_teleop_server.settings import ServerSettings
 
 EXE = shutil.which("vr-teleop") or str(Path(sys.executable).with_name("vr-teleop"))
 
@@ -54,3 +58,14 @@ def test_serve_reports_a_busy_port():
         out = subprocess.run([EXE, "serve", "--port", str(port)], capture_output=True, text=True, timeout=20)
     assert out.returncode == 1
     assert f"cannot listen on 127.0.0.1:{port}" in out.stderr
+
+
+def test_a_busy_port_stops_the_server_before_the_robot_starts():
+    """The port is taken first: a server that cannot listen starts neither the stand-in nor a feature."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        server = TeleopServer(ServerSettings(port=s.getsockname()[1]))
+        with pytest.raises(OSError, match="address already in use"):
+            asyncio.run(server.start())
+    assert server.robot is None and server.media is None and not server.features
