@@ -69,3 +69,19 @@ def test_a_busy_port_stops_the_server_before_the_robot_starts():
         with pytest.raises(OSError, match="address already in use"):
             asyncio.run(server.start())
     assert server.robot is None and server.media is None and not server.features
+
+
+def test_each_command_line_builds_only_its_own_subcommand():
+    """SUBCOMMANDS names exactly what the modules register; `serve` loads none of the study tools' libraries."""
+    from vr_teleop_server.cli import SUBCOMMANDS, build_parser
+
+    def commands(parser) -> set[str]:
+        return set(next(a for a in parser._actions if a.dest == "command").choices)
+
+    assert commands(build_parser()) == set(SUBCOMMANDS)
+    assert all(name in commands(build_parser(name)) for name in SUBCOMMANDS)
+    loaded = subprocess.run([sys.executable, "-c", "import sys; from vr_teleop_server.cli import build_parser; "
+                             "build_parser('serve'); print(sorted(m for m in ('scipy.stats', 'matplotlib', "
+                             "'vr_teleop_server.questionnaires', 'vr_teleop_server.tools.study_runner') "
+                             "if m in sys.modules))"], capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "[]", loaded.stdout
