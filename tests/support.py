@@ -275,6 +275,14 @@ class Watch:
         self.topic.unsubscribe()
 
 
+def still(predicate: Callable[[], Any], watch: Watch, messages: int = 15, timeout: float = 5.0) -> bool:
+    """True when `predicate` still holds after `messages` more messages of a stream with a steady rate (teleop
+    state: 30 Hz): a joint at its target stays there, one passing through on its way elsewhere does not."""
+    with watch.lock:
+        seen = len(watch.messages)
+    return wait_for(lambda: len(watch.messages) >= seen + messages, timeout) and bool(predicate())
+
+
 def joints(watch: Watch) -> dict[str, float]:
     msg = watch.latest
     return dict(zip(msg.get("name", []), msg.get("position", [])))

@@ -29,6 +29,7 @@ from support import (
     engage,
     joints,
     refused,
+    still,
     unity_yaw_pitch,
     wait_for,
     wait_subscribed,
@@ -344,9 +345,10 @@ def test_the_robot_lost_and_back(zmq_robot):
         assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 5)
         assert not any("HeadPitch" in c and c["HeadPitch"]["position"] == 12.0 for c in hub.commands)
         assert "QT/sad" not in hub.emotions  # the refused emotion did not burst out later
-        engage(ros)
-        headset.head_orientation = unity_yaw_pitch(-30)
+        engage(ros)  # the headset's orientation now (20 deg left) is the head's new zero...
+        headset.head_orientation = unity_yaw_pitch(-10)  # ...so turning to 10 deg right is 30 deg right
         assert wait_for(lambda: abs(hub.positions["HeadYaw"] + 30) < 2, 15), hub.positions
+        assert still(lambda: abs(hub.positions["HeadYaw"] + 30) < 2, teleop), hub.positions  # there, not passing
     finally:
         headset.stop()
         teleop.close()

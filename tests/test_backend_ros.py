@@ -22,6 +22,7 @@ from support import (
     refused,
     engage,
     joints,
+    still,
     unity_yaw_pitch,
     wait_for,
 )
@@ -77,6 +78,10 @@ def test_commands_camera_and_services_reach_the_robot(robot_and_server):
 
 def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, servers):
     state, server, port = robot_and_server
+
+    def head_yaw() -> float:
+        return state["robot"].server.robot.standin.joint_positions()["HeadYaw"]
+
     ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
     ros.run(timeout=10)
     try:
@@ -98,9 +103,10 @@ def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, serv
         assert wait_for(lambda: teleop.latest.get("robot_connected"), 20), teleop.latest
         assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), 5)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 5)
-        engage(ros)  # resuming needs a fresh engage
-        headset.head_orientation = unity_yaw_pitch(-30)
-        assert wait_for(lambda: abs(state["robot"].server.robot.standin.joint_positions()["HeadYaw"] + 30) < 2, 15)
+        engage(ros)  # resuming needs a fresh engage; the headset's orientation now (20 deg left) is the new zero...
+        headset.head_orientation = unity_yaw_pitch(-10)  # ...so turning to 10 deg right is 30 deg right
+        assert wait_for(lambda: abs(head_yaw() + 30) < 2, 15), head_yaw()
+        assert still(lambda: abs(head_yaw() + 30) < 2, teleop), head_yaw()  # there, not passing through
         headset.stop()
         assert state["robot"].server.robot.standin.emotion != "sad"  # the refused emotion did not burst out later
     finally:

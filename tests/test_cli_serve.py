@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import os
 import shutil
 import signal
@@ -12,6 +13,9 @@ from pathlib import Path
 
 import pytest
 from websockets.sync.client import connect
+
+from vr_teleop_server.app import TeleopServer
+from vr_teleop_server.settings import ServerSettings
 
 EXE = shutil.which("vr-teleop") or str(Path(sys.executable).with_name("vr-teleop"))
 
@@ -120,3 +124,30 @@ def test_a_bad_option_value_is_refused_with_the_fields_rule():
     out = subprocess.run([EXE, "serve", "--backend", "luxai", "--robot-url", "http://robot"], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 2 and "http://robot" in out.stderr
+
+
+def test_a_busy_port_stops_the_server_before_the_robot_starts():
+    """The port is taken first: a server that cannot listen starts neither the stand-in nor a feature."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        server = TeleopServer(ServerSettings(port=s.getsockname()[1]))
+        with pytest.raises(OSError, match="address already in use"):
+            asyncio.run(server.start())
+    assert server.robot is None and server.media is None and not server.features
+
+
+def test_each_command_line_builds_only_its_own_subcommand():
+    """SUBCOMMANDS names exactly what the modules register; `serve` loads none of the study tools' libraries."""
+    from vr_teleop_server.cli import SUBCOMMANDS, build_parser
+
+    def commands(parser) -> set[str]:
+        return set(next(a for a in parser._actions if a.dest == "command").choices)
+
+    assert commands(build_parser()) == set(SUBCOMMANDS)
+    assert all(name in commands(build_parser(name)) for name in SUBCOMMANDS)
+    loaded = subprocess.run([sys.executable, "-c", "import sys; from vr_teleop_server.cli import build_parser; "
+                             "build_parser('serve'); print(sorted(m for m in ('scipy.stats', 'matplotlib', "
+                             "'vr_teleop_server.questionnaires', 'vr_teleop_server.tools.study_runner') "
+                             "if m in sys.modules))"], capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "[]", loaded.stdout

@@ -203,6 +203,7 @@ class TeleopServer:
         self._start(self.autonomy)
 
     async def start(self) -> None:
+        await self.transport.bind()  # a busy port fails here, before the robot and the features start
         try:
             if self.settings.record is not None:
                 self.recorder = Recorder(self.settings.record, self.registry, self.settings.record_camera_fps,
@@ -220,6 +221,7 @@ class TeleopServer:
             self._start(Avatar(self.bus, self.rosapi, self.robot))
             await self.transport.start()
         except BaseException:
+            await self.transport.stop()
             await self._stop_parts()
             raise
 

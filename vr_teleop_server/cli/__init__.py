@@ -8,18 +8,21 @@ import importlib.metadata
 import os
 import sys
 
-# Each module here exposes `register(subparsers)`, which adds its subcommands and sets `func` on them.
-# `func(args)` returns the process exit code.
-SUBCOMMAND_MODULES: tuple[str, ...] = (
-    "vr_teleop_server.cli.serve",
-    "vr_teleop_server.cli.schema",
-    "vr_teleop_server.cli.synth",
-    "vr_teleop_server.cli.replay",
-    "vr_teleop_server.cli.questionnaires",
-    "vr_teleop_server.cli.metrics",
-    "vr_teleop_server.cli.study",
-    "vr_teleop_server.cli.cert",
-)
+# Each subcommand, and the module that registers it: each module exposes `register(subparsers)`, which adds its
+# subcommands and sets `func` on them; `func(args)` returns the process exit code. A command line names its
+# subcommand first, and only that module is imported: `serve` does not load the study tools' libraries (scipy.stats,
+# matplotlib: more CPU than the whole server's imports). --help, --version and an unknown command build them all.
+_QUESTIONNAIRES = "vr_teleop_server.cli.questionnaires"
+SUBCOMMANDS: dict[str, str] = {
+    "serve": "vr_teleop_server.cli.serve",
+    "schema": "vr_teleop_server.cli.schema",
+    "synth": "vr_teleop_server.cli.synth",
+    "replay": "vr_teleop_server.cli.replay",
+    **dict.fromkeys(("qam", "sus", "tlx", "godspeed"), _QUESTIONNAIRES),
+    "metrics": "vr_teleop_server.cli.metrics",
+    "study": "vr_teleop_server.cli.study",
+    "cert": "vr_teleop_server.cli.cert",
+}
 
 
 def _version() -> str:
@@ -29,20 +32,23 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand, or of `command`'s alone."""
     parser = argparse.ArgumentParser(
         prog="vr-teleop",
         description="VR telepresence server for QTrobot (rosbridge v2 over WebSocket) and HRI study tools.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in SUBCOMMAND_MODULES:
+    modules = [SUBCOMMANDS[command]] if command in SUBCOMMANDS else dict.fromkeys(SUBCOMMANDS.values())
+    for name in modules:
         importlib.import_module(name).register(subparsers)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(argv[0] if argv else None).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:  # output piped into `head` and the like: not an error of ours

@@ -44,7 +44,11 @@ class WebSocketTransport:
         self._numbers = itertools.count(1)
         self._open: set[ServerConnection] = set()  # connections whose handler runs, closing ones included
 
-    async def start(self) -> None:
+    async def bind(self) -> None:
+        """Takes the address (OSError when it is in use, or the TLS files cannot be read) without accepting yet:
+        a server checks its port before it starts anything slow, and clients are refused until start()."""
+        if self._server is not None:
+            return
         tls = None
         if self.settings.certfile is not None:
             tls = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
@@ -57,7 +61,13 @@ class WebSocketTransport:
             close_timeout=0.5,
             ping_interval=20, ping_timeout=20,
             logger=_websockets_logger(),
+            start_serving=False,
         )
+
+    async def start(self) -> None:
+        """Binds (if bind() was not called) and accepts connections."""
+        await self.bind()
+        await self._server.start_serving()
 
     def _http(self, connection: ServerConnection, request: Request) -> Response | None:
         """Static files for a plain GET; None lets a WebSocket upgrade through, once its URL's token (or
