@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from client_protocol import names
+from client_protocol.events import ActionFailed, AutonomyLevel, EventKind, EventLevel
 from simclock import WALL, Clock
 
 from ...core.bus import Bus, BusError, Published
@@ -403,8 +404,8 @@ class Autonomy:
             await self.bus.call_service(names.MENU_SELECT_SERVICE, {"id": p.action, "args": ""}, EXECUTE_TIMEOUT_S,
                                         caller=AUTONOMY_NODE, refusal_response=False)
         except BusError as exc:
-            publish_event(self.bus, "autonomy", "action_failed", "warning", {"id": p.id, "action": p.action,
-                                                                               "reason": str(exc)})
+            publish_event(self.bus, "autonomy", EventKind.AUTONOMY_ACTION_FAILED, EventLevel.WARNING,
+                          ActionFailed(id=p.id, action=p.action, reason=str(exc)))
         finally:
             self.executing.pop(p.id, None)
             self._publish_state()
@@ -475,8 +476,8 @@ class Autonomy:
                 self._end(p, "dropped", "server", now)
             self._stop_attention(now)
         self._watch_faces()
-        publish_event(self.bus, "autonomy", "level", "info", {"level": level, "was": before,
-                                                             "by": self.operator_of(by)})
+        publish_event(self.bus, "autonomy", EventKind.AUTONOMY_LEVEL, EventLevel.INFO,
+                      AutonomyLevel(level=level, was=before, by=self.operator_of(by)))
         self._publish_state(force=True)
         note = " (the emergency stop's hold on autonomy is lifted)" if cleared else ""
         return {"success": True, "message": f"autonomy level {level}{note}"}

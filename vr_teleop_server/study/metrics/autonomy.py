@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from client_protocol import names
+from client_protocol.events import EventKind
 
 from ...recording.format import read_recording
 
@@ -55,7 +56,7 @@ def autonomy_metrics(path: Path, until: float | None = None) -> dict[str, Any]:
         elif rec.topic == names.AUTONOMY_OUTCOMES_TOPIC:
             outcomes.append(rec.data)
         elif rec.topic == names.EVENT_TOPIC and rec.data.get("source") == "autonomy" \
-                and rec.data.get("kind") == "level":
+                and rec.data.get("kind") == EventKind.AUTONOMY_LEVEL.value:
             levels.append({"t": round(t - first, 3), **json.loads(rec.data.get("detail") or "{}")})
         elif rec.topic == names.JOINT_STATE_TOPIC:
             joints = dict(zip(rec.data.get("name", []), rec.data.get("position", [])))
