@@ -78,9 +78,9 @@ def run(args: argparse.Namespace) -> int:
     workers = Workers.from_args(args)
     # The recording is written where this process reads it (in this process, or a shared directory), or sent back.
     sent_back = not workers.in_process and args.shared_dir is None
+    written_to = None if sent_back else record_dir if workers.in_process else record_dir.resolve()
     jobs = [TrialJob(study, name, seed, f"{name}-seed{seed}.mcap" if args.repeat is not None else f"{name}.mcap",
-                     None if sent_back else record_dir if workers.in_process else record_dir.resolve(), args.timeout, simulated,
-                     progress=workers.in_process)
+                     written_to, args.timeout, simulated, progress=workers.in_process)
             for name in names for seed in seeds]
     done: dict[str, TrialReport] = {}
     if not workers.in_process:
@@ -98,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
             seeded = f" (seed {job.seed})" if args.repeat is not None else ""
             print(summary(f"{job.trial}{seeded} ({report.outcome})", report.live), file=notes)
             if simulated:
-                print(f"  {report.live.t1:.1f} s of trial in {result.wall_s:.1f} s (x{report.live.t1 / result.wall_s:.1f})",
-                      file=notes)
+                t1, wall = report.live.t1, result.wall_s
+                print(f"  {t1:.1f} s of trial in {wall:.1f} s (x{t1 / wall:.1f})", file=notes)
             print(f"  recording {report.recording}: metrics from it "
                   f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes, flush=True)
             for refusal in report.refusals:

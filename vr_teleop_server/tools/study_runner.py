@@ -174,8 +174,8 @@ def run_job(job: TrialJob) -> TrialDone:
                               clock)
         wall, cpu = time.perf_counter() - wall, _cpu_seconds() - cpu
         data = record.read_bytes() if job.record_dir is None else None
-    peak = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
-    return TrialDone(report, data, wall, cpu, peak / 1024.0, os.getpid())
+    peak_kb = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return TrialDone(report, data, wall, cpu, peak_kb / 1024.0, os.getpid())
 
 
 def _cpu_seconds() -> float:
