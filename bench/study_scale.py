@@ -61,8 +61,11 @@ def main() -> int:
           f"{args.file.name} at --speed max; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
 
     here, here_wall = batch(jobs, Workers())
+    print(f"in this process: {here_wall:.1f} s", flush=True)
     one, one_wall, one_start = on_cluster(jobs, 1)
+    print(f"1 worker: {one_wall:.1f} s", flush=True)
     two, two_wall, two_start = on_cluster(jobs, 2)
+    print(f"2 workers: {two_wall:.1f} s", flush=True)
     print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
     def per_trial(done: dict[str, TrialDone]) -> str:
@@ -70,7 +73,7 @@ def main() -> int:
         c = [d.cpu_s for d in done.values()]
         sim = [d.report.live.t1 for d in done.values()]
         return (f"wall {statistics.mean(w):5.2f} s (x{sum(sim) / sum(w):4.1f}), CPU {statistics.mean(c):5.2f} s, "
-                f"peak RSS {max(d.peak_rss_mb for d in done.values()):4.0f} MB")
+                f"peak RSS {max(d.peak_rss_mb for d in done.values()):4.0f} MB (with the render process)")
 
     print(f"per trial, in this process:   {per_trial(here)}")
     print(f"per trial, on 1 Dask worker:  {per_trial(one)}")

@@ -149,8 +149,8 @@ class TrialJob:
 @dataclass(frozen=True)
 class TrialDone:
     """A job's report, its recording's bytes when they were not written where the client reads them, and what it
-    cost the process that ran it: wall and CPU seconds (with its children: the stand-in's render process) and the
-    process's peak resident memory so far (MB; the largest child's beside it)."""
+    cost the process that ran it: wall and CPU seconds (with its children: the stand-in's render process) and its
+    peak resident memory so far with its largest child's (MB: what a worker process needs)."""
     report: TrialReport
     recording: bytes | None
     wall_s: float
@@ -174,7 +174,7 @@ def run_job(job: TrialJob) -> TrialDone:
                               clock)
         wall, cpu = time.perf_counter() - wall, _cpu_seconds() - cpu
         data = record.read_bytes() if job.record_dir is None else None
-    peak_kb = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    peak_kb = sum(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
     return TrialDone(report, data, wall, cpu, peak_kb / 1024.0, os.getpid())
 
 
