@@ -82,6 +82,11 @@ def main() -> int:
     rate = {k: n / wall * 60.0 for k, wall in (("here", here_wall), ("1", one_wall), ("2", two_wall))}
     print(f"trials per minute: this process {rate['here']:.2f}, 1 worker {rate['1']:.2f}, 2 workers {rate['2']:.2f} "
           f"-> 2 workers / 1 = {rate['2'] / rate['1']:.2f}x (target >= 1.7x on 2 cores)")
+    def at_once(done: dict[str, TrialDone], wall: float) -> str:
+        return f"{sum(d.wall_s for d in done.values()) / wall:.2f}"
+
+    print(f"trials running at once on average (trials' own wall / batch wall): 1 worker {at_once(one, one_wall)}, "
+          f"2 workers {at_once(two, two_wall)}")
     print(f"cluster start-up (not in the rates): 1 worker {one_start:.1f} s, 2 workers {two_start:.1f} s")
     inside = sum(d.wall_s for d in one.values())
     overhead = (one_wall - inside) / n
