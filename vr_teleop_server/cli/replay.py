@@ -1,4 +1,5 @@
-"""`vr-teleop replay FILE [--server URL] [--speed S|max] [--report R] [--plot P]`."""
+"""`vr-teleop replay FILE [--server URL] [--speed S|max] [--report R] [--plot P]`; several files (or --workers,
+--scheduler, --summary) at --speed max: a batch (tools/batch.py)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import json
 import math
 import sys
 from pathlib import Path
+
+from ..tools.distributed import add_arguments
 
 
 def speed(text: str) -> float:
@@ -28,7 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               description="Replay the operator's messages of a recording (ours or synthesised) "
                                           "against a server, as a real rosbridge client, and report latency, "
                                           "tracking error, camera, menu acknowledgements and errors.")
-    r.add_argument("file", type=Path)
+    r.add_argument("file", type=Path, nargs="+", metavar="FILE",
+                   help="the recording; several: a batch at --speed max, summarised one row per session")
     r.add_argument("--server", default=None, metavar="ws://HOST:PORT",
                    help="the server to replay against (default ws://127.0.0.1:9090; with --speed max and no "
                         "--server, a server of the replay's own on the stand-in and a simulated clock)")
@@ -43,10 +47,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--client", default=None, help="whose messages to replay (default: whoever sent most poses)")
     r.add_argument("--no-camera", action="store_true", help="do not subscribe to the camera")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_arguments(r, "replays")
+    r.add_argument("--summary", type=Path, default=None, metavar="OUT",
+                   help="a batch's summary table, one row per session: OUT.csv and OUT.json")
     r.set_defaults(func=run_replay)
 
 
 def run_replay(args: argparse.Namespace) -> int:
+    if len(args.file) > 1 or args.summary is not None or args.workers > 1 or args.scheduler is not None:
+        from ..tools.batch import run_batch
+
+        return run_batch(args)
+    args.file = args.file[0]
     from ..tools.replay import load_steps, plot, report, run_simulated
     from ..tools.replay import run_replay as replay
 

@@ -1,21 +1,20 @@
-"""`vr-teleop study run FILE (--trial NAME | --all) [--speed max] [--repeat N --seed S]`: run study trials on the
-stand-in and compare their metrics."""
+"""`vr-teleop study run FILE (--trial NAME | --all) [--speed max] [--repeat N --seed S] [--workers K |
+--scheduler tcp://HOST:8786] [--shared-dir DIR]`: run study trials on the stand-in and compare their metrics."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
-import time
 from pathlib import Path
-
-from simclock import WALL, SimulatedClock
-from simclock import run as run_on_clock
 
 from .metrics import summary
 from .replay import speed as parse_speed
-from ..tools.study_runner import TrialReport, run_trial, stats_table, summarise, table
+from ..tools.distributed import Workers, WorkersError, add_arguments, positive
+from ..tools.distributed import run_all as run_everywhere
+from ..tools.study_runner import TrialJob, TrialReport, run_job, stats_table, summarise, table
 from ..study.studyfile import StudyFileError, load_study
 
 
@@ -39,11 +38,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="give up on a trial after S seconds (simulated seconds at --speed max)")
     r.add_argument("--speed", type=_speed, default=1.0, metavar="max",
                    help="1 (default): in real time; max: on a simulated clock, as fast as the work allows")
-    r.add_argument("--repeat", type=_positive, default=None, metavar="N",
+    r.add_argument("--repeat", type=positive, default=None, metavar="N",
                    help="run each trial N times, with seeds S..S+N-1, and print each metric's mean, SD and 95%% "
                         "confidence interval beside the table; --json then holds every run")
     r.add_argument("--seed", type=int, default=None, metavar="S",
                    help="the simulated people's seed (default: the study file's seed)")
+    add_arguments(r, "trials")
+    r.add_argument("--shared-dir", type=Path, default=None, metavar="DIR",
+                   help="a directory every worker sees at this path (a network share): the workers write the "
+                        "recordings there and none is sent back (instead of --record-dir)")
     r.set_defaults(func=run)
 
 
@@ -51,16 +54,6 @@ def _speed(text: str) -> float:
     value = parse_speed(text)
     if value not in (1.0, math.inf):
         raise argparse.ArgumentTypeError("a study runs in real time (1) or as fast as it can (max)")
-    return value
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value}: at least one run")
     return value
 
 
@@ -75,35 +68,46 @@ def run(args: argparse.Namespace) -> int:
         print(f"vr-teleop study: error: no trial {args.trial!r} in {args.file}; trials: {', '.join(study.trials)}",
               file=sys.stderr)
         return 2
-    args.record_dir.mkdir(parents=True, exist_ok=True)
+    record_dir = args.shared_dir or args.record_dir
+    record_dir.mkdir(parents=True, exist_ok=True)
     to_stdout = args.json is not None and str(args.json) == "-"
     notes = sys.stderr if to_stdout else sys.stdout  # `--json -`: stdout holds the JSON and nothing else
     simulated = math.isinf(args.speed)
     first = study.seed if args.seed is None else args.seed
     seeds = list(range(first, first + (args.repeat or 1)))
-    runs: dict[str, list[TrialReport]] = {name: [] for name in names}
-    for name in names:
-        for seed in seeds:
-            suffix = f"-seed{seed}" if args.repeat is not None else ""
-            print(f"running trial {name}{f' (seed {seed})' if suffix else ''} ...", file=notes, flush=True)
-
-            def progress(elapsed: float, done: int, name: str = name) -> None:
-                print(f"  {name}: {elapsed:5.1f} s, {done} action{'' if done == 1 else 's'} done", file=sys.stderr,
-                      flush=True)
-
-            clock = SimulatedClock() if simulated else WALL
-            started = time.perf_counter()
-            report = run_on_clock(run_trial(study, name, record=args.record_dir / f"{name}{suffix}.mcap",
-                                            timeout=args.timeout, progress=progress, seed=seed, clock=clock), clock)
-            wall = time.perf_counter() - started
-            runs[name].append(report)
-            print(summary(f"{name} ({report.outcome})", report.live), file=notes)
+    workers = Workers.from_args(args)
+    # The recording is written where this process reads it (in this process, or a shared directory), or sent back.
+    sent_back = not workers.in_process and args.shared_dir is None
+    written_to = None if sent_back else record_dir if workers.in_process else record_dir.resolve()
+    jobs = [TrialJob(study, name, seed, f"{name}-seed{seed}.mcap" if args.repeat is not None else f"{name}.mcap",
+                     written_to, args.timeout, simulated, progress=workers.in_process)
+            for name in names for seed in seeds]
+    done: dict[str, TrialReport] = {}
+    if not workers.in_process:
+        print(f"running {len(jobs)} trial{'' if len(jobs) == 1 else 's'} on {workers.describe()}", file=notes,
+              flush=True)
+    try:
+        for job, result in run_everywhere(run_job, jobs, workers, name=lambda job: job.key,
+                                            progress=not workers.in_process, unit="trial"):
+            report = result.report
+            if result.recording is not None:
+                path = record_dir / job.record_name
+                path.write_bytes(result.recording)
+                report = dataclasses.replace(report, recording=path)
+            done[job.key] = report
+            seeded = f" (seed {job.seed})" if args.repeat is not None else ""
+            print(summary(f"{job.trial}{seeded} ({report.outcome})", report.live), file=notes)
             if simulated:
-                print(f"  {report.live.t1:.1f} s of trial in {wall:.1f} s (x{report.live.t1 / wall:.1f})", file=notes)
+                t1, wall = report.live.t1, result.wall_s
+                print(f"  {t1:.1f} s of trial in {wall:.1f} s (x{t1 / wall:.1f})", file=notes)
             print(f"  recording {report.recording}: metrics from it "
-                  f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes)
+                  f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes, flush=True)
             for refusal in report.refusals:
                 print(f"  operator command refused: {refusal}", file=notes)
+    except WorkersError as exc:
+        print(f"vr-teleop study: error: {exc}", file=sys.stderr)
+        return 1
+    runs = {name: [done[job.key] for job in jobs if job.trial == name] for name in names}
     reports = [r for name in names for r in runs[name]]
     if len(names) > 1 or args.repeat is not None:
         print(file=notes)

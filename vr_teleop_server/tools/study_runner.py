@@ -6,6 +6,11 @@ On a simulated clock (`--speed max`, simclock) the trial runs as fast as the wor
 server through in-process connections to its transport, and the camera is rendered in simulated time at the
 rate ArUco perception searches frames. `seed` picks the simulated people's draws (the study's seed by default);
 `--repeat N` runs a trial with seeds S..S+N-1 and summarises each metric (mean, SD, 95% confidence interval).
+
+The unit of work for many trials (`--workers K`, `--scheduler`: tools/distributed.py) is a `TrialJob` -> its
+`TrialDone` (`run_job`): one trial, one seed, on a simulated clock of its own in whichever process runs it, so the
+metrics are the same wherever it ran. Its recording is written where the job says (a directory every process
+sees), or to a temporary directory of the worker's and sent back as bytes.
 """
 
 from __future__ import annotations
@@ -13,12 +18,18 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import os
+import resource
+import sys
+import tempfile
+import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from simclock import WALL, Clock
+from simclock import WALL, Clock, SimulatedClock
+from simclock import run as run_on_clock
 
 from ..app import TeleopServer
 from ..core.tasks import cancel_and_wait
@@ -117,6 +128,61 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
     recorded = recorded_metrics(record, trial) if record is not None else None
     return TrialReport(trial, (spec.perception, spec.decision, spec.motion), result.outcome, result.metrics,
                        recorded, record, tuple(people.refusals), seed)
+
+
+@dataclass(frozen=True)
+class TrialJob:
+    """One trial run: what `study run` asks of a worker. `record_dir`: where the recording goes, a directory the
+    worker sees (this process's --record-dir, or a --shared-dir); None: a temporary one, the bytes sent back."""
+    study: Study
+    trial: str
+    seed: int
+    record_name: str
+    record_dir: Path | None = None
+    timeout: float = 900.0
+    simulated: bool = True
+    progress: bool = False  # progress lines on stderr while it runs (in this process only)
+
+    @property
+    def key(self) -> str:
+        return f"{self.trial}-seed{self.seed}"
+
+
+@dataclass(frozen=True)
+class TrialDone:
+    """A job's report, its recording's bytes when they were not written where the client reads them, and what it
+    cost the process that ran it: wall and CPU seconds (with its children: the stand-in's render process) and its
+    peak resident memory so far with its largest child's (MB: what a worker process needs)."""
+    report: TrialReport
+    recording: bytes | None
+    wall_s: float
+    cpu_s: float
+    peak_rss_mb: float
+    worker_pid: int
+
+
+def run_job(job: TrialJob) -> TrialDone:
+    def progress(elapsed: float, done: int) -> None:
+        print(f"  {job.trial}: {elapsed:5.1f} s, {done} action{'' if done == 1 else 's'} done", file=sys.stderr,
+              flush=True)
+
+    with tempfile.TemporaryDirectory(prefix="vr-teleop-trial-") as tmp:
+        directory = job.record_dir or Path(tmp)
+        record = directory / job.record_name
+        clock = SimulatedClock() if job.simulated else WALL
+        wall, cpu = time.perf_counter(), _cpu_seconds()
+        report = run_on_clock(run_trial(job.study, job.trial, record=record, timeout=job.timeout,
+                                        progress=progress if job.progress else None, seed=job.seed, clock=clock),
+                              clock)
+        wall, cpu = time.perf_counter() - wall, _cpu_seconds() - cpu
+        data = record.read_bytes() if job.record_dir is None else None
+    peak_kb = sum(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return TrialDone(report, data, wall, cpu, peak_kb / 1024.0, os.getpid())
+
+
+def _cpu_seconds() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 async def _report_progress(runtime: TrialRuntime, progress: Callable[[float, int], None], every_s: float) -> None:

@@ -1,0 +1,108 @@
+"""Many trials on Dask: the same batch (every trial of a study file x --repeat seeds, at --speed max) in this
+process, on a local Dask cluster of 1 worker and of 2, as `vr-teleop study run --all --speed max --repeat N
+--workers K` runs it. Prints:
+
+- what one trial costs where it runs: wall and CPU seconds (with the stand-in's render process), peak memory;
+- trials per minute with 1 and 2 workers, and their ratio (the issue's target: 2 workers on a 2-core machine at
+  least 1.7x one), the clusters' start-up apart;
+- the Dask layer's overhead per trial: a 1-worker batch's wall time less the trials' own wall times (measured
+  inside the worker), per trial, against a trial's wall time (target: under 2%);
+- whether the three tables are equal, metric for metric (they must be).
+
+Ratios only within one run: the machine may be shared. Say the load (`uptime`) beside the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import statistics
+import time
+from pathlib import Path
+
+from distributed import LocalCluster
+
+from vr_teleop_server.study.studyfile import load_study
+from vr_teleop_server.tools.distributed import Workers, run_all
+from vr_teleop_server.tools.study_runner import TrialDone, TrialJob, run_job, table
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def batch(jobs: list[TrialJob], workers: Workers) -> tuple[dict[str, TrialDone], float]:
+    started = time.perf_counter()
+    done = {job.key: result for job, result in run_all(run_job, jobs, workers, name=lambda j: j.key, progress=False)}
+    return done, time.perf_counter() - started
+
+
+def on_cluster(jobs: list[TrialJob], count: int) -> tuple[dict[str, TrialDone], float, float]:
+    """The batch on a local cluster of `count` workers started first: (results, batch wall, start-up wall)."""
+    started = time.perf_counter()
+    with LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=logging.ERROR) as cluster:
+        startup = time.perf_counter() - started
+        done, wall = batch(jobs, Workers(scheduler=cluster.scheduler_address))
+    return done, wall, startup
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("file", nargs="?", type=Path, default=ROOT / "examples" / "toolbox.yaml")
+    parser.add_argument("--repeat", type=int, default=2, help="seeds per trial (default 2)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--trial", action="append", help="only these trials (default: all)")
+    args = parser.parse_args()
+    study = load_study(args.file)
+    names = args.trial or list(study.trials)
+    jobs = [TrialJob(study, name, seed, f"{name}-seed{seed}.mcap") for name in names
+            for seed in range(args.seed, args.seed + args.repeat)]
+    print(f"{len(jobs)} trials ({', '.join(names)} x seeds {args.seed}..{args.seed + args.repeat - 1}) of "
+          f"{args.file.name} at --speed max; load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+
+    here, here_wall = batch(jobs, Workers())
+    print(f"in this process: {here_wall:.1f} s", flush=True)
+    one, one_wall, one_start = on_cluster(jobs, 1)
+    print(f"1 worker: {one_wall:.1f} s", flush=True)
+    two, two_wall, two_start = on_cluster(jobs, 2)
+    print(f"2 workers: {two_wall:.1f} s", flush=True)
+    print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+    def per_trial(done: dict[str, TrialDone]) -> str:
+        w = [d.wall_s for d in done.values()]
+        c = [d.cpu_s for d in done.values()]
+        sim = [d.report.live.t1 for d in done.values()]
+        return (f"wall {statistics.mean(w):5.2f} s (x{sum(sim) / sum(w):4.1f}), CPU {statistics.mean(c):5.2f} s, "
+                f"peak RSS {max(d.peak_rss_mb for d in done.values()):4.0f} MB (with the render process)")
+
+    print(f"per trial, in this process:   {per_trial(here)}")
+    print(f"per trial, on 1 Dask worker:  {per_trial(one)}")
+    print(f"per trial, on 2 Dask workers: {per_trial(two)}")
+    n = len(jobs)
+    rate = {k: n / wall * 60.0 for k, wall in (("here", here_wall), ("1", one_wall), ("2", two_wall))}
+    print(f"trials per minute: this process {rate['here']:.2f}, 1 worker {rate['1']:.2f}, 2 workers {rate['2']:.2f} "
+          f"-> 2 workers / 1 = {rate['2'] / rate['1']:.2f}x (target >= 1.7x on 2 cores)")
+    def at_once(done: dict[str, TrialDone], wall: float) -> str:
+        return f"{sum(d.wall_s for d in done.values()) / wall:.2f}"
+
+    print(f"trials running at once on average (trials' own wall / batch wall): 1 worker {at_once(one, one_wall)}, "
+          f"2 workers {at_once(two, two_wall)}")
+    print(f"cluster start-up (not in the rates): 1 worker {one_start:.1f} s, 2 workers {two_start:.1f} s")
+    inside = sum(d.wall_s for d in one.values())
+    overhead = (one_wall - inside) / n
+    print(f"Dask overhead per trial (1 worker: batch wall - trials' own wall, per trial): {overhead * 1e3:.0f} ms "
+          f"= {overhead / (inside / n) * 100:.2f}% of a trial's wall time (target < 2%)")
+    print(f"a trial on a Dask worker against in this process (same seeds): wall "
+          f"{inside / sum(d.wall_s for d in here.values()):.2f}x")
+
+    def metrics(done: dict[str, TrialDone]) -> list[dict]:
+        return [done[job.key].report.live.to_json_dict() for job in jobs]
+
+    equal = metrics(here) == metrics(one) == metrics(two)
+    print(f"tables equal metric for metric (this process, 1 worker, 2 workers): {equal}")
+    print(table([two[job.key].report for job in jobs]))
+    return 0 if equal else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
