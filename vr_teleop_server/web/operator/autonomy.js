@@ -132,10 +132,15 @@ function label(ctx, text, x, y, color) {
 
 /** The operator page's autonomy: the model, what the HUD says of it and the flat view's card. */
 export class OperatorAutonomy {
-  constructor(ros, {say}) {
+  /** say(text, level): the HUD's message line; onLevel(): the level changed (the status menu shows it). */
+  constructor(ros, {say, onLevel = () => {}}) {
     this.say = say;
     this.dirty = true;
-    this.model = new AutonomyModel(ros, {onChange: () => { this.dirty = true; }});
+    let level = "";
+    this.model = new AutonomyModel(ros, {onChange: () => {
+      this.dirty = true;
+      if (this.model.level !== level) { level = this.model.level; onLevel(); }
+    }});
     this.place = null;       // the attention target on the camera picture, as last drawn (tests read it)
     this.busy = false;
     document.getElementById("proposal-accept")?.addEventListener("click", () => this.decide("accept"));

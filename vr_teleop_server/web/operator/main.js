@@ -296,6 +296,9 @@ ros.subscribe("/vr_teleop/menus", "vr_teleop_msgs/Menus", (msg) => {
 const toggles = {
   get(id) {
     const item = nav.tree?.byId.get(id);
+    if (item?.command === "set_autonomy" && autonomy.model.level) {  // the level in force is the one ON
+      try { return JSON.parse(item.args || "{}").level === autonomy.model.level; } catch { return undefined; }
+    }
     if (!item || !TOGGLE_COMMANDS.has(item.command)) return undefined;
     const states = {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording};
     return states[item.command];
@@ -421,7 +424,7 @@ async function estop() {
 }
 
 const audio = new Audio(ros, {onError: (text) => say(text, "error")});
-const autonomy = new OperatorAutonomy(ros, {say});
+const autonomy = new OperatorAutonomy(ros, {say, onLevel: () => { menuDirty = true; }});
 function talk(on) {
   audio.talk(on);
   $("talk").classList.toggle("on", on);
