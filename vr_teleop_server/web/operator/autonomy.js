@@ -170,7 +170,7 @@ export class OperatorAutonomy {
     const m = this.model;
     if (!m.level) return null;
     const looking = m.attention?.source ? ` · looking at ${attentionText(m.attention)}` : "";
-    const head = m.owner("head") === "autonomy" ? " · autonomy moves the head" : "";
+    const head = m.owner("head") === "autonomy" ? " · head: autonomy" : "";
     return {id: "autonomy", text: `autonomy: ${m.level}${looking}${head}`,
             level: m.level === "teleoperated" ? "muted" : "info"};
   }

@@ -790,6 +790,6 @@ $("estop").addEventListener("click", estop);
 
 // What tests and the bench read (no control goes through here).
 window.operator = {
-  ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy,
+  ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };
