@@ -257,6 +257,63 @@ ENDPOINTS: tuple[Endpoint, ...] = (
                  "frame_render_times": [1700000000.236, 1700000000.27], "operator_voice_level": 0.42,
                  "pose_jitter": 0.004, "watchdog_threshold": 0.2, "watchdog_holds": 0, "link_quality": "good",
                  "link_warning": "", "dc_received": 8100, "dc_refused": 0, "dc_stale_dropped": 12, "dc_last_refusal": ""}]}),
+    # ---- supervised autonomy (docs/guides/autonomy.md) ----
+    Endpoint(names.AUTONOMY_LEVEL_SERVICE, "vr_teleop_msgs/SetAutonomy", "call",
+             "Set the autonomy level, live: teleoperated (nothing moves unless someone moves it), supervised (the "
+             "robot looks at who speaks and proposes actions the teacher decides; an undecided one is done at its "
+             "time-out), autonomous (it does what it proposes; the teacher still overrides everything). Operators "
+             "and supervisors; an unknown level is refused (success false, the reason in message). Also lifts an "
+             "emergency stop's hold on autonomy.", example={"level": "supervised"}),
+    Endpoint(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", "subscribe",
+             "Autonomy as the server sees it: the level, the attention target, the pending proposals, what runs "
+             "(attention, glance, proposal:ID) and each part's owner (operator, trial, gesture, autonomy, estop, "
+             "none).", "latched, on change",
+             {"header": _stamp(), "level": "supervised",
+              "attention": {"header": _stamp(), "source": "both", "who": "child_left", "yaw": 21.5, "pitch": 2.0,
+                            "has_face": True, "face": {"x": 180, "y": 200, "width": 40, "height": 40,
+                                                       "confidence": 3.1}, "score": 0.78},
+              "pending": [], "running": ["attention"],
+              "owners": [{"part": "head", "owner": "autonomy"}, {"part": "right_arm", "owner": "none"},
+                         {"part": "left_arm", "owner": "none"}]}),
+    Endpoint(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", "subscribe",
+             "Where the robot's attention is: a face, a voice or both (a speaking face), a glance around when "
+             "nobody is there, or empty (teleoperated, or the head is someone else's). yaw/pitch in the base "
+             "frame, degrees (yaw + left, pitch + down).", "on change and 1 Hz, latched",
+             {"header": _stamp(), "source": "voice", "who": "child_right", "yaw": -27.3, "pitch": 0.0,
+              "has_face": False, "face": {"x": 0, "y": 0, "width": 0, "height": 0, "confidence": 0.0},
+              "score": 0.55}),
+    Endpoint(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", "subscribe",
+             "An action the robot proposes (a menu item id), why, how sure, and what its time-out does. Decide it "
+             "with " + names.AUTONOMY_DECIDE_SERVICE + "; its end comes on " + names.AUTONOMY_OUTCOMES_TOPIC + ".",
+             "on proposal",
+             {"header": _stamp(), "id": "p-3", "action": "speech.sentences.well_done", "label": "Well done!",
+              "reason": "a pupil has stopped after speaking a while", "confidence": 0.7, "timeout": 3.0,
+              "on_timeout": "execute", "situation": "speech_ended"}),
+    Endpoint(names.AUTONOMY_DECIDE_SERVICE, "vr_teleop_msgs/DecideProposal", "call",
+             "Decide a pending proposal: accept (done now), reject (not now), forbid (never in this situation: "
+             "the robot learns it). Operators and supervisors. An unknown or ended id, or another decision, is "
+             "refused (success false, the reason in message).", example={"id": "p-3", "decision": "accept"}),
+    Endpoint(names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome", "subscribe",
+             "Every proposal's end (accepted, rejected, forbidden, timed_out_executed, superseded, dropped), and "
+             "each action the teacher took herself from a menu (teacher_initiated), with who decided and how "
+             "long it took.", "on outcome",
+             {"header": _stamp(), "id": "p-3", "action": "speech.sentences.well_done", "outcome": "accepted",
+              "initiator": "robot", "decided_by": "op-1a2b3c4d5e6f", "seconds": 1.42,
+              "situation": "speech_ended"}),
+    # ---- the stand-in's simulated pupils (backend sim only) ----
+    Endpoint(names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders", "subscribe",
+             "Simulation only: the stand-in's pupils, their places in the robot's base frame, where they look and "
+             "whether they speak.", "latched, on change",
+             {"header": _stamp(), "bystanders": [{"name": "child_left", "position": {"x": 1.65, "y": 0.65,
+                                                                                      "z": 0.445},
+                                                  "yaw": 21.5, "looking": "robot", "speaking": False}]}),
+    Endpoint(names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak", "call",
+             "Simulation only: a pupil says text (espeak-ng, into the robot's microphone: the operator hears it) "
+             "while voice activity and its direction are reported as a microphone array would. Answers once the "
+             "pupil has begun; refused for an unknown pupil, empty text, or a pupil already speaking.",
+             example={"who": "child_left", "text": "I know the answer!"}),
+    Endpoint(names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook", "call",
+             "Simulation only: a pupil looks at the robot or away.", example={"who": "child_right", "at": "away"}),
     # ---- LuxAI's QTrobot API (the stand-in serves it; the ros backend forwards it) ----
     Endpoint(names.HEAD_COMMAND_TOPIC, "std_msgs/Float64MultiArray", "publish",
              "[HeadYaw, HeadPitch] in degrees; clamped to limits (reported on /vr_teleop/clamps). Explicit control "

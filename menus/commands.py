@@ -76,6 +76,10 @@ class MotivationArgs(_Args):
     value: float = 0.0
 
 
+class AutonomyArgs(_Args):
+    level: Literal["teleoperated", "supervised", "autonomous"]
+
+
 COMMANDS: dict[str, type[_Args]] = {
     "show_emotion": EmotionArgs,
     "say": SayArgs,
@@ -93,4 +97,5 @@ COMMANDS: dict[str, type[_Args]] = {
     "set_motors": MotorsArgs,
     "show_status": StatusArgs,
     "change_motivation": MotivationArgs,
+    "set_autonomy": AutonomyArgs,
 }

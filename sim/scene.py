@@ -17,8 +17,9 @@ from scipy.spatial.transform import Rotation
 from robot_models import RobotModel, load_qtrobot
 from robot_models.mjcf import build_qtrobot_mjcf
 
+from .pupils import FIGURES, TABLE_HEIGHT, head_radius
+
 ARUCO_DICTIONARY = "DICT_4X4_50"
-TABLE_HEIGHT = 0.72  # metres: a classroom table; the robot stands on it, as QTrobot usually does
 OVERVIEW_CAMERA = "overview"  # looks at the robot's face from where a child would sit
 
 
@@ -188,13 +189,10 @@ def build_classroom(robot: RobotModel | None = None, *, shadows: bool = False, a
         markers.append(_add_marker(spec, body, name, _pose(pos, rot), mid, msize, local_pos, local_rot))
 
     # Bystanders: simple figures facing the robot, with eyes, mouth and hair on a head sphere.
-    figures = [
-        ("child_left", (1.65, 0.65), 1.25, (0.3, 0.5, 0.85, 1), (0.96, 0.80, 0.69, 1), (0.35, 0.22, 0.1, 1)),
-        ("adult_centre", (2.05, -0.1), 1.72, (0.55, 0.25, 0.3, 1), (0.76, 0.57, 0.45, 1), (0.1, 0.08, 0.06, 1)),
-        ("child_right", (1.55, -0.8), 1.35, (0.3, 0.65, 0.4, 1), (0.55, 0.38, 0.27, 1), (0.05, 0.05, 0.05, 1)),
-    ]
+    # (sim/pupils.py holds the figures: the simulated pupils are the same people)
+    figures = FIGURES
     for name, (x, y), height, shirt, skin, hair in figures:
-        head_r = 0.085 if height < 1.5 else 0.1
+        head_r = head_radius(height)
         head_z = height - head_r
         facing = np.degrees(np.arctan2(-y, -x))  # local +x turned towards the robot: they watch it
         body = world.add_body(name=name, pos=[x, y, 0.0], quat=_quat(_yaw(facing)))

@@ -45,6 +45,10 @@ class RunningServer:
     can talk to it from the test's thread."""
 
     def __init__(self, settings: ServerSettings) -> None:
+        if "autonomy" not in settings.model_fields_set:
+            # Tests run teleoperated unless they ask for autonomy: its attention would keep the stand-in's camera
+            # rendering for face detection and move the head in every test (tests/test_autonomy*.py ask).
+            settings = settings.model_copy(update={"autonomy": "teleoperated"})
         self.settings = settings
         self.loop = asyncio.new_event_loop()
         self.server: TeleopServer | None = None

@@ -16,6 +16,8 @@ from .core.access import AccessPolicy, Role, is_loopback, tokens_from
 from .core.bus import Bus
 from .core.events import declare_event_topic, publish_event
 from .core.rosapi import RosApi
+from .core.ownership import Ownership
+from .features.autonomy import Autonomy, Learner, check_actions, load_config as load_attention_config, load_rules
 from .features.avatar import Avatar
 from .features.whoami import WhoAmI
 from .core.session import Session
@@ -59,6 +61,8 @@ class TeleopServer:
         self.recorder: Recorder | None = None
         self.rosapi: RosApi | None = None
         self.media: MediaService | None = None
+        self.autonomy: Autonomy | None = None
+        self.owners = Ownership(self.model.parts)  # who moves each part (design.md, "Who moves the robot")
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
                               "spectator": settings.spectator_token})
@@ -70,6 +74,9 @@ class TeleopServer:
         check_commands_implemented()
         self.menus = load_menus(settings.menu_dir)
         self.motivation_config = load_motivation_config(settings.motivation_config)
+        self.autonomy_rules = load_rules(settings.autonomy_rules)
+        self.attention_config = load_attention_config(settings.autonomy_attention)
+        self.learner = Learner(settings.autonomy_memory)
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session, self.access)
 
     def _open_session(self, name: str, peer: str, ping: Ping) -> Session:
@@ -107,6 +114,12 @@ class TeleopServer:
         """Whether this connection's operator holds explicit control (the poses data channel's rule)."""
         return self.control is not None and self.control.holds(owner)
 
+    def _decider_connected(self) -> bool:
+        """Whether someone is connected who may decide a proposal (an operator or a supervisor)."""
+        return any(not session.closed and (session.role in ("operator", "supervisor")
+                                           or (session.role is None and self.access.open))
+                   for session in self.sessions.values())
+
     def _operator_online(self, operator: str, gone: str) -> bool:
         return any(name != gone and not session.closed and session.operator == operator
                    for name, session in self.sessions.items())
@@ -134,11 +147,11 @@ class TeleopServer:
         feature.start()
         self.features.append(feature)
 
-    async def _start_robot(self) -> Speaker | None:
-        """The robot and the features on it; returns the speaker (None without a robot) for the media."""
+    async def _start_robot(self) -> None:
+        """The robot and the features on it."""
         s = self.settings
         if s.backend == "none":
-            return None
+            return
         if s.backend == "ros":
             from .robot.backends.ros import RosRobot
 
@@ -172,11 +185,12 @@ class TeleopServer:
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
-        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock)
+        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners)
         self._start(self.luxai)
         self.control = ExplicitControl(
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
-            operator_of=self._operator, operator_online=self._operator_online, clock=self.clock.monotonic)
+            operator_of=self._operator, operator_online=self._operator_online, clock=self.clock.monotonic,
+            owners=self.owners)
         self._start(self.control)
         self._start(OperatorAudioLog(self.bus, audio_dir))
         status = StatusPublisher(self.bus, robot)
@@ -186,9 +200,22 @@ class TeleopServer:
         self._start(FacePublisher(self.bus, robot))
         panels = {"hardware": status.hardware, "motors": status.motors, "dialog": status.dialog,
                   "motivation": motivation.message}
-        self._start(MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
-                                status=lambda which: panels[which](), luxai=self.luxai))
-        return speaker
+        menu = MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
+                           status=lambda which: panels[which](), luxai=self.luxai)
+        self._start(menu)
+        check_actions(self.autonomy_rules, menu.ids(), s.autonomy_rules)
+        if s.backend == "sim":  # the stand-in's simulated pupils (simulation only)
+            from .features.bystanders import Bystanders
+
+            async def render(text: str) -> tuple[bytes, int, int]:
+                wav = await speaker.tts.render(text)
+                return wav.pcm, wav.sample_rate, wav.channels
+
+            self._start(Bystanders(self.bus, robot, render, clock=self.clock, interval=s.bystander_interval))
+        self.autonomy = Autonomy(self.bus, robot, self.owners, level=s.autonomy, attention=self.attention_config,
+                                 rules=self.autonomy_rules, learner=self.learner, menu_entry=menu.entry,
+                                 may_decide=self._decider_connected, operator_of=self._operator, clock=self.clock)
+        self._start(self.autonomy)
 
     async def start(self) -> None:
         try:
@@ -202,7 +229,8 @@ class TeleopServer:
             self._start(WhoAmI(self.bus, self._identity))
             # the experimenter's labels
             self.bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
-            self._start_media(await self._start_robot())
+            await self._start_robot()
+            self._start_media()
             self._publish_description()  # after the robot: its own limits may have narrowed the model's
             self._start(Avatar(self.bus, self.rosapi, self.robot))
             await self.transport.start()
@@ -224,16 +252,11 @@ class TeleopServer:
             await self.robot.aclose()
         self.recorder = None
 
-    def _start_media(self, speaker: Speaker | None) -> None:
+    def _start_media(self) -> None:
         """WebRTC (media/): the camera as video, the robot's audio out, the operator's voice in, telemetry."""
-        render_line = None
-        if speaker is not None and self.settings.backend == "sim":  # the stand-in's classroom has bystanders
-            async def render_line(text: str) -> tuple[bytes, int, int]:
-                wav = await speaker.tts.render(text)
-                return wav.pcm, wav.sample_rate, wav.channels
+        # (the stand-in's pupils speak into its microphone, which the media mixes as a real robot's: Bystanders)
         self.media = MediaService(self.bus, self.robot, self.access, lambda: self.sessions,
-                                  camera_fps=self.settings.camera_fps, render_line=render_line,
-                                  bystander_interval=self.settings.bystander_interval,
+                                  camera_fps=self.settings.camera_fps,
                                   ice=self.settings.ice_config(), holds_control=self._holds_control,
                                   control=lambda connection: self.control.link_view(connection)
                                   if self.control is not None else None)

@@ -42,6 +42,18 @@ class ServerSettings(CoreSettings):
     motivation_config: Path | None = Field(None, description="motivation variables file; default: the packaged")
     bystander_interval: float = Field(20.0, ge=0, description="seconds between the stand-in's bystanders' lines "
                                                               "in the robot's WebRTC audio (0: none)")
+    autonomy: Literal["teleoperated", "supervised", "autonomous"] = Field(
+        "supervised", description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
+                                  "'teleoperated', nothing moves unless someone moves it; 'supervised', the robot "
+                                  "looks at who speaks and proposes actions the teacher accepts, rejects or lets "
+                                  "time out (then done); 'autonomous', it does what it proposes")
+    autonomy_rules: Path | None = Field(None, description="the proposal rules (YAML: situations to menu items); "
+                                                          "default: the packaged rules")
+    autonomy_memory: Path | None = Field(None, description="the JSON file where autonomy keeps what it learned from "
+                                                           "the teacher (loaded at start, written on each "
+                                                           "decision); default: nothing kept between runs")
+    autonomy_attention: Path | None = Field(None, description="the attention configuration (YAML: focus times, "
+                                                              "switching, speed); default: the packaged one")
     turn_urls: tuple[str, ...] = Field((), description="TURN relays for WebRTC (turn:HOST:3478?transport=udp, "
                                                      "turns:HOST:443?transport=tcp...); need turn_secret")
     turn_secret: SecretStr | None = Field(None, description="the relay's shared secret (coturn static-auth-secret): "

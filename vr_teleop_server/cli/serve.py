@@ -72,6 +72,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--bystander-interval", type=float, default=defaults.bystander_interval, metavar="S",
                    help="the stand-in's bystanders speak a line every S seconds in the robot's WebRTC audio; 0: "
                         "never (default %(default)s)")
+    p.add_argument("--autonomy", choices=["teleoperated", "supervised", "autonomous"], default=defaults.autonomy,
+                   help="the robot's autonomy level at start: teleoperated (nothing moves unless someone moves "
+                        "it), supervised (it looks at who speaks and proposes actions the teacher decides), "
+                        "autonomous (it does what it proposes); changed live with /vr_teleop/autonomy/level "
+                        "(default %(default)s)")
+    p.add_argument("--autonomy-rules", type=Path, default=None, metavar="FILE",
+                   help="the proposal rules, situations to menu items (YAML; default: the packaged rules)")
+    p.add_argument("--autonomy-memory", type=Path, default=None, metavar="PATH",
+                   help="a JSON file where autonomy keeps what it learned from the teacher, loaded at start "
+                        "(default: nothing kept between runs)")
+    p.add_argument("--autonomy-attention", type=Path, default=None, metavar="FILE",
+                   help="the attention configuration (YAML; default: the packaged one, LuxAI's figures)")
     p.add_argument("--ice-server", action="append", default=[], metavar="URL",
                    help="a STUN server for WebRTC media, e.g. stun:stun.example.org:3478 (repeatable; "
                         "default none: host candidates, enough on a LAN)")
@@ -148,6 +160,9 @@ def run(args: argparse.Namespace) -> int:
                                   camera_fps=args.camera_fps, gesture_dir=args.gesture_dir,
                                   menu_dir=args.menu_dir, motivation_config=args.motivation_config,
                                   audio_dir=args.audio_dir, bystander_interval=args.bystander_interval,
+                                  autonomy=args.autonomy, autonomy_rules=args.autonomy_rules,
+                                  autonomy_memory=args.autonomy_memory,
+                                  autonomy_attention=args.autonomy_attention,
                                   ice_servers=tuple(args.ice_server), turn_urls=tuple(args.turn_url),
                                   turn_secret=args.turn_secret or os.environ.get(TURN_SECRET_ENV) or None,
                                   turn_ttl=args.turn_ttl,

@@ -32,6 +32,7 @@ from client_protocol import names
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.events import declare_event_topic, publish_event
+from ..core.ownership import Ownership
 from ..core.tasks import cancel_and_wait
 from ..media.link_quality import ControlLink
 from ..robot.interface import Robot
@@ -49,7 +50,8 @@ class ExplicitControl:
                  clock: Callable[[], float] = time.monotonic,
                  may_override: Callable[[str], bool] = lambda caller: False,
                  operator_of: Callable[[str], str] = lambda owner: owner,
-                 operator_online: Callable[[str, str], bool] = lambda operator, gone: False) -> None:
+                 operator_online: Callable[[str, str], bool] = lambda operator, gone: False,
+                 owners: Ownership | None = None) -> None:
         self.bus = bus
         self.robot = robot
         self.mapper = TeleopMapper(robot.model, settings)
@@ -68,6 +70,9 @@ class ExplicitControl:
         # operator_of(owner) names it; operator_online(operator, gone) says whether it keeps another connection.
         self.operator_of = operator_of
         self.operator_online = operator_online
+        # who moves each part (core/ownership.py): the holder owns the parts they follow, from engage to release
+        self.owners = owners or Ownership(robot.model.parts)
+        self._parts_on = {part: True for part in robot.model.parts}
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -223,6 +228,8 @@ class ExplicitControl:
         except TeleopError as exc:
             raise BusError(str(exc)) from None
         self.holder = caller
+        self.owners.release("estop")  # engaging again resumes after an emergency stop
+        self._claim_parts()  # before the answer: no autonomous command reaches the head after it
         self._holds.clear()  # link_view counts this engagement's holds
         self._ever_engaged = True
         self._event("engage", "info", {"holder": caller})
@@ -240,6 +247,7 @@ class ExplicitControl:
                            "release control")
         holder, self.holder = self.holder, None
         self.mapper.release()
+        self._claim_parts()
         self._event(reason, "info", {"holder": holder, "by": caller})
         self._publish_state()
         return {"success": True, "message": "released: the robot holds its pose"}
@@ -248,6 +256,8 @@ class ExplicitControl:
         """Holds the robot and takes control away from whoever holds it; anyone may stop the robot."""
         holder, self.holder = self.holder, None
         self.mapper.estop()
+        self.owners.claim("estop", self.robot.model.parts, caller)  # autonomy stops too, until engage or a level
+        self._claim_parts()
         state = self.robot.joint_state().as_dict()
         for part, joints in self.robot.model.parts.items():
             # where the joints are, within the limits: the physical joints may sit a hair beyond them
@@ -300,6 +310,8 @@ class ExplicitControl:
     async def _part_service(self, parts: tuple[str, ...], request: Any) -> dict[str, Any]:
         for part in parts:
             self.mapper.set_part_enabled(part, request.data)
+            self._parts_on[part] = bool(request.data)
+        self._claim_parts()
         what = "head" if parts == ("head",) else "arms"
         self._event(f"{what}_{'on' if request.data else 'off'}", "info", {"by": self.bus.caller()})
         self._publish_state()
@@ -316,8 +328,18 @@ class ExplicitControl:
             return
         self.holder = None
         self.mapper.disconnect()
+        self._claim_parts()
         self._event("watchdog_disconnected", "warning", {"holder": owner})
         self._publish_state()
+
+    def _claim_parts(self) -> None:
+        """The holder owns the parts they follow (a part switched off is not followed); nobody holding, none."""
+        if self.holder is None:
+            self.owners.release("operator")
+            return
+        on = [part for part, enabled in self._parts_on.items() if enabled]
+        self.owners.release("operator", [part for part in self._parts_on if part not in on])
+        self.owners.claim("operator", on, self.holder)
 
     # ---- telemetry ----------------------------------------------------------------------------------------------
     def holds(self, connection: str) -> bool:

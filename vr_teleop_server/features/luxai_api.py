@@ -10,7 +10,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import itertools
 import logging
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -19,6 +21,7 @@ from client_protocol.errors import Refusal
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..core.ownership import Ownership
 from ..core.tasks import cancel_and_wait
 from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
 from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
@@ -30,8 +33,10 @@ log = logging.getLogger(__name__)
 
 class LuxaiApi:
     def __init__(self, bus: Bus, robot: Robot, gestures: GestureLibrary, speaker: Speaker,
-                 joint_state_hz: float = 30.0, clock: Clock = WALL) -> None:
+                 joint_state_hz: float = 30.0, clock: Clock = WALL, owners: Ownership | None = None) -> None:
         self.bus = bus
+        self.owners = owners or Ownership(robot.model.parts)  # a playing gesture owns the parts it moves
+        self._plays = itertools.count(1)
         self.clock = clock  # times the gesture recorder's samples
         self.robot = robot
         self.gestures = gestures
@@ -228,9 +233,21 @@ class LuxaiApi:
             return
         self._spawn(self._play(gesture, 1.0, published.sender))
 
+    @contextlib.contextmanager
+    def _owning(self, name: str, parts: tuple[str, ...]) -> Any:
+        """The gesture owns its parts while it plays (autonomy keeps off them); a newer gesture's claim is not
+        ended by an older one's end."""
+        who = f"{name}#{next(self._plays)}"
+        self.owners.claim("gesture", parts, who)
+        try:
+            yield
+        finally:
+            self.owners.release("gesture", parts, who)
+
     async def _play_own(self, name: str, speed: float, sender: str | None) -> bool:
         try:
-            return (await self.robot.play_own_gesture(name, speed)).completed
+            with self._owning(name, tuple(self.robot.model.parts)):  # the robot's own file: its parts unknown here
+                return (await self.robot.play_own_gesture(name, speed)).completed
         except Refusal as exc:
             if sender is None:
                 raise
@@ -238,7 +255,10 @@ class LuxaiApi:
             return False
 
     async def _play(self, gesture: Gesture, speed: float, sender: str | None) -> bool:
-        result = await self.robot.play_gesture(gesture, speed)
+        model = self.robot.model
+        parts = tuple(dict.fromkeys(model.joint(n).part for wp in gesture.waypoints for n in wp.targets))
+        with self._owning(gesture.name, parts):
+            result = await self.robot.play_gesture(gesture, speed)
         if result.clamps or result.ignored:
             self.publish_clamp(
                 f"/qt_robot/gesture/play {gesture.name}",

@@ -47,6 +47,7 @@ class MenuService:
         self._status = status
         self._luxai_api = luxai  # gesture recording (start_recording / save_recording / recording) and its news
         self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
+        self._labels: dict[str, str] = {}
         self._arms_on = True
         self._head_on = True
 
@@ -86,6 +87,7 @@ class MenuService:
     def publish(self) -> None:
         items: list[dict[str, Any]] = []
         table: dict[str, tuple[str, dict[str, Any]]] = {}
+        labels: dict[str, str] = {}
         for menu in self.menus:
             for parent, position, item in walk(menu.items, menu.info.id):
                 items.append({"id": item.id, "menu": menu.info.id, "parent": parent, "label": item.label,
@@ -93,18 +95,28 @@ class MenuService:
                               "command": item.command or "", "args": json.dumps(item.args) if item.command else ""})
                 if item.command:
                     table[item.id] = (item.command, dict(item.args))
+                    labels[item.id] = item.label
                 if item.generate:
                     for pos, (ident, label, command, args) in enumerate(self._generated(item, menu)):
                         items.append({"id": ident, "menu": menu.info.id, "parent": item.id, "label": label,
                                       "slot": "list", "position": pos, "icon": "", "command": command,
                                       "args": json.dumps(args)})
                         table[ident] = (command, args)
-        self._items = table
+                        labels[ident] = label
+        self._items, self._labels = table, labels
         self.bus.publish(names.MENUS_TOPIC, {
             "header": {"stamp": self.bus.registry.now()},
             "menus": [{"id": m.info.id, "label": m.info.label, "controller": m.info.controller,
                        "button": m.info.button, "icon": m.info.icon} for m in self.menus],
             "items": items}, latch=True)
+
+    def entry(self, item_id: str) -> tuple[str, str, dict[str, Any]] | None:
+        """(label, command, args) of an item that runs a command, None for any other id."""
+        entry = self._items.get(item_id)
+        return None if entry is None else (self._labels[item_id], entry[0], dict(entry[1]))
+
+    def ids(self) -> set[str]:
+        return set(self._items)
 
     # ---- selections ---------------------------------------------------------------------------------------------
     async def _select_service(self, request: Any) -> dict[str, Any]:
@@ -225,6 +237,9 @@ class MenuService:
 
     async def _do_show_status(self, a: Any, _caller: str) -> str:
         return json.dumps(self._status(a.which), default=str)
+
+    async def _do_set_autonomy(self, a: Any, caller: str) -> str:
+        return await self._trigger(names.AUTONOMY_LEVEL_SERVICE, {"level": a.level}, caller)
 
     async def _do_change_motivation(self, a: Any, caller: str) -> str:
         service = {"set": names.MOTIVATION_SET_SERVICE, "increment": names.MOTIVATION_INCREMENT_SERVICE,

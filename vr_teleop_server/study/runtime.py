@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from simclock import WALL, Clock
 
 from ..core.bus import Bus
+from ..core.ownership import Ownership
 from ..robot.gestures import GestureLibrary
 from ..robot.interface import Robot
 from .action import ActionModule
@@ -34,11 +35,13 @@ class TrialResult:
 
 class TrialRuntime:
     def __init__(self, bus: Bus, robot: Robot, study: Study, trial: str,
-                 gestures: GestureLibrary | None = None, clock: Clock = WALL) -> None:
+                 gestures: GestureLibrary | None = None, clock: Clock = WALL,
+                 owners: Ownership | None = None) -> None:
         if trial not in study.trials:
             raise ValueError(f"study {study.study!r} has no trial {trial!r}; trials: {', '.join(study.trials)}")
         self.bus = bus
         self.robot = robot
+        self.owners = owners or Ownership(robot.model.parts)  # a running trial owns what its modules move
         self.study = study
         self.name = trial
         spec = study.trials[trial]
@@ -80,7 +83,11 @@ class TrialRuntime:
 
     async def run(self) -> TrialResult:
         self.log.begin()
-        outcome = await self.decision.run()
+        self.owners.claim("trial", self.robot.model.parts, self.name)
+        try:
+            outcome = await self.decision.run()
+        finally:
+            self.owners.release("trial", who=self.name)
         metrics = await self.log.finish(outcome)
         return TrialResult(self.name, outcome, metrics, len(self.log.interventions))
 

@@ -295,7 +295,9 @@ def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,
     clock = SimulatedClock()
 
     async def main() -> tuple[Collected, float]:
-        server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "host": "127.0.0.1"}), clock)
+        server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "host": "127.0.0.1",
+                                                   # the session as it was: no autonomous moves of the robot's own
+                                                   "autonomy": "teleoperated"}), clock)
         async with server:
             return await run_replay(steps, "", 1.0, camera=camera, progress=progress,
                                     connection=server.transport.connect_local, pose_frames=True)

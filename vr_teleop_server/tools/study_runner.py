@@ -79,14 +79,16 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
     spec = study.trials[trial]
     seed = study.seed if seed is None else seed
     base = settings or ServerSettings(port=0, backend="sim")
-    update = {"port": 0, "backend": "sim", "record": record, "record_camera_fps": 0.0}
+    # the trial's decision module is the robot's autonomy here: the server's own stays off
+    update = {"port": 0, "backend": "sim", "record": record, "record_camera_fps": 0.0, "autonomy": "teleoperated"}
     if clock.simulated and spec.perception == "aruco":  # every frame drawn is searched: none drawn in vain
         update["camera_fps"] = ARUCO_RATE_HZ
     server = TeleopServer(base.model_copy(update=update), clock)
     await server.start()
     try:
         assert server.robot is not None and server.luxai is not None
-        runtime = TrialRuntime(server.bus, server.robot, study, trial, server.luxai.gestures, clock=clock)
+        runtime = TrialRuntime(server.bus, server.robot, study, trial, server.luxai.gestures, clock=clock,
+                               owners=server.owners)
         people = SimulatedPeople(server.url, study, trial, operator=spec.decision != "scripted",
                                  seed=people_seed(seed, trial),
                                  opener=server.transport.connect_local if clock.simulated else None)

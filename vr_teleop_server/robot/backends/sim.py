@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from robot_models import RobotModel, load_qtrobot
@@ -57,6 +57,7 @@ class SimRobot(Robot):
         self._gesture_stop: asyncio.Event | None = None
         self._gesture_joints: tuple[str, ...] = ()
         self._closed = False
+        self._listeners: list[Callable[[bytes, int, int], None]] = []
         self._standin.add_frame_listener(self._on_frame)
         self._standin.add_camera_closed_listener(self._frames.close)  # its render process died: no more frames
 
@@ -188,6 +189,17 @@ class SimRobot(Robot):
     @property
     def voice_level(self) -> float:
         return self._standin.voice_level
+
+    # ------------------------------------------------------------------------------------------------ microphone
+    def listen(self, listener: Callable[[bytes, int, int], None]) -> Callable[[], None]:
+        """What the classroom's simulated pupils say (`hear`), as a real robot's microphone would give it."""
+        self._listeners.append(listener)
+        return lambda: listener in self._listeners and self._listeners.remove(listener)
+
+    def hear(self, pcm: bytes, sample_rate: int, channels: int) -> None:
+        """On the loop: a piece of a simulated pupil's voice reaches the microphone (sim/pupils.py)."""
+        for listener in tuple(self._listeners):
+            listener(pcm, sample_rate, channels)
 
     # ------------------------------------------------------------------------------------------------ camera
     def add_camera_subscriber(self) -> None:

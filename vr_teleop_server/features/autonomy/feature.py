@@ -1,0 +1,577 @@
+"""Supervised autonomy on the bus: the level, attention, proposals and their outcomes (docs/guides/autonomy.md).
+
+It acts as a client would: head commands on the head command topic (the Robot interface clamps them), actions as
+menu items through the menu service. Before each head command it asks the ownership arbiter (core/ownership.py):
+autonomy moves only a part nobody claims, and only once it has been free for the release grace. Everything runs
+on the server's clock, at the attention's rate (the control tick): a proposal's time-out is kept to one tick.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from client_protocol import names
+from simclock import WALL, Clock
+
+from ...core.bus import Bus, BusError, Published
+from ...core.events import declare_event_topic, publish_event
+from ...core.ownership import Ownership
+from ...core.tasks import cancel_and_wait
+from ...robot.interface import Robot, VoiceActivity
+from .attention import Attention, AttentionConfig, Candidate, Target
+from .learner import Learner, Situation
+from .rules import Rules
+
+log = logging.getLogger(__name__)
+
+AUTONOMY_NODE = "/vr_teleop_server/autonomy"  # the caller and sender name of what autonomy does
+LEVELS = ("teleoperated", "supervised", "autonomous")
+DECISIONS = {"accept": "accepted", "reject": "rejected", "forbid": "forbidden"}
+ACTION_COMMANDS = ("show_emotion", "say", "play_gesture")  # menu commands that are actions the teacher takes
+FACE_FRESH_S = 1.5  # a face track seen this recently is a candidate (detection: 5 Hz at best, 1 Hz on a busy machine)
+HEAD_HISTORY_S = 3.0  # the head's recent directions, to place a face found in an older frame
+FACE_FORGET_S = 30.0
+NEW_FACE_CONFIRM_S = 1.0  # a face must stay this long before it is "new" (the detector flickers)
+SITUATION_WINDOW_S = 10.0  # an event stays the situation this long (the teacher's own actions are learned in it)
+ATTENTION_REPUBLISH_S = 1.0
+EXECUTE_TIMEOUT_S = 60.0
+
+
+@dataclass
+class FaceTrack:
+    key: str
+    yaw: float
+    pitch: float
+    distance: float
+    box: dict[str, Any]
+    first_seen: float
+    last_seen: float
+    who: str = ""
+    announced: bool = False  # new_face fired
+    away_fired: bool = False
+
+
+@dataclass
+class Voice:
+    who: str
+    direction: float | None
+    since: float
+
+
+@dataclass
+class Proposal:
+    id: str
+    action: str
+    label: str
+    reason: str
+    confidence: float
+    timeout: float
+    on_timeout: str
+    situation: Situation
+    created: float
+    stamp: Any = None
+
+    def message(self) -> dict[str, Any]:
+        return {"header": {"stamp": self.stamp}, "id": self.id, "action": self.action, "label": self.label,
+                "reason": self.reason, "confidence": self.confidence, "timeout": self.timeout,
+                "on_timeout": self.on_timeout, "situation": self.situation.name}
+
+
+@dataclass
+class _Published:
+    summary: tuple = ()
+    attention_key: tuple = ()
+    attention_at: float = -math.inf
+    running: list[str] = field(default_factory=list)
+
+
+class Autonomy:
+    def __init__(self, bus: Bus, robot: Robot, owners: Ownership, *, level: str, attention: AttentionConfig,
+                 rules: Rules, learner: Learner, menu_entry: Callable[[str], tuple[str, str, dict] | None],
+                 may_decide: Callable[[], bool], operator_of: Callable[[str], str], clock: Clock = WALL,
+                 seed: int | None = None) -> None:
+        if level not in LEVELS:
+            raise ValueError(f"autonomy level {level!r} is not one of {', '.join(LEVELS)}")
+        self.bus = bus
+        self.robot = robot
+        self.owners = owners
+        self.level = level
+        self.cfg = attention
+        self.rules = rules
+        self.learner = learner
+        self.menu_entry = menu_entry
+        self.may_decide = may_decide
+        self.operator_of = operator_of
+        self.clock = clock
+        model = robot.model
+        yaw, pitch = model.joint("HeadYaw"), model.joint("HeadPitch")
+        self.attention = Attention(attention, yaw_limits=(yaw.lower, yaw.upper),
+                                   pitch_limits=(pitch.lower, pitch.upper), seed=seed)
+        self.camera = model.camera
+        self.target: Target | None = None
+        self.pending: dict[str, Proposal] = {}
+        self.executing: dict[str, asyncio.Task[None]] = {}
+        self.tracks: dict[str, FaceTrack] = {}
+        self._head_history: deque[tuple[float, float, float]] = deque()  # (wall stamp, yaw, pitch)
+        self.voice: Voice | None = None
+        self._last_voice_end: float | None = None
+        self._silence_fired = False
+        self._situation: tuple[Situation, float] | None = None
+        self._ids = itertools.count(1)
+        self._track_ids = itertools.count(1)
+        self._head_free_since: float | None = -math.inf  # None while claimed; free from the start
+        self._driving = False  # attention moved the head since it got it
+        self._sent: tuple[float, float] | None = None
+        self._faces_token: int | None = None
+        self._event_token: int | None = None
+        self._unlisten: Callable[[], None] | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._save: asyncio.Task[None] | None = None
+        self._pub = _Published()
+        self._started = 0.0
+        self.head_commands = 0  # head commands published (tests, the bench)
+
+    # ---- lifetime -------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        bus = self.bus
+        declare_event_topic(bus)
+        bus.declare_topic(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", latched=True, persistent=True)
+        bus.declare_topic(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", latched=True,
+                          persistent=True)
+        bus.declare_topic(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", persistent=True)
+        bus.declare_topic(names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome", persistent=True)
+        bus.provide(names.AUTONOMY_LEVEL_SERVICE, "vr_teleop_msgs/SetAutonomy", self._level_service)
+        bus.provide(names.AUTONOMY_DECIDE_SERVICE, "vr_teleop_msgs/DecideProposal", self._decide_service)
+        self._event_token = bus.subscribe(AUTONOMY_NODE, names.EVENT_TOPIC, None, self._on_event)
+        self._unlisten = self.robot.on_voice_activity(self._on_voice)
+        self.owners.changed.append(self._on_owners)
+        self._started = self.clock.monotonic()
+        self._watch_faces()
+        self._publish_state(force=True)
+        self._publish_attention(self.clock.monotonic(), force=True)
+        self._task = asyncio.ensure_future(self._run())
+
+    async def stop(self) -> None:
+        if self._on_owners in self.owners.changed:
+            self.owners.changed.remove(self._on_owners)
+        if self._unlisten is not None:
+            self._unlisten()
+        if self._event_token is not None:
+            self.bus.unsubscribe(names.EVENT_TOPIC, self._event_token)
+        self._watch_faces(False)
+        await cancel_and_wait(self._task, *self.executing.values())
+        if self._save is not None:
+            await asyncio.gather(self._save, return_exceptions=True)
+
+    def _watch_faces(self, on: bool | None = None) -> None:
+        """Face detection runs (the camera renders) only while autonomy looks: not when teleoperated."""
+        on = self.level != "teleoperated" if on is None else on
+        if on and self._faces_token is None:
+            self._faces_token = self.bus.subscribe(AUTONOMY_NODE, names.FACES_TOPIC, "vr_teleop_msgs/Faces",
+                                                   self._on_faces)
+        elif not on and self._faces_token is not None:
+            self.bus.unsubscribe(names.FACES_TOPIC, self._faces_token)
+            self._faces_token = None
+            self.tracks.clear()
+
+    # ---- the tick -------------------------------------------------------------------------------------------
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        period = 1.0 / self.cfg.rate_hz
+        next_at = loop.time()
+        while True:
+            try:
+                self.tick(self.clock.monotonic())
+            except Exception:  # the tick must survive anything one step does
+                log.exception("autonomy tick failed")
+            next_at += period
+            delay = next_at - loop.time()
+            if delay < -period:
+                next_at = loop.time()
+            await asyncio.sleep(max(0.0, delay))
+
+    def tick(self, now: float) -> None:
+        self._remember_head()
+        self._expire_proposals(now)
+        self._detect_events(now)
+        self._attend(now)
+        self._publish_state()
+
+    # ---- perception -----------------------------------------------------------------------------------------
+    def _head(self) -> tuple[float, float]:
+        state = self.robot.joint_state().as_dict()
+        return state["HeadYaw"], state["HeadPitch"]
+
+    def _remember_head(self) -> None:
+        state = self.robot.joint_state()
+        positions = state.as_dict()
+        history = self._head_history
+        history.append((state.stamp_wall, positions["HeadYaw"], positions["HeadPitch"]))
+        while history and history[-1][0] - history[0][0] > HEAD_HISTORY_S:
+            history.popleft()
+
+    def _head_at(self, stamp_wall: float) -> tuple[float, float]:
+        """The head's direction when a camera frame was taken (the newest known, for a frame newer than that)."""
+        if not self._head_history:
+            return self._head()
+        _, yaw, pitch = min(self._head_history, key=lambda h: abs(h[0] - stamp_wall))
+        return yaw, pitch
+
+    def _on_faces(self, published: Published) -> None:
+        msg = published.value
+        cam = self.camera
+        if cam is None or not msg.image_width:
+            return
+        now = self.clock.monotonic()
+        scale = msg.image_width / cam.width
+        fx, fy, cx, cy = cam.fx * scale, cam.fy * scale, cam.cx * scale, cam.cy * scale
+        stamp = msg.header.stamp
+        head_yaw, head_pitch = self._head_at(getattr(stamp, "secs", getattr(stamp, "sec", 0))
+                                             + getattr(stamp, "nsecs", getattr(stamp, "nanosec", 0)) * 1e-9)
+        seen: set[str] = set()
+        for face in msg.faces:
+            u, v = face.x + face.width / 2, face.y + face.height / 2
+            yaw = head_yaw + math.degrees(math.atan2(cx - u, fx))  # image right is the robot's right (yaw -)
+            pitch = head_pitch + math.degrees(math.atan2(v - cy, fy))  # image down is pitch + (the head's down)
+            distance = fy * self.cfg.face_height_m / max(face.height, 1)
+            box = {"x": face.x, "y": face.y, "width": face.width, "height": face.height,
+                   "confidence": face.confidence}
+            free = [t for t in self.tracks.values() if t.key not in seen]
+            near = min(free, key=lambda t: abs(t.yaw - yaw), default=None)
+            if near is not None and abs(near.yaw - yaw) <= self.cfg.match_deg:
+                near.yaw, near.pitch, near.distance, near.box, near.last_seen = yaw, pitch, distance, box, now
+                near.away_fired = False
+                seen.add(near.key)
+            else:
+                key = f"face-{next(self._track_ids)}"
+                self.tracks[key] = FaceTrack(key, yaw, pitch, distance, box, now, now)
+                seen.add(key)
+        for key in [k for k, t in self.tracks.items() if now - t.last_seen > FACE_FORGET_S]:
+            del self.tracks[key]
+
+    def _on_voice(self, activity: VoiceActivity) -> None:
+        now = activity.stamp
+        if activity.speaking:
+            if self.voice is None or (activity.who and activity.who != self.voice.who):
+                self.voice = Voice(activity.who, activity.direction_deg, now)
+            else:
+                self.voice.direction = activity.direction_deg
+            self._silence_fired = False
+            return
+        voice, self.voice = self.voice, None
+        self._last_voice_end = now
+        if voice is not None:
+            self._event(now, "speech_ended", speech_s=now - voice.since, who=voice.who)
+
+    def _voice_track(self) -> FaceTrack | None:
+        """The face the current voice comes from (nearest within match_deg), if any."""
+        voice = self.voice
+        if voice is None or voice.direction is None:
+            return None
+        now = self.clock.monotonic()
+        fresh = [t for t in self.tracks.values() if now - t.last_seen <= FACE_FRESH_S]
+        near = min(fresh, key=lambda t: abs(t.yaw - voice.direction), default=None)
+        if near is not None and abs(near.yaw - voice.direction) <= self.cfg.match_deg:
+            if voice.who:
+                near.who = voice.who
+            return near
+        return None
+
+    def candidates(self, now: float) -> list[Candidate]:
+        speaker = self._voice_track()
+        out = [Candidate(t.key, t.yaw, t.pitch, t.distance, 1.0,
+                         self.voice.since if t is speaker and self.voice is not None else None)
+               for t in self.tracks.values() if now - t.last_seen <= FACE_FRESH_S]
+        voice = self.voice
+        if voice is not None and voice.direction is not None and speaker is None:
+            out.append(Candidate(f"voice:{voice.who}" if voice.who else "voice", voice.direction, 0.0, None, 1.0,
+                                 voice.since, has_face=False))
+        return out
+
+    # ---- events and proposals -------------------------------------------------------------------------------
+    def _detect_events(self, now: float) -> None:
+        quiet_since = self._last_voice_end if self._last_voice_end is not None else self._started
+        if self.voice is None and not self._silence_fired:
+            silent = now - quiet_since
+            if any(silent >= r.silence_s for r in self.rules.for_event("silence")):
+                self._silence_fired = True
+                self._event(now, "silence", silent_s=silent)
+        head_yaw = None
+        for track in self.tracks.values():
+            if not track.announced and track.last_seen - track.first_seen >= NEW_FACE_CONFIRM_S:
+                track.announced = True
+                self._event(now, "new_face", who=track.who)
+            gone = now - track.last_seen
+            if track.announced and not track.away_fired and gone > FACE_FRESH_S and self.camera is not None:
+                head_yaw = self._head()[0] if head_yaw is None else head_yaw
+                half_fov = math.degrees(math.atan2(self.camera.width / 2, self.camera.fx))
+                rules = [r for r in self.rules.for_event("looked_away") if gone >= r.away_s]
+                if rules and abs(track.yaw - head_yaw) < half_fov * 0.8:
+                    track.away_fired = True
+                    self._event(now, "looked_away", away_s=gone, who=track.who)
+
+    def _event(self, now: float, name: str, **detail: Any) -> None:
+        situation = Situation(name)
+        self._situation = (situation, now)
+        if not self._proposing():
+            return
+        options: list[tuple[float, str, str]] = []
+        for rule in self.rules.for_event(name):
+            if name == "speech_ended" and detail.get("speech_s", 0.0) < rule.min_speech_s:
+                continue
+            if name == "silence" and detail.get("silent_s", 0.0) < rule.silence_s:
+                continue
+            if name == "looked_away" and detail.get("away_s", 0.0) < rule.away_s:
+                continue
+            if self.learner.forbidden(situation, rule.action) or self.menu_entry(rule.action) is None:
+                continue
+            options.append((self.learner.confidence(situation, rule.action, rule.confidence), rule.action,
+                            rule.reason))
+        for action, confidence in self.learner.learned(situation):
+            if self.menu_entry(action) is not None:
+                options.append((confidence, action, f"you did this yourself in this situation ({name})"))
+        options = [o for o in options if o[0] >= 0.2]  # what the teacher keeps rejecting is no longer proposed
+        if options:
+            confidence, action, reason = max(options)
+            self.propose(action, reason, confidence, situation, now)
+
+    def _proposing(self) -> bool:
+        if self.level == "teleoperated" or "estop" in self.owners.owners().values():
+            return False
+        return self.level == "autonomous" or self.may_decide()
+
+    def propose(self, action: str, reason: str, confidence: float, situation: Situation, now: float) -> Proposal:
+        entry = self.menu_entry(action)
+        label = entry[0] if entry is not None else action
+        for old in list(self.pending.values()):
+            self._end(old, "superseded", "server", now)
+        proposal = Proposal(f"p-{next(self._ids)}", action, label, reason, round(confidence, 3),
+                            self.rules.timeout_s, self.rules.on_timeout, situation, now,
+                            self.bus.registry.now())
+        self.bus.publish(names.AUTONOMY_PROPOSALS_TOPIC, proposal.message())
+        if self.level == "autonomous":
+            self._end(proposal, "accepted", "autonomy", now, execute=True)
+        else:
+            self.pending[proposal.id] = proposal
+        self._publish_state()
+        return proposal
+
+    def _expire_proposals(self, now: float) -> None:
+        if self.level == "supervised" and self.pending and not self.may_decide():
+            for p in list(self.pending.values()):
+                self._end(p, "dropped", "server", now)
+        for p in list(self.pending.values()):
+            if now >= p.created + p.timeout:
+                if p.on_timeout == "execute":
+                    self._end(p, "timed_out_executed", "timeout", now, execute=True)
+                else:
+                    self._end(p, "dropped", "timeout", now)
+
+    def _end(self, p: Proposal, outcome: str, by: str, now: float, *, execute: bool = False) -> None:
+        self.pending.pop(p.id, None)
+        if execute and not self._may_act(p.action):
+            outcome, execute = "dropped", False
+        self._outcome(p.id, p.action, outcome, "robot", by, now - p.created, p.situation)
+        if execute:
+            self.executing[p.id] = asyncio.ensure_future(self._execute(p))
+        self._publish_state()
+
+    def _may_act(self, action: str) -> bool:
+        """A gesture moves parts: only when nobody but autonomy holds them. Words and faces always may."""
+        entry = self.menu_entry(action)
+        if entry is None or "estop" in self.owners.owners().values():
+            return False
+        if entry[1] == "play_gesture":
+            return all(owner in ("none", "gesture") for owner in self.owners.owners().values())
+        return True
+
+    async def _execute(self, p: Proposal) -> None:
+        try:
+            await self.bus.call_service(names.MENU_SELECT_SERVICE, {"id": p.action, "args": ""}, EXECUTE_TIMEOUT_S,
+                                        caller=AUTONOMY_NODE, refusal_response=False)
+        except BusError as exc:
+            publish_event(self.bus, "autonomy", "action_failed", "warning", {"id": p.id, "action": p.action,
+                                                                               "reason": str(exc)})
+        finally:
+            self.executing.pop(p.id, None)
+            self._publish_state()
+
+    def _outcome(self, ident: str, action: str, outcome: str, initiator: str, by: str, seconds: float,
+                 situation: Situation) -> None:
+        self.bus.publish(names.AUTONOMY_OUTCOMES_TOPIC, {
+            "header": {"stamp": self.bus.registry.now()}, "id": ident, "action": action, "outcome": outcome,
+            "initiator": initiator, "decided_by": by, "seconds": round(max(0.0, seconds), 4),
+            "situation": situation.name})
+        if self.learner.record(situation, action, outcome):
+            self._save_memory()
+
+    def _save_memory(self) -> None:
+        if self.learner.path is None:
+            return
+        previous = self._save
+
+        async def save() -> None:
+            if previous is not None:
+                await asyncio.gather(previous, return_exceptions=True)
+            try:
+                await asyncio.to_thread(self.learner.save)
+            except OSError:
+                log.exception("the autonomy memory could not be written to %s", self.learner.path)
+
+        self._save = asyncio.ensure_future(save())
+
+    async def flushed(self) -> None:
+        """Wait until the memory file holds every point stored so far (tests)."""
+        if self._save is not None:
+            await asyncio.gather(self._save, return_exceptions=True)
+
+    def _on_event(self, published: Published) -> None:
+        """The teacher's own actions from the menus: recorded as teacher-initiated, and learned."""
+        msg = published.value
+        if msg.source != "menu" or msg.kind != "select":
+            return
+        try:
+            detail = json.loads(msg.detail)
+        except ValueError:
+            return
+        by = str(detail.get("by", ""))
+        if by == AUTONOMY_NODE or detail.get("command") not in ACTION_COMMANDS:
+            return
+        now = self.clock.monotonic()
+        situation = Situation("idle")
+        if self._situation is not None and now - self._situation[1] <= SITUATION_WINDOW_S:
+            situation = self._situation[0]
+        self._outcome(f"t-{next(self._ids)}", str(detail.get("id", "")), "teacher_initiated", "teacher",
+                      self.operator_of(by), 0.0, situation)
+
+    # ---- services -------------------------------------------------------------------------------------------
+    async def _level_service(self, request: Any) -> dict[str, Any]:
+        return self.set_level(request.level, Bus.caller())
+
+    def set_level(self, level: str, by: str) -> dict[str, Any]:
+        if level not in LEVELS:
+            return {"success": False, "message": f"unknown autonomy level {level!r}: give one of "
+                                                 f"{', '.join(LEVELS)}"}
+        cleared = "estop" in self.owners.owners().values()
+        if cleared:
+            self.owners.release("estop")  # choosing a level again is the teacher's word that the robot may move
+        before, self.level = self.level, level
+        now = self.clock.monotonic()
+        if level == "teleoperated":
+            for p in list(self.pending.values()):
+                self._end(p, "dropped", "server", now)
+            self._stop_attention(now)
+        self._watch_faces()
+        publish_event(self.bus, "autonomy", "level", "info", {"level": level, "was": before,
+                                                             "by": self.operator_of(by)})
+        self._publish_state(force=True)
+        note = " (the emergency stop's hold on autonomy is lifted)" if cleared else ""
+        return {"success": True, "message": f"autonomy level {level}{note}"}
+
+    async def _decide_service(self, request: Any) -> dict[str, Any]:
+        return self.decide(request.id, request.decision, Bus.caller())
+
+    def decide(self, ident: str, decision: str, caller: str) -> dict[str, Any]:
+        outcome = DECISIONS.get(decision)
+        if outcome is None:
+            return {"success": False, "message": f"unknown decision {decision!r}: give accept, reject or forbid"}
+        p = self.pending.get(ident)
+        if p is None:
+            return {"success": False, "message": f"no pending proposal {ident!r}: it has ended (see "
+                                                 f"{names.AUTONOMY_OUTCOMES_TOPIC}) or never was"}
+        self._end(p, outcome, self.operator_of(caller), self.clock.monotonic(), execute=outcome == "accepted")
+        return {"success": True, "message": f"{p.id} ({p.label}) {outcome}"}
+
+    # ---- attention ------------------------------------------------------------------------------------------
+    def _on_owners(self) -> None:
+        now = self.clock.monotonic()
+        if not self.owners.free("head"):
+            self._head_free_since = None
+            self._driving = False
+        elif self._head_free_since is None:
+            self._head_free_since = now
+        if "estop" in self.owners.owners().values():
+            for p in list(self.pending.values()):
+                self._end(p, "dropped", "server", now)
+        self._publish_state()
+
+    def head_free(self, now: float) -> bool:
+        """Whether autonomy may move the head now: nobody claims it, and it has been free for the grace."""
+        if not self.owners.free("head"):
+            self._head_free_since = None
+            return False
+        if self._head_free_since is None:
+            self._head_free_since = now
+        return now - self._head_free_since >= self.cfg.release_grace_s
+
+    def _stop_attention(self, now: float) -> None:
+        self._driving = False
+        self.target = None
+        self._publish_attention(now, force=True)
+
+    def _attend(self, now: float) -> None:
+        if self.level == "teleoperated":
+            return
+        if not self.head_free(now):
+            if self.target is not None:
+                self._stop_attention(now)
+            return
+        if not self._driving:
+            self.attention.reset(self._head())  # from where the head is: the speed limit holds from there
+            self._driving = True
+        target = self.attention.update(now, self.candidates(now))
+        self.target = target
+        if target is not None:
+            command = (round(target.yaw, 2), round(target.pitch, 2))
+            if command != self._sent:
+                self._sent = command
+                self.head_commands += 1
+                self.bus.publish(names.PART_COMMAND_TOPICS["head"], {"data": list(command)}, sender=AUTONOMY_NODE)
+        self._publish_attention(now)
+
+    def running(self) -> list[str]:
+        out = []
+        if self.target is not None:
+            out.append("glance" if self.target.source == "glance" else "attention")
+        out += [f"proposal:{i}" for i in self.executing]
+        return out
+
+    def _attention_message(self) -> dict[str, Any]:
+        t = self.target
+        face = self.tracks.get(t.key) if t is not None else None
+        return {"header": {"stamp": self.bus.registry.now()}, "source": t.source if t else "",
+                "who": (face.who or face.key) if face is not None else (t.key.removeprefix("voice:") if t else ""),
+                "yaw": round(t.yaw, 3) if t else 0.0, "pitch": round(t.pitch, 3) if t else 0.0,
+                "has_face": face is not None, "face": face.box if face is not None else {},
+                "score": round(t.score, 4) if t else 0.0}
+
+    def _publish_attention(self, now: float, force: bool = False) -> None:
+        t = self.target
+        key = (t.source, t.key, round(t.yaw / 2), round(t.pitch / 2)) if t else ()
+        if force or key != self._pub.attention_key or now - self._pub.attention_at >= ATTENTION_REPUBLISH_S:
+            self._pub.attention_key, self._pub.attention_at = key, now
+            self.bus.publish(names.AUTONOMY_ATTENTION_TOPIC, self._attention_message(), latch=True)
+
+    def _publish_state(self, force: bool = False) -> None:
+        t = self.target
+        summary = (self.level, tuple(self.pending), tuple(self.running()), tuple(self.owners.owners().items()),
+                   (t.source, t.key) if t else ())
+        if not force and summary == self._pub.summary:
+            return
+        self._pub.summary = summary
+        owners = self.owners.owners()
+        if t is not None:
+            owners = {part: ("autonomy" if part == "head" and owner == "none" else owner)
+                      for part, owner in owners.items()}
+        self.bus.publish(names.AUTONOMY_STATE_TOPIC, {
+            "header": {"stamp": self.bus.registry.now()}, "level": self.level,
+            "attention": self._attention_message(), "pending": [p.message() for p in self.pending.values()],
+            "running": self.running(), "owners": [{"part": k, "owner": v} for k, v in owners.items()]}, latch=True)
