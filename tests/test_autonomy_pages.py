@@ -15,114 +15,76 @@ from pathlib import Path
 
 import pytest
 
-from support import RunningServer, wait_for
+from support import RawClient, RunningServer, wait_for
 from test_operator_page import INSTALL_HEADSET, IWER, READY, SLOW, enter_vr, frames, press
+from vr_teleop_server.features.autonomy.learner import Situation
 from vr_teleop_server.settings import ServerSettings
 
 ROOT = Path(__file__).resolve().parent.parent
 WEB = ROOT / "vr_teleop_server" / "web"
 TOKENS = {"operator": "op-autonomy-1", "supervisor": "sup-autonomy-2", "spectator": "spec-autonomy-3"}
 SCREENSHOTS = ROOT / ".pytest_cache" / "screenshots"
-STATE = "/vr_teleop/autonomy/state"
-PROPOSALS = "/vr_teleop/autonomy/proposals"
 OUTCOMES = "/vr_teleop/autonomy/outcomes"
-ATTENTION = "/vr_teleop/autonomy/attention"
 
 
-class FakeAutonomy:
-    """The server's side of the contract, in the server's process on its bus (until the feature lands): the level
-    and decide services, the state, proposals, attention and outcomes topics. It records every call it gets."""
+class Autonomy:
+    """The server's autonomy feature as the tests reach it: proposals made in the server's process (as its rules
+    make them, on the server's loop), its level, and every outcome it publishes, read from its bus."""
 
-    OWNER = "test-autonomy"
+    OWNER = "test-autonomy-pages"
 
     def __init__(self, server: RunningServer) -> None:
         self.server = server
-        self.bus = server.server.bus
-        self.level = "supervised"
-        self.pending: dict[str, dict] = {}
-        self.calls: list[tuple[str, dict]] = []
-        self.ids = 0
-        self.attention = {"header": {}, "source": "", "who": "", "yaw": 0.0, "pitch": 0.0, "has_face": False,
-                          "face": {"x": 0, "y": 0, "width": 0, "height": 0, "confidence": 0.0}, "score": 0.0}
-        server.call(self._advertise)
+        self.feature = server.server.autonomy
+        self.outcomes: list[dict] = []
+        server.call(lambda: server.server.bus.subscribe(self.OWNER, OUTCOMES, "vr_teleop_msgs/ProposalOutcome",
+                                                        self._outcome))
 
-    def _advertise(self) -> None:
-        for name, type_name in ((STATE, "vr_teleop_msgs/AutonomyState"), (PROPOSALS, "vr_teleop_msgs/Proposal"),
-                                (OUTCOMES, "vr_teleop_msgs/ProposalOutcome"),
-                                (ATTENTION, "vr_teleop_msgs/AttentionTarget")):
-            self.bus.advertise(self.OWNER, name, type_name, latched=name == STATE)
-        self.bus.advertise_service(self.OWNER, "/vr_teleop/autonomy/decide", "vr_teleop_msgs/DecideProposal",
-                                   self._decide)
-        self.bus.advertise_service(self.OWNER, "/vr_teleop/autonomy/level", "vr_teleop_msgs/SetAutonomy",
-                                   self._set_level)
-        self._publish_state()
+    def _outcome(self, published) -> None:
+        self.outcomes.append(published.value.model_dump())
 
-    def _publish_state(self) -> None:
-        self.bus.publish(STATE, {"header": {}, "level": self.level, "attention": self.attention,
-                                 "pending": list(self.pending.values()), "running": ["attention"],
-                                 "owners": [{"part": "head", "owner": "autonomy"}]}, latch=True)
+    def propose(self, action: str, reason: str, confidence: float = 0.8) -> str:
+        a = self.feature
+        return self.server.call(lambda: a.propose(action, reason, confidence, Situation("speech_ended"),
+                                                  a.clock.monotonic()).id)
 
-    async def _decide(self, request, now):
-        self.calls.append(("decide", {"id": request.id, "decision": request.decision}))
-        p = self.pending.pop(request.id, None)
-        if p is None:
-            return {"success": False, "message": f"no pending proposal {request.id!r}"}
-        outcome = {"accept": "accepted", "reject": "rejected", "forbid": "forbidden"}[request.decision]
-        self._end(p, outcome)
-        self._publish_state()
-        return {"success": True, "message": f"{p['id']} {outcome}"}
+    def outcome(self, ident: str) -> dict | None:
+        return next((o for o in self.outcomes if o["id"] == ident), None)
 
-    def _end(self, p: dict, outcome: str) -> None:
-        self.pending.pop(p["id"], None)
-        self.bus.publish(OUTCOMES, {"header": {}, "id": p["id"], "action": p["action"], "outcome": outcome,
-                                    "initiator": "robot", "decided_by": "teacher", "seconds": 1.5,
-                                    "situation": p["situation"]})
+    def decided(self, ident: str, outcome: str) -> bool:
+        """The proposal ended with `outcome`, decided by a person (not the time-out or the server)."""
+        o = self.outcome(ident)
+        return o is not None and o["outcome"] == outcome and o["decided_by"] not in ("timeout", "server", "autonomy")
 
-    async def _set_level(self, request, now):
-        self.calls.append(("level", {"level": request.level}))
-        self.level = request.level
-        self._publish_state()
-        return {"success": True, "message": f"autonomy level {request.level}"}
+    def label(self, action: str) -> str:
+        return self.feature.menu_entry(action)[0]
 
-    def propose(self, label: str, reason: str, *, timeout: float = 60.0, confidence: float = 0.8) -> str:
-        def publish() -> str:
-            for old in list(self.pending.values()):  # as the feature does: a newer proposal supersedes
-                self._end(old, "superseded")
-            self.ids += 1
-            p = {"header": {}, "id": f"p-{self.ids}", "action": f"menu.{label.lower().replace(' ', '_')}",
-                 "label": label, "reason": reason, "confidence": confidence, "timeout": timeout,
-                 "on_timeout": "execute", "situation": "speech_ended"}
-            self.pending[p["id"]] = p
-            self.bus.publish(PROPOSALS, p)
-            self._publish_state()
-            return p["id"]
-        return self.server.call(publish)
+    @property
+    def level(self) -> str:
+        return self.server.call(lambda: self.feature.level)
 
-    def look_at(self, yaw: float, pitch: float, who: str = "Ana", face: dict | None = None) -> None:
-        def publish() -> None:
-            self.attention = {**self.attention, "source": "both" if face else "voice", "who": who, "yaw": yaw,
-                              "pitch": pitch, "has_face": face is not None, "score": 0.7,
-                              "face": {**self.attention["face"], **(face or {})}}
-            self.bus.publish(ATTENTION, self.attention)
-        self.server.call(publish)
-
-    def decisions(self) -> list[dict]:
-        return [args for kind, args in self.calls if kind == "decide"]
+    def set_level(self, level: str) -> None:
+        self.server.call(lambda: self.feature.set_level(level, "test"))
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
+    """The stand-in with tokens per role, its autonomy supervised, proposing nothing by itself (no rules) and
+    leaving a proposal a minute to be decided: the tests make the proposals."""
     tmp = tmp_path_factory.mktemp("autonomy_pages")
+    rules = tmp / "rules.yaml"
+    rules.write_text("timeout_s: 60\non_timeout: drop\nrules: []\n")
     running = RunningServer(ServerSettings(
         port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a", operator_token=TOKENS["operator"],
-        supervisor_token=TOKENS["supervisor"], spectator_token=TOKENS["spectator"]))
+        supervisor_token=TOKENS["supervisor"], spectator_token=TOKENS["spectator"], autonomy="supervised",
+        autonomy_rules=rules))
     yield running
     running.stop()
 
 
 @pytest.fixture(scope="module")
 def autonomy(server):
-    return FakeAutonomy(server)
+    return Autonomy(server)
 
 
 def operator_page(browser, server, *, headset: bool, role: str = "operator"):
@@ -168,10 +130,12 @@ def test_the_headset_shows_the_proposal_and_the_right_thumbstick_decides(browser
         enter_vr(page)
         page.wait_for_function("document.getElementById('hud-autonomy')?.textContent.includes('supervised')",
                                timeout=SLOW)
-        ident = autonomy.propose("Well done", "Ana has stopped after speaking a while", timeout=60.0)
+        before = len(autonomy.outcomes)
+        ident = autonomy.propose("emotion.happy", "Ana has stopped after speaking a while")
         page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {ident!r}", timeout=SLOW)
         p = shown(page)
-        assert p["reason"] == "Ana has stopped after speaking a while" and p["label"] == "Well done"
+        assert p["reason"] == "Ana has stopped after speaking a while" and p["label"] == autonomy.label(p["action"])
+        assert p["timeout"] == 60 and p["confidence"] == 0.8
         # the countdown runs down from the time-out
         page.wait_for_function(f"window.operator.autonomy.model.current().left < {p['left'] - 0.5}", timeout=SLOW)
         assert 0 < shown(page)["fraction"] < 1
@@ -179,35 +143,51 @@ def test_the_headset_shows_the_proposal_and_the_right_thumbstick_decides(browser
         screenshot(page, "autonomy_hud.png")
 
         stick(page, 1.0)  # the right thumbstick pushed right: accept
-        assert wait_for(lambda: autonomy.decisions() == [{"id": ident, "decision": "accept"}], 10)
+        assert wait_for(lambda: autonomy.decided(ident, "accepted"), 10), autonomy.outcomes[before:]
         page.wait_for_function("window.operator.autonomy.model.current() === null", timeout=SLOW)
         page.wait_for_function("!window.operator.proposalMesh.visible", timeout=SLOW)
         stick(page, 0.0)
 
-        second = autonomy.propose("Nod", "Ana has just said something")
+        second = autonomy.propose("emotion.sad", "Ana has just said something")
         page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {second!r}", timeout=SLOW)
         stick(page, -1.0)  # pushed left: reject
-        assert wait_for(lambda: autonomy.decisions()[-1] == {"id": second, "decision": "reject"}, 10)
+        assert wait_for(lambda: autonomy.decided(second, "rejected"), 10), autonomy.outcomes[before:]
         page.wait_for_function("window.operator.autonomy.model.current() === null", timeout=SLOW)
         stick(page, 0.0)
-        assert len(autonomy.decisions()) == 2  # one push, one decision
-        page.wait_for_function("document.getElementById('hud-message')?.textContent === 'Nod: rejected'",
+        assert [o["outcome"] for o in autonomy.outcomes[before:]] == ["accepted", "rejected"]  # a push, a decision
+        label = autonomy.label("emotion.sad")
+        page.wait_for_function(f"document.getElementById('hud-message')?.textContent === '{label}: rejected'",
                                timeout=SLOW)
         assert page.errors == []
     finally:
         page.context.close()
 
 
-def test_engage_estop_and_menus_never_decide(browser, server, autonomy):
+def test_engage_talk_menus_and_estop_never_decide(browser, server, autonomy):
     page = operator_page(browser, server, headset=True)
     try:
         enter_vr(page)
-        before = len(autonomy.decisions())
-        ident = autonomy.propose("Hello", "someone new is in view")
+        ident = autonomy.propose("emotion.surprise", "someone new is in view")
         page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {ident!r}", timeout=SLOW)
         press(page, "right", "trigger")  # take control
         page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('YOU HAVE CONTROL')",
                                timeout=SLOW)
+        press(page, "right", "a-button")  # the commands menu, and the right stick pushed right in it
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Commands'", timeout=SLOW)
+        stick(page, 1.0)
+        stick(page, 0.0)
+        press(page, "right", "a-button")  # closed again
+        page.wait_for_function("document.getElementById('menu-title').textContent === ''", timeout=SLOW)
+        press(page, "left", "trigger")  # push-to-talk
+        press(page, "right", "thumbstick")  # calibrate
+        frames(page, 10)
+        assert autonomy.outcome(ident) is None and shown(page)["id"] == ident  # still waiting
+        stick(page, 1.0)  # and the right input still decides it
+        assert wait_for(lambda: autonomy.decided(ident, "accepted"), 10), autonomy.outcome(ident)
+        stick(page, 0.0)
+
+        second = autonomy.propose("emotion.neutral", "a pupil looks away")
+        page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {second!r}", timeout=SLOW)
         page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 1);"
                       "xrDevice.controllers.right.updateButtonValue('thumbstick', 1)")  # both sticks: e-stop
         page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('E-STOPPED')",
@@ -215,76 +195,98 @@ def test_engage_estop_and_menus_never_decide(browser, server, autonomy):
         page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 0);"
                       "xrDevice.controllers.right.updateButtonValue('thumbstick', 0)")
         frames(page)
-        press(page, "right", "a-button")  # the commands menu, and the stick pushed right in it
-        page.wait_for_function("document.getElementById('menu-title').textContent === 'Commands'", timeout=SLOW)
-        stick(page, 1.0)
-        stick(page, 0.0)
-        press(page, "right", "a-button")  # closed again
-        page.wait_for_function("document.getElementById('menu-title').textContent === ''", timeout=SLOW)
-        press(page, "left", "trigger")  # push-to-talk
-        frames(page, 10)
-        assert len(autonomy.decisions()) == before
-        assert shown(page)["id"] == ident  # still waiting
-        stick(page, 1.0)  # and the right input still decides it
-        assert wait_for(lambda: autonomy.decisions()[before:] == [{"id": ident, "decision": "accept"}], 10)
-        stick(page, 0.0)
+        # the e-stop ends the proposal as the server's drop, never as the teacher's decision
+        assert wait_for(lambda: autonomy.outcome(second) is not None, 10)
+        assert {k: autonomy.outcome(second)[k] for k in ("outcome", "decided_by")} == \
+            {"outcome": "dropped", "decided_by": "server"}
+        page.wait_for_function("window.operator.autonomy.model.current() === null", timeout=SLOW)
         assert page.errors == []
     finally:
         page.context.close()
+        autonomy.set_level("supervised")  # the teacher's word that the robot may move again after the e-stop
 
 
-def test_the_attention_target_is_drawn_on_the_camera_panel(browser, server, autonomy):
+def test_the_attention_target_is_drawn_and_the_status_menu_switches_the_level(browser, server, autonomy):
     page = operator_page(browser, server, headset=True)
     try:
         enter_vr(page)
         page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
-        head = page.evaluate("window.operator.state.robotHead")
-        autonomy.look_at(head["yaw"] + 20.0, head["pitch"] - 10.0)  # 20 deg left of the head, 10 deg above it
-        page.wait_for_function("window.operator.autonomy.place?.kind === 'direction'", timeout=SLOW)
-        place = page.evaluate("window.operator.autonomy.place")
-        assert place["inside"] and place["u"] < 0.5 and place["v"] < 0.5, place
-        drawn = page.evaluate("""([u, v]) => {
-            const c = window.operator.attentionCanvas, ctx = c.getContext('2d');
-            const alpha = (x, y) => ctx.getImageData(Math.round(x), Math.round(y), 1, 1).data[3];
-            const x = u * c.width, y = v * c.height;
-            return {ring: Math.max(...[0, 90, 180, 270].map((a) => alpha(x + 26 * Math.cos(a * Math.PI / 180),
-                                                                            y + 26 * Math.sin(a * Math.PI / 180)))),
-                    far: alpha(c.width - 5, c.height - 5)};
-        }""", [place["u"], place["v"]])
-        assert drawn["ring"] > 0 and drawn["far"] == 0, drawn
-        assert "looking at Ana (voice)" in page.text_content("#hud-autonomy")
+        # the robot's own attention (the stand-in's pupils, or a glance round the room) drawn over the camera panel
+        page.wait_for_function("window.operator.autonomy.place !== null", timeout=SLOW)
+        target = page.evaluate("[window.operator.autonomy.model.attention, window.operator.autonomy.place,"
+                               " window.operator.camera.size, window.operator.state.robotHead]")
+        attention, place, size, head = target
+        if place["kind"] == "face":
+            f = attention["face"]
+            assert place["box"] == pytest.approx({"u": f["x"] / size["width"], "v": f["y"] / size["height"],
+                                                  "w": f["width"] / size["width"], "h": f["height"] / size["height"]})
+        assert page.evaluate(DRAWN, place) > 0
+        assert page.text_content("#hud-autonomy").startswith("autonomy: supervised · looking at")
 
-        autonomy.look_at(0.0, 0.0, who="Ben", face={"x": 320, "y": 120, "width": 80, "height": 100})
-        page.wait_for_function("window.operator.autonomy.place?.kind === 'face'", timeout=SLOW)
-        size = page.evaluate("window.operator.camera.size")
-        box = page.evaluate("window.operator.autonomy.place.box")
-        assert box == pytest.approx({"u": 320 / size["width"], "v": 120 / size["height"],
-                                     "w": 80 / size["width"], "h": 100 / size["height"]})
-        edge = page.evaluate("""() => {
-            const c = window.operator.attentionCanvas, b = window.operator.autonomy.place.box;
-            return c.getContext('2d').getImageData(Math.round(b.u * c.width), Math.round((b.v + b.h / 2) * c.height),
-                                                   1, 1).data[3];
+        # the drawing itself: a ring where a direction falls, an arrow at the edge for one outside the picture
+        rings = page.evaluate("""async () => {
+            const {drawAttention} = await import('/operator/autonomy.js');
+            const c = document.createElement('canvas');
+            c.width = 640; c.height = 480;
+            const alpha = (x, y) => c.getContext('2d').getImageData(x, y, 1, 1).data[3];
+            drawAttention(c, {kind: 'direction', u: 0.25, v: 0.5, inside: true}, 'Ana (voice)');
+            const ring = alpha(160 + 26, 240), centre = alpha(160, 240), corner = alpha(600, 440);
+            drawAttention(c, {kind: 'direction', u: 1.4, v: 0.5, inside: false}, 'Ben (voice)');
+            return {ring, centre, corner, edge: alpha(640 - 24, 240), middle: alpha(320, 240)};
         }""")
-        assert edge > 0  # the box's left edge
-        screenshot(page, "autonomy_attention.png")
+        assert rings == {"ring": 255, "centre": 0, "corner": 0, "edge": 255, "middle": 0}, rings
+
+        # Status (X) › Autonomy (the list item, on the top-left diagonal) › Teleoperated (left), by the left stick
+        page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
+        press(page, "left", "x-button")
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Status'", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', -0.7, -0.7)")
+        page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
+                               " === 'status.autonomy'", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
+        press(page, "left", "trigger")
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Status › Autonomy'",
+                               timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', -1, 0)")
+        page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
+                               " === 'status.autonomy.teleoperated'", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
+        screenshot(page, "autonomy_level_menu.png")
+        press(page, "left", "trigger")
+        assert wait_for(lambda: autonomy.level == "teleoperated", 10)
+        page.wait_for_function("document.getElementById('hud-autonomy')?.textContent === 'autonomy: teleoperated'",
+                               timeout=SLOW)
+        page.wait_for_function("window.operator.autonomy.place === null", timeout=SLOW)  # nobody attended now
+        assert page.evaluate("window.operator.autonomy.model.level") == "teleoperated"
         assert page.errors == []
     finally:
         page.context.close()
+        autonomy.set_level("supervised")
 
 
-def test_the_flat_view_decides_with_the_arrow_keys(browser, server, autonomy):
+DRAWN = """(place) => {  // the overlay's alpha on the drawn target: the face box's left edge, or the ring
+    const c = window.operator.attentionCanvas, ctx = c.getContext('2d');
+    const at = (x, y) => ctx.getImageData(Math.round(x), Math.round(y), 1, 1).data[3];
+    if (place.kind === 'face') return at(place.box.u * c.width, (place.box.v + place.box.h / 2) * c.height);
+    const x = Math.min(c.width - 24, Math.max(24, place.u * c.width));
+    const y = Math.min(c.height - 24, Math.max(24, place.v * c.height));
+    return place.inside ? at(x + 26, y) : at(x, y);
+}"""
+
+
+def test_the_flat_view_decides_with_the_arrow_keys_and_the_cards_buttons(browser, server, autonomy):
     page = operator_page(browser, server, headset=False)
     try:
-        ident = autonomy.propose("Happy face", "Ana smiled")
+        ident = autonomy.propose("emotion.happy", "Ana smiled")
         page.wait_for_selector("#proposal:not([hidden])", timeout=SLOW)
         assert page.text_content("#proposal-reason") == "because Ana smiled"
         page.keyboard.press("ArrowRight")
-        assert wait_for(lambda: autonomy.decisions()[-1] == {"id": ident, "decision": "accept"}, 10)
+        assert wait_for(lambda: autonomy.decided(ident, "accepted"), 10), autonomy.outcome(ident)
         page.wait_for_selector("#proposal", state="hidden", timeout=SLOW)
-        second = autonomy.propose("Sad face", "Ana frowned")
+        second = autonomy.propose("emotion.sad", "Ana frowned")
         page.wait_for_selector("#proposal:not([hidden])", timeout=SLOW)
         page.click("#proposal-reject")
-        assert wait_for(lambda: autonomy.decisions()[-1] == {"id": second, "decision": "reject"}, 10)
+        assert wait_for(lambda: autonomy.decided(second, "rejected"), 10), autonomy.outcome(second)
         assert page.errors == []
     finally:
         page.context.close()
@@ -294,22 +296,22 @@ def test_the_dashboard_decides_with_buttons_and_keys_and_switches_the_level(brow
     page = dashboard_page(browser, server, "supervisor")
     try:
         page.wait_for_function("document.getElementById('autonomy-level').textContent === 'supervised'")
-        for decision, how in (("accept", "button"), ("reject", "r"), ("forbid", "n"), ("accept", "a")):
-            ident = autonomy.propose("Wave", "a pupil waved")
-            page.wait_for_selector("#proposal-card:not([hidden])", timeout=SLOW)
+        for outcome, how in (("accepted", "button"), ("rejected", "r"), ("forbidden", "n"), ("accepted", "a")):
+            ident = autonomy.propose("emotion.happy", "a pupil waved")
             page.wait_for_function(f"window.dashboard.autonomy.current()?.id === {ident!r}", timeout=SLOW)
+            page.wait_for_selector("#proposal-card:not([hidden])", timeout=SLOW)
             assert page.text_content("#proposal-reason") == "because a pupil waved"
             if how == "button":
                 page.click("#proposal-accept")
             else:
                 page.keyboard.press(how)
-            assert wait_for(lambda: autonomy.decisions()[-1] == {"id": ident, "decision": decision}, 10)
+            assert wait_for(lambda: autonomy.decided(ident, outcome), 10), autonomy.outcome(ident)
             page.wait_for_selector("#proposal-card", state="hidden", timeout=SLOW)
-        outcomes = page.locator("#outcomes li")
         page.wait_for_function("document.querySelectorAll('#outcomes li').length >= 4", timeout=SLOW)
+        outcomes = page.locator("#outcomes li")
         assert "forbidden here" in outcomes.nth(1).text_content() and "rejected" in outcomes.nth(2).text_content()
         page.click("#autonomy [data-level='autonomous']")
-        assert wait_for(lambda: ("level", {"level": "autonomous"}) in autonomy.calls, 10)
+        assert wait_for(lambda: autonomy.level == "autonomous", 10)
         page.wait_for_function("document.getElementById('autonomy-level').textContent === 'autonomous'")
         assert page.get_attribute("#autonomy [data-level='autonomous']", "aria-checked") == "true"
         page.click("#autonomy [data-level='supervised']")
@@ -317,25 +319,28 @@ def test_the_dashboard_decides_with_buttons_and_keys_and_switches_the_level(brow
         assert page.errors == []
     finally:
         page.close()
+        autonomy.set_level("supervised")
 
 
 def test_a_spectator_sees_the_proposal_but_its_decision_is_refused(browser, server, autonomy):
+    decider = RawClient(server.url)  # an operator connected: a supervised robot proposes only then
+    decider.send({"op": "auth", "mac": TOKENS["operator"]})
     page = dashboard_page(browser, server, "spectator")
     try:
-        before = len(autonomy.calls)
-        ident = autonomy.propose("Nod", "Ben has just said something")
+        ident = autonomy.propose("emotion.happy", "Ben has just said something")
         page.wait_for_function(f"window.dashboard.autonomy.current()?.id === {ident!r}", timeout=SLOW)
         page.click("#proposal-accept")
         page.wait_for_selector("#autonomy-refusal:not([hidden])", timeout=SLOW)
         assert "spectators only watch" in page.text_content("#autonomy-refusal")
         page.keyboard.press("r")
         page.click("#autonomy [data-level='teleoperated']")
-        page.wait_for_function("document.getElementById('autonomy-refusal').textContent.includes('level')")
-        assert len(autonomy.calls) == before  # the server refused all three before they reached the feature
+        page.wait_for_function("document.getElementById('autonomy-refusal').textContent.startsWith('level')")
+        assert autonomy.outcome(ident) is None and autonomy.level == "supervised"  # refused before the feature
         assert page.evaluate("window.dashboard.autonomy.current()?.id") == ident  # it still waits
         assert page.errors == []
     finally:
         page.close()
+        decider.close()
 
 
 def test_the_geometry_under_node(tmp_path):
