@@ -15,11 +15,12 @@ const OUTCOME_WORDS = {
   superseded: "replaced by a newer proposal", dropped: "dropped", teacher_initiated: "done by the teacher",
 };
 
-/** A proposal's words for people: "wave (from a menu) because ...". */
+/** How a proposal ended, in words: "nod: rejected by teacher-1 after 0.6 s". o.label: the proposal's label when
+ * this page saw the proposal, else the action's menu id. */
 export function outcomeText(o) {
   const by = o.decided_by && o.decided_by !== "timeout" ? ` by ${o.decided_by}` : "";
   const after = Number.isFinite(o.seconds) && o.outcome !== "teacher_initiated" ? ` after ${o.seconds.toFixed(1)} s` : "";
-  return `${o.action || o.id}: ${OUTCOME_WORDS[o.outcome] || o.outcome}${by}${after}`;
+  return `${o.label || o.action || o.id}: ${OUTCOME_WORDS[o.outcome] || o.outcome}${by}${after}`;
 }
 
 /** What the attention target says in words: "Ana (voice and face)". */
@@ -42,7 +43,7 @@ export class AutonomyModel {
     this.pending = new Map(); // id -> {proposal, seenAt}: the countdown runs from when this page learnt of it
     this.outcomes = [];       // newest first
     this.refusal = null;      // {text, at}: the server's word on the last refused decision or level
-    this.decisions = 0;       // decisions this page asked for (tests read it)
+    this.decided = new Map(); // id -> label: proposals this page decided, until their outcome arrives
     ros.subscribe(AUTONOMY.state, "vr_teleop_msgs/AutonomyState", (s) => this.onState(s));
     ros.subscribe(AUTONOMY.attention, "vr_teleop_msgs/AttentionTarget", (a) => {
       this.attention = a;
@@ -53,8 +54,10 @@ export class AutonomyModel {
       this.onChange();
     });
     ros.subscribe(AUTONOMY.outcomes, "vr_teleop_msgs/ProposalOutcome", (o) => {
+      const label = this.pending.get(o.id)?.proposal.label || this.decided.get(o.id) || "";
       this.pending.delete(o.id);
-      this.outcomes.unshift({...o, at: this.now()});
+      this.decided.delete(o.id);
+      this.outcomes.unshift({...o, label, at: this.now()});
       this.outcomes.splice(OUTCOMES_KEPT);
       this.onChange();
     });
@@ -90,11 +93,10 @@ export class AutonomyModel {
   async decide(decision) {
     const p = this.current();
     if (!p) throw new Error("no proposal is waiting");
-    this.decisions += 1;
     try {
       const r = await this.ros.call(AUTONOMY.decide, {id: p.id, decision});
       if (r && r.success === false) throw new Error(r.message || "refused");
-      this.pending.delete(p.id);
+      if (this.pending.delete(p.id)) this.decided.set(p.id, p.label);
       this.refusal = null;
       this.onChange();
       return r?.message || `${decision}ed`;

@@ -4,27 +4,15 @@
 // The model (subscriptions, decisions, the geometry) is ../autonomy.js, shared with the dashboard.
 
 import {AutonomyModel, attentionInImage, attentionText} from "../autonomy.js";
+import {COLORS as PANEL_COLORS, FONT, fitText as fit, roundRect} from "./panels.js";
 
-const COLORS = {text: "#e8eef5", muted: "#9fb0c3", accept: "#7ee2a8", reject: "#ff6b6b", bar: "#ffd166",
-                face: "#ffd166", voice: "#4ea1ff"};
-const FONT = "system-ui, 'DejaVu Sans', sans-serif";
+const COLORS = {...PANEL_COLORS, text: PANEL_COLORS.info, accept: PANEL_COLORS.ok, reject: PANEL_COLORS.error,
+                bar: PANEL_COLORS.warning, face: PANEL_COLORS.warning, voice: "#4ea1ff"};
 const REFUSAL_KEEP_MS = 6000;
 // The two inputs that decide, never those that take control (right trigger), stop the robot (both thumbsticks
 // clicked) or open menus (X Y A B): the right thumbstick pushed right or left, while no menu is open.
 export const DECIDE_HINT = {xr: {accept: "right stick ▶", reject: "right stick ◀"},
                             flat: {accept: "→ key", reject: "← key"}};
-
-function roundRect(ctx, x, y, w, h, r) {
-  ctx.beginPath();
-  ctx.roundRect(x, y, w, h, r);
-}
-
-function fit(ctx, text, maxWidth) {
-  if (ctx.measureText(text).width <= maxWidth) return text;
-  let t = text;
-  while (t.length > 1 && ctx.measureText(t + "…").width > maxWidth) t = t.slice(0, -1);
-  return t + "…";
-}
 
 /** The proposal card: p from AutonomyModel.current() (or null: a cleared canvas); hints: DECIDE_HINT.xr/flat. */
 export function drawProposal(canvas, p, hints, note) {
@@ -57,8 +45,11 @@ export function drawProposal(canvas, p, hints, note) {
   roundRect(ctx, 32, barY, width - 64, barH, 12);
   ctx.fill();
   ctx.fillStyle = COLORS.bar;
-  roundRect(ctx, 32, barY, Math.max(0, (width - 64) * p.fraction), barH, 12);
-  ctx.fill();
+  const left = (width - 64) * p.fraction;
+  if (left > 0) {
+    roundRect(ctx, 32, barY, Math.max(24, left), barH, 12);  // never narrower than its two rounded ends
+    ctx.fill();
+  }
   ctx.fillStyle = COLORS.muted;
   ctx.font = `600 40px ${FONT}`;
   const then = p.on_timeout === "drop" ? "dropped" : "done";
@@ -81,7 +72,7 @@ export function drawAttention(canvas, place, words) {
   ctx.clearRect(0, 0, width, height);
   if (!place) return;
   ctx.lineWidth = 6;
-  ctx.font = `700 22px ${FONT}`;
+  ctx.font = `700 18px ${FONT}`;
   ctx.textBaseline = "bottom";
   if (place.kind === "face") {
     const {u, v, w, h} = place.box;
