@@ -192,14 +192,14 @@ class Shots:
             page.wait_for_function("window.operator.autonomy.place !== null", timeout=SLOW)
             self.calm(page)
             # A proposal on the card, and the face box over a picture from about the same moment: the robot's
-            # head at rest for two seconds (the camera's frames lag the face detector's while it turns).
+            # head at rest since before the shown frame was rendered (a busy machine's frames lag the detector's).
             steady = """(() => {
                 const o = window.operator, h = o.state.robotHead, now = performance.now();
                 const r = window.headRest ??= {yaw: h.yaw, pitch: h.pitch, since: now};
                 if (Math.abs(h.yaw - r.yaw) > 0.5 || Math.abs(h.pitch - r.pitch) > 0.5) {
                     Object.assign(r, {yaw: h.yaw, pitch: h.pitch, since: now});
                 }
-                return now - r.since > 2000 && o.autonomy.place?.kind === 'face' &&
+                return now - r.since > 1000 * (0.5 + o.camera.frameAge()) && o.autonomy.place?.kind === 'face' &&
                        o.autonomy.model.current() !== null;
             })()"""
             for who, line in (("child_left", "Can I ask the robot a question?"),

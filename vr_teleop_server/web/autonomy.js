@@ -18,7 +18,7 @@ const OUTCOME_WORDS = {
 /** How a proposal ended, in words: "nod: rejected by teacher-1 after 0.6 s". o.label: the proposal's label when
  * this page saw the proposal, else the action's menu id. */
 export function outcomeText(o) {
-  const by = o.decided_by && o.decided_by !== "timeout" ? ` by ${o.decided_by}` : "";
+  const by = o.decided_by && !["timeout", "server"].includes(o.decided_by) ? ` by ${o.decided_by}` : "";
   const after = Number.isFinite(o.seconds) && o.outcome !== "teacher_initiated" ? ` after ${o.seconds.toFixed(1)} s` : "";
   return `${o.label || o.action || o.id}: ${OUTCOME_WORDS[o.outcome] || o.outcome}${by}${after}`;
 }
