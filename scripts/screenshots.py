@@ -179,38 +179,23 @@ class Shots:
             page.context.close()
 
     def autonomy(self) -> None:
-        """Supervised autonomy: a pupil speaks, the robot proposes; the headset's card and attention target, then
-        the dashboard's Autonomy panel after a proposal accepted and one rejected there."""
-        from playwright.sync_api import TimeoutError as PlaywrightTimeout
-
+        """Supervised autonomy: a pupil speaks, the robot proposes; the headset's card (the teacher holding control:
+        on a busy machine the panel's frames lag the face detector's boxes while autonomy turns the head), then the
+        dashboard's Autonomy panel, its attention box on the camera, after a proposal accepted and one rejected."""
         page = self.operator(headset=True)
         try:
             page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
             page.get_by_role("button", name="Enter VR").click()
             page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
                                    timeout=SLOW)
-            page.wait_for_function("window.operator.autonomy.place !== null", timeout=SLOW)
+            self.press(page, "right", "trigger")  # the teacher holds control: her head turns the robot's
+            self.wait_control(page)
+            self.speak(page, "child_left", "Can I ask the robot a question?")
+            page.wait_for_function("window.operator.autonomy.model.current() !== null", timeout=SLOW)
             self.calm(page)
-            # A proposal on the card, and the face box over a picture from about the same moment: the robot's
-            # head at rest since before the shown frame was rendered (a busy machine's frames lag the detector's).
-            steady = """(() => {
-                const o = window.operator, h = o.state.robotHead, now = performance.now();
-                const r = window.headRest ??= {yaw: h.yaw, pitch: h.pitch, since: now};
-                if (Math.abs(h.yaw - r.yaw) > 0.5 || Math.abs(h.pitch - r.pitch) > 0.5) {
-                    Object.assign(r, {yaw: h.yaw, pitch: h.pitch, since: now});
-                }
-                return now - r.since > 1000 * (0.5 + o.camera.frameAge()) && o.autonomy.place?.kind === 'face' &&
-                       o.autonomy.model.current() !== null;
-            })()"""
-            for who, line in (("child_left", "Can I ask the robot a question?"),
-                              ("child_right", "What is your name, robot?"), ("adult_centre", "Hello robot!")) * 2:
-                self.speak(page, who, line)
-                try:
-                    page.wait_for_function(steady, timeout=50_000)
-                    break
-                except PlaywrightTimeout:
-                    print("no steady face with a proposal yet: a pupil speaks again")
-            self.save(page, "operator-vr-proposal", stable=steady)
+            self.frames(page, 5)
+            self.save(page, "operator-vr-proposal")
+            self.press(page, "right", "trigger")  # released: autonomy looks at the pupils again
             dashboard = self.browser.new_context(viewport={"width": 1400, "height": 1000}).new_page()
             try:
                 dashboard.goto(f"http://127.0.0.1:{self.server.port}/#camera=jpeg")
@@ -228,7 +213,16 @@ class Shots:
                 camera = dashboard.locator(".panel.camera").bounding_box()
                 panel = dashboard.locator("#autonomy").bounding_box()
                 top, bottom = camera["y"], panel["y"] + panel["height"]
-                self.save(dashboard, "dashboard-autonomy", stable="!document.getElementById('attention-mark').hidden",
+                # the attention box over a picture from the same moment: the head at rest for two seconds
+                rest = """(() => {
+                    const h = window.dashboard.robotHead, now = performance.now();
+                    const r = window.headRest ??= {yaw: h.yaw, pitch: h.pitch, since: now};
+                    if (Math.abs(h.yaw - r.yaw) > 0.5 || Math.abs(h.pitch - r.pitch) > 0.5) {
+                        Object.assign(r, {yaw: h.yaw, pitch: h.pitch, since: now});
+                    }
+                    return now - r.since > 2000 && !document.getElementById('attention-mark').hidden;
+                })()"""
+                self.save(dashboard, "dashboard-autonomy", stable=rest,
                           clip={"x": panel["x"], "y": top, "width": panel["width"], "height": bottom - top})
             finally:
                 dashboard.context.close()

@@ -329,7 +329,7 @@ $("release").onclick = () => ros.call("/vr_teleop/control/engage", {data: false}
 const CAMERA_HFOV_DEG = 80;  // the head camera's horizontal field of view, as the operator page's panel spans it
 const robotHead = {yaw: 0, pitch: 0};
 const autonomy = new AutonomyModel(ros, {onChange: () => showAutonomy()});
-window.dashboard.autonomy = autonomy;
+Object.assign(window.dashboard, {autonomy, robotHead});
 function showAutonomy() {
   const m = autonomy;
   $("autonomy-level").textContent = m.level || "not offered by this server";

@@ -28,7 +28,7 @@ export class ControllerActions {
     this.stickDown = {left: false, right: false};
     this.rightClickSolo = false;  // the right stick went down with the left up, and the left has not joined
     this.estopLatched = false;
-    this.flicked = false;         // the right thumbstick decided and has not come back to the centre yet
+    this.flicked = false;         // the right thumbstick was pushed sideways and has not come back to the centre
   }
 
   update(hand, gamepad, now) {

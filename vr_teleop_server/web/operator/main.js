@@ -589,8 +589,8 @@ function hudLines() {
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
               level: "info"});
   if (!state.xr) {
-    lines.push({id: "keys", text: "drag: look · E: control · X Y A B: menus · hold T: talk · → ←: accept, reject · Esc: STOP",
-                level: "muted"});
+    lines.push({id: "keys", level: "muted",
+                text: "drag: look · E: control · X Y A B: menus · hold T: talk · → ←: accept, reject · Esc: STOP"});
   }
   const m = state.message;
   if (state.menusProblem) lines.push({id: "message", text: state.menusProblem, level: "error"});
