@@ -213,14 +213,14 @@ def test_the_attention_target_is_drawn_and_the_status_menu_switches_the_level(br
         page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
         # the robot's own attention (the stand-in's pupils, or a glance round the room) drawn over the camera panel
         page.wait_for_function("window.operator.autonomy.place !== null", timeout=SLOW)
-        target = page.evaluate("[window.operator.autonomy.model.attention, window.operator.autonomy.place,"
-                               " window.operator.camera.size, window.operator.state.robotHead]")
-        attention, place, size, head = target
+        # one snapshot: the place as drawn, with the target and the picture's size it was drawn from
+        drawn = page.evaluate("({place: window.operator.autonomy.place, ...window.operator.autonomy.placed})")
+        attention, place, size = drawn["attention"], drawn["place"], drawn["image"]
         if place["kind"] == "face":
             f = attention["face"]
             assert place["box"] == pytest.approx({"u": f["x"] / size["width"], "v": f["y"] / size["height"],
                                                   "w": f["width"] / size["width"], "h": f["height"] / size["height"]})
-        assert page.evaluate(DRAWN, place) > 0
+        page.wait_for_function(DRAWN, timeout=SLOW)
         assert page.text_content("#hud-autonomy").startswith("autonomy: supervised · looking at")
 
         # the drawing itself: a ring where a direction falls, an arrow at the edge for one outside the picture
@@ -264,13 +264,14 @@ def test_the_attention_target_is_drawn_and_the_status_menu_switches_the_level(br
         autonomy.set_level("supervised")
 
 
-DRAWN = """(place) => {  // the overlay's alpha on the drawn target: the face box's left edge, or the ring
-    const c = window.operator.attentionCanvas, ctx = c.getContext('2d');
+DRAWN = """() => {  // the target drawn last is on the overlay: the face box's left edge, or the ring, is opaque
+    const c = window.operator.attentionCanvas, ctx = c.getContext('2d'), place = window.operator.autonomy.place;
+    if (!place) return false;
     const at = (x, y) => ctx.getImageData(Math.round(x), Math.round(y), 1, 1).data[3];
-    if (place.kind === 'face') return at(place.box.u * c.width, (place.box.v + place.box.h / 2) * c.height);
+    if (place.kind === 'face') return at(place.box.u * c.width, (place.box.v + place.box.h / 2) * c.height) > 0;
     const x = Math.min(c.width - 24, Math.max(24, place.u * c.width));
     const y = Math.min(c.height - 24, Math.max(24, place.v * c.height));
-    return place.inside ? at(x + 26, y) : at(x, y);
+    return (place.inside ? at(x + 26, y) : at(x, y)) > 0;
 }"""
 
 

@@ -133,6 +133,7 @@ export class OperatorAutonomy {
       if (this.model.level !== level) { level = this.model.level; onLevel(); }
     }});
     this.place = null;       // the attention target on the camera picture, as last drawn (tests read it)
+    this.placed = null;      // {attention, image}: what it was drawn from
     this.busy = false;
     document.getElementById("proposal-accept")?.addEventListener("click", () => this.decide("accept"));
     document.getElementById("proposal-reject")?.addEventListener("click", () => this.decide("reject"));
@@ -173,6 +174,7 @@ export class OperatorAutonomy {
       ? this.model.refusal.text : "";
     drawProposal(cardCanvas, p, xr ? DECIDE_HINT.xr : DECIDE_HINT.flat, refusal);
     this.place = attentionInImage(this.model.attention, head, hfovDeg, image);
+    this.placed = {attention: this.model.attention, image};  // what the place was drawn from
     drawAttention(overlayCanvas, this.place, attentionText(this.model.attention));
     this.showCard(p, refusal);
     this.dirty = false;
