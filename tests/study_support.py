@@ -43,7 +43,8 @@ def prepared(server: RunningServer, study: Study, trial: str) -> TrialRuntime:
     assert wait_for(home, 10)
 
     async def make() -> TrialRuntime:
-        runtime = TrialRuntime(server.server.bus, robot, study, trial, server.server.luxai.gestures)
+        runtime = TrialRuntime(server.server.bus, robot, study, trial, server.server.luxai.gestures,
+                               owners=server.server.owners)
         await runtime.prepare()
         return runtime
     return on_loop(server, make())

@@ -31,8 +31,11 @@ def test_packaged_trees_reproduce_and_complete_the_papers_menus():
     assert any(item.generate == "emotions" for item in ids(menus["emotion"]).values())
     assert any(item.generate == "sentences" for item in ids(menus["speech"]).values())
     # The prototype's slots: status left/top/right/bottom = hardware/dialog/motivation/motors.
-    slots = {item.slot: item.args.get("which") for item in status.items}
+    slots = {item.slot: item.args.get("which") for item in status.items if item.slot != "list"}
     assert slots == {"left": "hardware", "top": "dialog", "right": "motivation", "bottom": "motors"}
+    # and, in its list, the autonomy level (issue #34)
+    levels = {item.args["level"] for item in ids(status).values() if item.command == "set_autonomy"}
+    assert levels == {"teleoperated", "supervised", "autonomous"}
 
 
 def test_every_command_has_a_handler():

@@ -216,8 +216,14 @@ def test_behaviour_tree_runs_the_toolbox_task_to_completion_and_the_recording_gi
     # A trial name of its own: the module's recording holds every test's trials.
     study = small_study(tree={"perception": "aruco", "decision": "scripted", "motion": "online"})
     runtime = prepared(server, study, "tree")
+    owners, seen = server.server.owners, []
+    watch = lambda: seen.append(owners.owner("head"))  # noqa: E731
+    server.call(lambda: owners.changed.append(watch))
     result, refusals = run_with_people(server, runtime)
+    server.call(lambda: owners.changed.remove(watch))
     assert result.outcome == "completed" and not refusals
+    # the running trial owned the robot's parts (autonomy kept off them), and gave them back at its end
+    assert "trial" in seen and server.call(lambda: owners.owner("head")) == "none"
     updates = result.metrics
     assert updates.counts.robot_actions == len(study.planned_robot_subtasks()) == 5
     assert updates.counts.human_actions == len(study.planned_human_actions()) == 6

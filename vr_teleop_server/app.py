@@ -62,6 +62,7 @@ class TeleopServer:
         self.rosapi: RosApi | None = None
         self.media: MediaService | None = None
         self.autonomy: Autonomy | None = None
+        self.bystanders: Any = None  # the stand-in's simulated pupils (features/bystanders.py), backend sim only
         self.owners = Ownership(self.model.parts)  # who moves each part (design.md, "Who moves the robot")
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
@@ -211,7 +212,8 @@ class TeleopServer:
                 wav = await speaker.tts.render(text)
                 return wav.pcm, wav.sample_rate, wav.channels
 
-            self._start(Bystanders(self.bus, robot, render, clock=self.clock, interval=s.bystander_interval))
+            self.bystanders = Bystanders(self.bus, robot, render, clock=self.clock, interval=s.bystander_interval)
+            self._start(self.bystanders)
         self.autonomy = Autonomy(self.bus, robot, self.owners, level=s.autonomy, attention=self.attention_config,
                                  rules=self.autonomy_rules, learner=self.learner, menu_entry=menu.entry,
                                  may_decide=self._decider_connected, operator_of=self._operator, clock=self.clock)

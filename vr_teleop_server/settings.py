@@ -40,8 +40,9 @@ class ServerSettings(CoreSettings):
     audio_dir: Path | None = Field(None, description="where operator audio is logged; default: a directory in "
                                                      "the system's temporary directory")
     motivation_config: Path | None = Field(None, description="motivation variables file; default: the packaged")
-    bystander_interval: float = Field(20.0, ge=0, description="seconds between the stand-in's bystanders' lines "
-                                                              "in the robot's WebRTC audio (0: none)")
+    bystander_interval: float = Field(20.0, ge=0, description="the stand-in's simulated pupils take turns saying a "
+                                                              "line every this many seconds, heard in the robot's "
+                                                              "microphone and reported as voice activity (0: never)")
     autonomy: Literal["teleoperated", "supervised", "autonomous"] = Field(
         "supervised", description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
                                   "'teleoperated', nothing moves unless someone moves it; 'supervised', the robot "

@@ -21,6 +21,10 @@ input formats:
   MCAP  session recordings (serve --record, study run): the trial's /study/state_updates, /study/interventions
         and /study/trial; the window is the trial's clock [0, T1] unless --t0/--t1 say otherwise.
 
+`vr-teleop metrics autonomy FILE.mcap [--json OUT]`: supervised autonomy in a session recording instead: proposals
+per minute, the share accepted, rejected, timed out and executed, the median time to a decision, the teacher's
+own actions per minute, and attention from a pupil's speech onset to the head pointing at them (p50, p95).
+
 T0 defaults to the earliest start, T1 to the latest stop (or an unfinished action's start, if later).
 Effectiveness is computed only when interventions are known (--interventions, or "interventions" in a JSON
 object): 1 - intervened robot subtasks / planned robot subtasks (default: the robot actions in [T0, T1]).
@@ -33,7 +37,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Compute Hoffman's fluency metrics and team efficiency/effectiveness from a trial's "
                     "state updates; print a summary, and optionally write JSON and a Gantt chart.",
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("input", type=Path, metavar="INPUT", help="trial file: .csv, .json or .mcap (see below)")
+    p.add_argument("input", type=Path, metavar="INPUT", help="trial file: .csv, .json or .mcap (see below); or "
+                                                             "'autonomy' followed by a session recording")
+    p.add_argument("recording", type=Path, nargs="?", metavar="FILE.mcap",
+                   help="after 'autonomy': the session recording whose autonomy to measure")
     p.add_argument("--trial", metavar="NAME", help="in a recording holding several trials, the one to compute")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the metrics as JSON here ('-' for stdout)")
     p.add_argument("--plot", type=Path, metavar="PNG", help="write a Gantt chart of the trial here")
@@ -50,6 +57,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if str(args.input) == "autonomy":
+        return run_autonomy(args)
+    if args.recording is not None:
+        print(f"vr-teleop metrics: error: one input, not two ({args.input}, {args.recording}); 'metrics autonomy "
+              "FILE.mcap' measures autonomy", file=sys.stderr)
+        return 2
     try:
         trial = read_trial(args.input, args.trial)
         interventions = trial.interventions
@@ -69,22 +82,45 @@ def run(args: argparse.Namespace) -> int:
         print(f"vr-teleop metrics: error: {exc}", file=sys.stderr)
         return 2
 
-    to_stdout = args.json is not None and str(args.json) == "-"
-    notes = sys.stderr if to_stdout else sys.stdout  # `--json -`: stdout holds the JSON and nothing else
-    print(summary(args.input.name, result), file=notes)
-    if args.json is not None:
-        text = json.dumps(result.to_json_dict(), indent=2)
-        if to_stdout:
-            print(text)
-        else:
-            args.json.write_text(text + "\n", encoding="utf-8")
-            print(f"wrote {args.json}", file=notes)
+    notes = _report(args.json, summary(args.input.name, result), result.to_json_dict())
     if args.plot is not None:
         from ..study.metrics.gantt import plot_gantt  # matplotlib only when a chart is asked for
 
         plot_gantt(trial.updates, args.plot, result=result, title=args.input.name)
         print(f"wrote {args.plot}", file=notes)
     return 0
+
+
+def run_autonomy(args: argparse.Namespace) -> int:
+    from ..study.metrics.autonomy import autonomy_metrics, autonomy_summary
+
+    if args.recording is None:
+        print("vr-teleop metrics: error: 'metrics autonomy' needs a session recording: metrics autonomy FILE.mcap",
+              file=sys.stderr)
+        return 2
+    try:
+        measured = autonomy_metrics(args.recording)
+    except (OSError, ValueError) as exc:
+        print(f"vr-teleop metrics: error: {exc}", file=sys.stderr)
+        return 2
+    _report(args.json, autonomy_summary(measured), measured)
+    return 0
+
+
+def _report(out: Path | None, text: str, data: dict) -> object:
+    """The summary, and the JSON where --json says ('-': stdout holds the JSON and nothing else); returns where
+    notes go."""
+    to_stdout = out is not None and str(out) == "-"
+    notes = sys.stderr if to_stdout else sys.stdout
+    print(text, file=notes)
+    if out is not None:
+        dumped = json.dumps(data, indent=2)
+        if to_stdout:
+            print(dumped)
+        else:
+            out.write_text(dumped + "\n", encoding="utf-8")
+            print(f"wrote {out}", file=notes)
+    return notes
 
 
 def summary(name: str, r: FluencyResult) -> str:

@@ -70,8 +70,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--audio-dir", type=Path, default=None, metavar="DIR",
                    help="where the operator's voice is logged, one WAV per client (default: a temporary directory)")
     p.add_argument("--bystander-interval", type=float, default=defaults.bystander_interval, metavar="S",
-                   help="the stand-in's bystanders speak a line every S seconds in the robot's WebRTC audio; 0: "
-                        "never (default %(default)s)")
+                   help="the stand-in's simulated pupils take turns saying a line every S seconds (heard in the "
+                        "robot's microphone, reported as voice activity); 0: never (default %(default)s)")
     p.add_argument("--autonomy", choices=["teleoperated", "supervised", "autonomous"], default=defaults.autonomy,
                    help="the robot's autonomy level at start: teleoperated (nothing moves unless someone moves "
                         "it), supervised (it looks at who speaks and proposes actions the teacher decides), "

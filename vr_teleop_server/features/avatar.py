@@ -21,7 +21,7 @@ from robot_models.urdf import PackageResourceError, resolve_package_uri, robot_d
 
 from ..core.bus import Bus
 from ..core.rosapi import RosApi
-from ..core.tasks import cancel_and_wait
+from ..core.tasks import cancel_and_wait, every
 from ..robot.interface import Robot
 
 log = logging.getLogger(__name__)
@@ -62,21 +62,13 @@ class Avatar:
         robot = self.robot
         assert robot is not None
         order = robot.model.alphabetical_names
-        period = 1.0 / JOINT_STATES_RATE_HZ
-        loop = asyncio.get_running_loop()
-        next_at = loop.time()
-        while True:
-            try:
-                state = robot.joint_state().reordered(order)
-                secs = int(state.stamp_wall)
-                self.bus.publish(names.URDF_JOINT_STATES_TOPIC, {
-                    "header": {"stamp": {"secs": secs, "nsecs": int((state.stamp_wall - secs) * 1e9)}},
-                    "name": list(state.names), "position": [math.radians(v) for v in state.positions],
-                    "velocity": [math.radians(v) for v in state.velocities], "effort": list(state.efforts)})
-            except Exception:  # a robot read that fails must not end the stream
-                log.exception("joint_states: publishing failed")
-            next_at += period
-            delay = next_at - loop.time()
-            if delay < -period:
-                next_at = loop.time()
-            await asyncio.sleep(max(0.0, delay))
+
+        def publish() -> None:
+            state = robot.joint_state().reordered(order)
+            secs = int(state.stamp_wall)
+            self.bus.publish(names.URDF_JOINT_STATES_TOPIC, {
+                "header": {"stamp": {"secs": secs, "nsecs": int((state.stamp_wall - secs) * 1e9)}},
+                "name": list(state.names), "position": [math.radians(v) for v in state.positions],
+                "velocity": [math.radians(v) for v in state.velocities], "effort": list(state.efforts)})
+
+        await every(1.0 / JOINT_STATES_RATE_HZ, publish, "joint_states: publishing")  # a failed read: the next

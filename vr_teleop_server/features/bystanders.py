@@ -15,6 +15,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+import numpy as np
 from client_protocol import names
 from sim.pupils import PUPILS, Pupil
 from simclock import WALL, Clock
@@ -25,6 +26,7 @@ from ..robot.interface import VoiceActivity
 
 log = logging.getLogger(__name__)
 
+GAIN = 0.35  # a pupil a few metres from the robot's microphone
 CHUNK_S = 0.1  # the voice reaches the microphone in pieces of this length, in real time
 LINES = ("Can I ask the robot a question?", "Look, it is waving at us.", "What is your name, robot?",
          "I think it can see us.")
@@ -80,6 +82,7 @@ class Bystanders:
             pcm, rate, channels = await self.render(text)
         except Exception as exc:  # espeak-ng missing or failing: say so, the pupils stay silent
             return {"success": False, "message": f"the voice could not be rendered: {exc}"}
+        pcm = (np.frombuffer(pcm[:len(pcm) - len(pcm) % 2], "<i2") * GAIN).astype("<i2").tobytes()
         if who in self.speaking:
             return {"success": False, "message": f"{who} is already speaking; wait until they finish"}
         begun = asyncio.get_running_loop().create_future()

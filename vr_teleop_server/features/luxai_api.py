@@ -22,7 +22,7 @@ from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.ownership import Ownership
-from ..core.tasks import cancel_and_wait
+from ..core.tasks import cancel_and_wait, every
 from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
 from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
 from .speech import Speaker
@@ -135,20 +135,16 @@ class LuxaiApi:
     # ---- joint states -------------------------------------------------------------------------------------------
     async def _publish_joint_states(self) -> None:
         order = self.robot.model.alphabetical_names
-        loop = asyncio.get_running_loop()
-        next_at = loop.time()
-        while True:
+
+        def publish() -> None:
             state = self.robot.joint_state().reordered(order)
             secs = int(state.stamp_wall)
             self.bus.publish(names.JOINT_STATE_TOPIC, {
                 "header": {"stamp": {"secs": secs, "nsecs": int((state.stamp_wall - secs) * 1e9)}},
                 "name": list(state.names), "position": list(state.positions), "velocity": list(state.velocities),
                 "effort": list(state.efforts)})
-            next_at += self.joint_state_period
-            delay = next_at - loop.time()
-            if delay < -self.joint_state_period:  # fell behind (a stalled loop): do not burst to catch up
-                next_at = loop.time()
-            await asyncio.sleep(max(0.0, delay))
+
+        await every(self.joint_state_period, publish, "joint states: publishing")
 
     # ---- camera -------------------------------------------------------------------------------------------------
     def _on_camera_watchers(self, count: int) -> None:

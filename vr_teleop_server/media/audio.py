@@ -4,14 +4,14 @@ Out: `AudioMixer` (one per server) makes 20 ms frames of 48 kHz mono in real tim
 hands each to every `RobotAudioTrack` (aiortc's sender encodes it as Opus). What it mixes:
 - the robot's speech: the PCM chunks on /vr_teleop/audio/robot (the same audio the JSON path carries), which
   the speaker sends 300 ms ahead of real time; they wait in a FIFO and play at real time;
-- the classroom microphone: what the robot hears besides itself. On the stand-in that is its bystanders: a line
-  every `bystander_interval` seconds, synthesised once with the server's TTS (the function is passed in by the
-  app) and mixed at BYSTANDER_GAIN, as voices a few metres away. The robot's own speech reaches its microphone
-  too; on the stand-in it is the same signal at the same time as the speech feed, so it is not added a second
-  time (it would only make the speech louder). A real robot's microphone (`Robot.listen`, heard only while some
-  peer listens) is mixed as it comes: it arrives in bursts over the robot's rosbridge, so it starts once
-  HEARD_START_S is buffered and is cut back to that when more than HEARD_MAX_S waits (latency stays bounded
-  however the robot's clock and ours drift).
+- the classroom microphone: what the robot hears besides itself (`Robot.listen`, heard only while some peer
+  listens). On the stand-in that is its simulated pupils (features/bystanders.py: their voices, synthesised with
+  the server's TTS, reach the stand-in's microphone as voices a few metres away). The robot's
+  own speech reaches its microphone too; on the stand-in it is the same signal at the same time as the speech
+  feed, so it is not added a second time (it would only make the speech louder). A real robot's microphone is
+  mixed as it comes: it arrives in bursts over the robot's rosbridge, so it starts once HEARD_START_S is buffered
+  and is cut back to that when more than HEARD_MAX_S waits (latency stays bounded however the robot's clock and
+  ours drift).
 
 In: `OperatorVoice` reads one peer's incoming Opus track (aiortc decodes it), and for an operator or supervisor
 (a spectator only listens) publishes it on /vr_teleop/audio/operator as that client (so OperatorAudioLog writes
@@ -27,7 +27,7 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Callable
 
 import av
 import numpy as np
@@ -47,19 +47,11 @@ FRAME_S = 0.02
 FRAME_SAMPLES = int(RATE * FRAME_S)
 TIME_BASE = fractions.Fraction(1, RATE)
 TRACK_QUEUE = 10  # 200 ms of frames waiting for one sender at most; older ones are dropped
-BYSTANDER_GAIN = 0.35
-BYSTANDER_LINES = (
-    "Can I ask the robot a question?",
-    "Look, it is waving at us.",
-    "What is your name, robot?",
-    "I think it can see us.",
-)
 HEARD_START_S = 0.06  # a real robot's microphone starts playing once this much is buffered...
 HEARD_MAX_S = 0.5     # ...and is cut back to HEARD_START_S when more than this waits (bounded latency)
 OPERATOR_CHUNK_S = 0.1  # operator audio published on the bus in chunks of this length, as clients send it
 
 # (pcm s16 bytes, sample rate, channels) of a rendered line
-Rendered = tuple[bytes, int, int]
 
 
 def to_mono48k(pcm: bytes, rate: int, channels: int) -> np.ndarray:
@@ -112,24 +104,16 @@ class _Fifo:
 class AudioMixer:
     """The robot's audio for every peer: speech plus the classroom microphone, in real time, 20 ms frames."""
 
-    def __init__(self, bus: Bus, *, robot: Robot | None = None,
-                 render_line: Callable[[str], Awaitable[Rendered]] | None = None,
-                 bystander_interval: float = 0.0, lines: Sequence[str] = BYSTANDER_LINES) -> None:
+    def __init__(self, bus: Bus, *, robot: Robot | None = None) -> None:
         self.bus = bus
         self.robot = robot
-        self.render_line = render_line
-        self.bystander_interval = bystander_interval
-        self.lines = tuple(lines)
         self._tracks: set[RobotAudioTrack] = set()
         self._speech = _Fifo()
-        self._mic = _Fifo()
         self._heard = _Fifo()  # the robot's own microphone
         self._heard_playing = False
         self._unlisten: Callable[[], None] | None = None
         self._speech_format = (22050, 1)
         self._task: asyncio.Task[None] | None = None
-        self._rendered: list[np.ndarray] = []
-        self._render_task: asyncio.Task[None] | None = None
         self._tokens: list[tuple[str, int]] = []
         self.home: asyncio.AbstractEventLoop | None = None  # the server's loop, where the mixer lives (start)
         self.frames = 0
@@ -189,8 +173,6 @@ class AudioMixer:
             self._task = asyncio.ensure_future(self._run())
         if self.robot is not None and self._unlisten is None:
             self._unlisten = self.robot.listen(self._on_heard)
-        if self.render_line is not None and self.bystander_interval > 0 and self._render_task is None:
-            self._render_task = asyncio.ensure_future(self._render_lines())
 
     def _detach(self, track: RobotAudioTrack) -> None:
         self._tracks.discard(track)
@@ -201,37 +183,19 @@ class AudioMixer:
             self._task.cancel()
             self._task = None
             self._speech.clear()
-            self._mic.clear()
             self._heard.clear()
             self._heard_playing = False
 
-    async def _render_lines(self) -> None:
-        """The bystanders' lines, synthesised once."""
-        for line in self.lines:
-            try:
-                pcm, rate, channels = await self.render_line(line)
-            except Exception:
-                log.exception("a bystander line could not be synthesised; the classroom stays quieter")
-                continue
-            self._rendered.append(to_mono48k(pcm, rate, channels) * BYSTANDER_GAIN)
-
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()
-        start = next_at = loop.time()
+        next_at = loop.time()
         pts = 0
-        next_line = start + self.bystander_interval
-        line_index = 0
         try:
             while True:
                 now = loop.time()
                 if now - next_at > 0.2:  # the loop stalled: real time goes on, no burst of frames
                     next_at = now
-                if self.bystander_interval > 0 and now >= next_line:
-                    next_line = now + self.bystander_interval
-                    if self._rendered:
-                        self._mic.push(self._rendered[line_index % len(self._rendered)])
-                        line_index += 1
-                mixed = self._speech.pull(FRAME_SAMPLES) + self._mic.pull(FRAME_SAMPLES) + self._pull_heard()
+                mixed = self._speech.pull(FRAME_SAMPLES) + self._pull_heard()
                 pcm = np.clip(mixed, -32768, 32767).astype(np.int16)
                 frame = av.AudioFrame.from_ndarray(pcm.reshape(1, -1), format="s16", layout="mono")
                 frame.sample_rate = RATE
@@ -252,10 +216,9 @@ class AudioMixer:
         for track in list(self._tracks):
             call_on(track.loop, track.stop)
             self._detach(track)  # the last one stops listening to the robot's microphone
-        for task in (self._task, self._render_task):
-            if task is not None:
-                task.cancel()
-        self._task = self._render_task = None
+        if self._task is not None:
+            self._task.cancel()
+        self._task = None
         for topic, token in self._tokens:
             self.bus.unsubscribe(topic, token)
         self._tokens = []

@@ -48,7 +48,7 @@ from ..core.bus import SERVER_NODE, Bus, Published
 from ..robot.interface import Robot
 from . import link_quality, playout_delay
 from .audio import RATE as AUDIO_RATE
-from .audio import AudioMixer, OperatorVoice, Rendered, RobotAudioTrack
+from .audio import AudioMixer, OperatorVoice, RobotAudioTrack
 from .media_loop import MediaLoop, call_on
 from .poses import PoseChannel
 from .turn import IceConfig
@@ -115,7 +115,6 @@ class MediaService:
 
     def __init__(self, bus: Bus, robot: Robot | None, access: AccessPolicy,
                  sessions: Callable[[], Mapping[str, SessionView]], *, camera_fps: float = 30.0,
-                 render_line: Callable[[str], Awaitable[Rendered]] | None = None, bystander_interval: float = 0.0,
                  ice: IceConfig | None = None,
                  holds_control: Callable[[str], bool] = lambda _name: False,
                  control: Callable[[str], link_quality.ControlLink | None] = lambda connection: None) -> None:
@@ -127,7 +126,7 @@ class MediaService:
         self.control = control  # the watchdog as a connection's operator meets it (for the link quality)
         self.ice = ice or IceConfig()
         self.video = VideoHub(robot, camera_fps) if robot is not None else None
-        self.audio = AudioMixer(bus, robot=robot, render_line=render_line, bystander_interval=bystander_interval)
+        self.audio = AudioMixer(bus, robot=robot)
         self.peers: dict[str, Peer] = {}
         self.links: dict[str, ClientLink] = {}
         self._tasks: set[asyncio.Task[Any]] = set()

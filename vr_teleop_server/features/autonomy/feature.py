@@ -3,7 +3,7 @@
 It acts as a client would: head commands on the head command topic (the Robot interface clamps them), actions as
 menu items through the menu service. Before each head command it asks the ownership arbiter (core/ownership.py):
 autonomy moves only a part nobody claims, and only once it has been free for the release grace. Everything runs
-on the server's clock, at the attention's rate (the control tick): a proposal's time-out is kept to one tick.
+on the server's clock: attention at its rate (the control tick), each proposal's time-out on a timer of its own.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from client_protocol import names
@@ -24,7 +24,7 @@ from simclock import WALL, Clock
 from ...core.bus import Bus, BusError, Published
 from ...core.events import declare_event_topic, publish_event
 from ...core.ownership import Ownership
-from ...core.tasks import cancel_and_wait
+from ...core.tasks import cancel_and_wait, every
 from ...robot.interface import Robot, VoiceActivity
 from .attention import Attention, AttentionConfig, Candidate, Target
 from .learner import Learner, Situation
@@ -78,6 +78,7 @@ class Proposal:
     situation: Situation
     created: float
     stamp: Any = None
+    timer: asyncio.TimerHandle | None = None
 
     def message(self) -> dict[str, Any]:
         return {"header": {"stamp": self.stamp}, "id": self.id, "action": self.action, "label": self.label,
@@ -90,7 +91,6 @@ class _Published:
     summary: tuple = ()
     attention_key: tuple = ()
     attention_at: float = -math.inf
-    running: list[str] = field(default_factory=list)
 
 
 class Autonomy:
@@ -134,6 +134,7 @@ class Autonomy:
         self._event_token: int | None = None
         self._unlisten: Callable[[], None] | None = None
         self._task: asyncio.Task[None] | None = None
+        self._confirm: asyncio.TimerHandle | None = None  # a new speaker's confirmation time
         self._save: asyncio.Task[None] | None = None
         self._pub = _Published()
         self._started = 0.0
@@ -160,6 +161,9 @@ class Autonomy:
         self._task = asyncio.ensure_future(self._run())
 
     async def stop(self) -> None:
+        for handle in [self._confirm] + [p.timer for p in self.pending.values()]:
+            if handle is not None:
+                handle.cancel()
         if self._on_owners in self.owners.changed:
             self.owners.changed.remove(self._on_owners)
         if self._unlisten is not None:
@@ -184,19 +188,7 @@ class Autonomy:
 
     # ---- the tick -------------------------------------------------------------------------------------------
     async def _run(self) -> None:
-        loop = asyncio.get_running_loop()
-        period = 1.0 / self.cfg.rate_hz
-        next_at = loop.time()
-        while True:
-            try:
-                self.tick(self.clock.monotonic())
-            except Exception:  # the tick must survive anything one step does
-                log.exception("autonomy tick failed")
-            next_at += period
-            delay = next_at - loop.time()
-            if delay < -period:
-                next_at = loop.time()
-            await asyncio.sleep(max(0.0, delay))
+        await every(1.0 / self.cfg.rate_hz, lambda: self.tick(self.clock.monotonic()), "autonomy tick")
 
     def tick(self, now: float) -> None:
         self._remember_head()
@@ -262,6 +254,12 @@ class Autonomy:
         if activity.speaking:
             if self.voice is None or (activity.who and activity.who != self.voice.who):
                 self.voice = Voice(activity.who, activity.direction_deg, now)
+                # the speaker takes the attention when the confirmation time is up, not at the tick after it
+                if self._confirm is not None:
+                    self._confirm.cancel()
+                delay = max(0.0, now + self.cfg.confirm_s - self.clock.monotonic()) + 1e-3
+                self._confirm = asyncio.get_running_loop().call_later(
+                    delay, lambda: self._attend(self.clock.monotonic()))
             else:
                 self.voice.direction = activity.direction_deg
             self._silence_fired = False
@@ -361,6 +359,8 @@ class Autonomy:
             self._end(proposal, "accepted", "autonomy", now, execute=True)
         else:
             self.pending[proposal.id] = proposal
+            # its own timer on the server's clock (the loop's): the time-out is kept to the loop's latency
+            proposal.timer = asyncio.get_running_loop().call_later(proposal.timeout, self._timed_out, proposal)
         self._publish_state()
         return proposal
 
@@ -368,15 +368,20 @@ class Autonomy:
         if self.level == "supervised" and self.pending and not self.may_decide():
             for p in list(self.pending.values()):
                 self._end(p, "dropped", "server", now)
-        for p in list(self.pending.values()):
-            if now >= p.created + p.timeout:
-                if p.on_timeout == "execute":
-                    self._end(p, "timed_out_executed", "timeout", now, execute=True)
-                else:
-                    self._end(p, "dropped", "timeout", now)
+
+    def _timed_out(self, p: Proposal) -> None:
+        if self.pending.get(p.id) is not p:
+            return
+        now = self.clock.monotonic()
+        if p.on_timeout == "execute":
+            self._end(p, "timed_out_executed", "timeout", now, execute=True)
+        else:
+            self._end(p, "dropped", "timeout", now)
 
     def _end(self, p: Proposal, outcome: str, by: str, now: float, *, execute: bool = False) -> None:
         self.pending.pop(p.id, None)
+        if p.timer is not None:
+            p.timer.cancel()
         if execute and not self._may_act(p.action):
             outcome, execute = "dropped", False
         self._outcome(p.id, p.action, outcome, "robot", by, now - p.created, p.situation)

@@ -1,0 +1,380 @@
+"""Supervised autonomy end to end on the stand-in, over the real protocol (roslibpy; raw frames for the tokens):
+attention follows a speaking pupil, who owns the head (engage, release, watchdog hold, gesture, emergency stop),
+proposals accepted, rejected, forbidden and timed out, learning and its memory file, every level, and the refusals.
+
+One invariant is checked through the whole module from inside the server (a bus tap, as the recorder taps it):
+every head command autonomy publishes is published while nobody owns the head.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import roslibpy
+from support import Headset, RawClient, RunningServer, Watch, call, engage, joints, refused, wait_for
+
+from client_protocol import names
+from sim.pupils import pupil
+from vr_teleop_server.features.autonomy import AUTONOMY_NODE
+from vr_teleop_server.settings import ServerSettings
+
+RULES = """
+timeout_s: 2.0
+on_timeout: execute
+rules:
+  - {id: cheer, when: speech_ended, min_speech_s: 0.2, action: emotion.happy, reason: a pupil spoke, confidence: 0.7}
+"""
+WAIT = 30.0  # a failure bound on a loaded machine, never a measure (bench/autonomy.py measures)
+SENTENCE = "I think the answer is four."
+
+
+class Taps:
+    """Every head command and every part-ownership change, in bus order, with the head's owner at the time."""
+
+    def __init__(self, server: RunningServer) -> None:
+        self.server = server
+        self.lock = threading.Lock()
+        self.log: list[tuple[str, str, str]] = []  # (kind, sender or event, head owner)
+        server.call(lambda: server.server.bus.taps.append(self._tap))
+
+    def _tap(self, published) -> None:
+        owner = self.server.server.owners.owner("head")
+        if published.topic == names.HEAD_COMMAND_TOPIC:
+            entry = ("command", published.sender, owner)
+        elif published.topic == names.EVENT_TOPIC:
+            entry = ("event", published.value.kind, owner)
+        else:
+            return
+        with self.lock:
+            self.log.append(entry)
+
+    def autonomous_commands(self) -> list[tuple[str, str, str]]:
+        with self.lock:
+            return [e for e in self.log if e[0] == "command" and e[1] == AUTONOMY_NODE]
+
+    def mark(self) -> int:
+        with self.lock:
+            return len(self.log)
+
+    def since(self, mark: int) -> list[tuple[str, str, str]]:
+        with self.lock:
+            return self.log[mark:]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("autonomy")
+    rules = tmp / "rules.yaml"
+    rules.write_text(RULES)
+    running = RunningServer(ServerSettings(port=0, backend="sim", autonomy="supervised", bystander_interval=0,
+                                           camera_fps=10, autonomy_rules=rules, autonomy_memory=tmp / "memory.json",
+                                           record=tmp / "session.mcap", record_camera_fps=0,
+                                           gesture_dir=tmp / "g", audio_dir=tmp / "a"))
+    running.taps = Taps(running)
+    yield running
+    running.stop()
+
+
+@pytest.fixture
+def ros(server):
+    client = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    client.run(timeout=10)
+    yield client
+    client.close()
+
+
+@pytest.fixture(autouse=True)
+def head_only_moved_when_free(server):
+    yield
+    bad = [e for e in server.taps.autonomous_commands() if e[2] != "none"]
+    assert not bad, bad
+
+
+def set_level(ros, level: str) -> dict:
+    return call(ros, names.AUTONOMY_LEVEL_SERVICE, "vr_teleop_msgs/SetAutonomy", {"level": level})
+
+
+def speak(ros, who: str, text: str = SENTENCE) -> dict:
+    reply = call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak", {"who": who, "text": text})
+    assert reply["success"], reply
+    return reply
+
+
+def quiet(pupils: Watch) -> bool:
+    latest = pupils.latest
+    return bool(latest) and not any(b["speaking"] for b in latest["bystanders"])
+
+
+def speak_and_wait(ros, pupils: Watch, who: str) -> None:
+    """A pupil says the sentence; returns once they have finished (the server reports voice activity's end, and
+    with it any proposal, before /sim/bystanders says so)."""
+    n = len(pupils.messages)
+    speak(ros, who)
+    assert wait_for(lambda: len(pupils.messages) > n + 1 and quiet(pupils), WAIT)
+
+
+def decide(ros, ident: str, decision: str) -> dict:
+    return call(ros, names.AUTONOMY_DECIDE_SERVICE, "vr_teleop_msgs/DecideProposal",
+                {"id": ident, "decision": decision})
+
+
+def head_yaw(watch: Watch) -> float:
+    return joints(watch).get("HeadYaw", 999.0)
+
+
+def test_the_pupils_are_listed_and_speak_from_their_places(ros):
+    pupils = Watch(ros, names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders")
+    assert wait_for(lambda: pupils.latest, WAIT)
+    listed = {b["name"]: b for b in pupils.latest["bystanders"]}
+    assert set(listed) == {"child_left", "adult_centre", "child_right"}
+    assert listed["child_left"]["yaw"] == pytest.approx(pupil("child_left").yaw_deg, abs=1e-3)
+    assert listed["child_left"]["yaw"] > 0 > listed["child_right"]["yaw"]
+    refused(call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak",
+                 {"who": "nobody", "text": "hi"}), "no pupil 'nobody'; the pupils are child_left")
+    refused(call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak",
+                 {"who": "child_left", "text": " "}), "text must be")
+    refused(call(ros, names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook",
+                 {"who": "child_left", "at": "ceiling"}), "robot or away")
+    assert call(ros, names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook",
+                {"who": "child_right", "at": "away"})["success"]
+    assert wait_for(lambda: {b["name"]: b["looking"] for b in pupils.latest["bystanders"]}["child_right"] == "away",
+                    WAIT)
+    call(ros, names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook", {"who": "child_right", "at": "robot"})
+    pupils.close()
+
+
+def test_attention_turns_to_a_pupil_who_speaks_and_then_to_the_next(server, ros):
+    state = Watch(ros, names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")
+    attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
+    for who in ("child_left", "child_right"):
+        speak(ros, who, "I know the answer, it is the biggest planet, Jupiter, and it has many moons around it.")
+        target = pupil(who).yaw_deg
+        assert wait_for(lambda: abs(head_yaw(state) - target) <= 10.0, WAIT), (who, joints(state))
+        assert attention.any(lambda m: m["who"] == who and m["source"] in ("voice", "both"))
+        assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
+    assert server.taps.autonomous_commands()  # autonomy moved the head itself
+    state.close()
+    attention.close()
+
+
+def test_engage_takes_the_head_at_once_the_watchdog_hold_keeps_it_and_release_gives_it_back(server, ros):
+    autonomy = Watch(ros, names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState")
+    headset = Headset(ros).start()
+    try:
+        speak(ros, "child_left", "Robot, robot, look at me, I am waving at you from over here by the window.")
+        mark = server.taps.mark()
+        engage(ros)
+        after = server.taps.since(mark)
+        engaged = next(i for i, e in enumerate(after) if e[:2] == ("event", "engage"))
+        assert after[engaged][2] == "operator"  # the head was the operator's before the engage event went out
+        # a silent headset: the watchdog holds, and the head stays the operator's
+        headset.stop()
+        assert wait_for(lambda: any(e[:2] == ("event", "watchdog_stalled") for e in server.taps.since(mark)), WAIT)
+        assert server.call(lambda: server.server.owners.owner("head")) == "operator"
+        headset.start()
+        assert wait_for(lambda: any(e[:2] == ("event", "watchdog_active") for e in server.taps.since(mark)), WAIT)
+        assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
+        during = server.taps.since(mark)[engaged:]
+        assert not [e for e in during if e[0] == "command" and e[1] == AUTONOMY_NODE]
+        assert wait_for(lambda: {o["part"]: o["owner"] for o in autonomy.latest["owners"]}["head"] == "operator",
+                        WAIT)
+        release = server.taps.mark()
+        assert call(ros, names.ENGAGE_SERVICE, "std_srvs/SetBool", {"data": False})["success"]
+    finally:
+        headset.stop()
+    # autonomy takes the head back once the grace has passed: a pupil speaks, the head turns to them
+    speak(ros, "child_right", "Can you see me now? I am over here, on this side of the classroom.")
+    assert wait_for(lambda: any(e[0] == "command" and e[1] == AUTONOMY_NODE for e in server.taps.since(release)),
+                    WAIT)
+    assert wait_for(lambda: {o["part"]: o["owner"] for o in autonomy.latest["owners"]}["head"] == "autonomy", WAIT)
+    assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
+    autonomy.close()
+
+
+def test_a_playing_gesture_owns_its_joints(server, ros):
+    autonomy = Watch(ros, names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState")
+    mark = server.taps.mark()
+    reply = call(ros, names.GESTURE_PLAY_SERVICE, "qt_gesture_controller/gesture_play", {"name": "nod", "speed": 1.0})
+    assert reply["status"]
+    assert autonomy.any(lambda m: {o["part"]: o["owner"] for o in m["owners"]}["head"] == "gesture")
+    assert not [e for e in server.taps.since(mark) if e[0] == "command" and e[1] == AUTONOMY_NODE
+                and e[2] == "gesture"]
+    autonomy.close()
+
+
+def test_the_emergency_stop_stops_autonomy_until_a_level_is_chosen_again(server, ros):
+    autonomy = Watch(ros, names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState")
+    pupils = Watch(ros, names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders")
+    proposals = Watch(ros, names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal")
+    assert call(ros, names.ESTOP_SERVICE, "std_srvs/Trigger")["success"]
+    assert wait_for(lambda: all(o["owner"] == "estop" for o in autonomy.latest["owners"]), WAIT)
+    mark = server.taps.mark()
+    speak_and_wait(ros, pupils, "child_left")
+    assert not [e for e in server.taps.since(mark) if e[0] == "command" and e[1] == AUTONOMY_NODE]
+    assert not proposals.messages  # nothing proposed while stopped
+    reply = set_level(ros, "supervised")
+    assert reply["success"] and "emergency stop" in reply["message"]
+    assert wait_for(lambda: all(o["owner"] != "estop" for o in autonomy.latest["owners"]), WAIT)
+    for watch in (autonomy, pupils, proposals):
+        watch.close()
+
+
+def test_proposals_accepted_rejected_timed_out_and_forbidden(server, ros):
+    pupils = Watch(ros, names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders")
+    proposals = Watch(ros, names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal")
+    outcomes = Watch(ros, names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome")
+
+    def next_proposal() -> dict:
+        n = len(proposals.messages)
+        speak_and_wait(ros, pupils, "adult_centre")
+        assert len(proposals.messages) == n + 1, proposals.messages[n:]
+        p = proposals.messages[-1]
+        assert (p["action"], p["label"], p["reason"], p["timeout"], p["on_timeout"], p["situation"]) == (
+            "emotion.happy", "Happy", "a pupil spoke", 2.0, "execute", "speech_ended")
+        return p
+
+    def outcome_of(ident: str) -> dict:
+        assert wait_for(lambda: outcomes.any(lambda m: m["id"] == ident), WAIT)
+        return next(m for m in outcomes.messages if m["id"] == ident)
+
+    p = next_proposal()
+    assert decide(ros, p["id"], "accept")["success"]
+    end = outcome_of(p["id"])
+    assert (end["outcome"], end["initiator"], end["situation"]) == ("accepted", "robot", "speech_ended")
+    assert end["decided_by"] and 0 <= end["seconds"] < 2.0
+    refused(decide(ros, p["id"], "accept"), "no pending proposal")  # it has ended
+
+    p = next_proposal()
+    refused(decide(ros, p["id"], "maybe"), "unknown decision 'maybe': give accept, reject or forbid")
+    assert decide(ros, p["id"], "reject")["success"]
+    assert outcome_of(p["id"])["outcome"] == "rejected"
+
+    p = next_proposal()
+    end = outcome_of(p["id"])  # left alone: done at its time-out, within one control tick of it
+    assert (end["outcome"], end["decided_by"]) == ("timed_out_executed", "timeout")
+    assert 2.0 <= end["seconds"]
+
+    p = next_proposal()
+    assert decide(ros, p["id"], "forbid")["success"]
+    assert outcome_of(p["id"])["outcome"] == "forbidden"
+    n = len(proposals.messages)
+    speak_and_wait(ros, pupils, "adult_centre")
+    assert len(proposals.messages) == n  # never again in this situation
+    refused(decide(ros, "p-999", "accept"), "no pending proposal 'p-999'")
+    for watch in (pupils, proposals, outcomes):
+        watch.close()
+
+
+def test_the_teachers_own_action_twice_is_proposed_the_third_time_and_kept_in_memory(server, ros):
+    pupils = Watch(ros, names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders")
+    proposals = Watch(ros, names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal")
+    outcomes = Watch(ros, names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome")
+    for _ in range(2):
+        speak_and_wait(ros, pupils, "child_left")
+        n = len(outcomes.messages)
+        assert call(ros, names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect",
+                    {"id": "emotion.surprise", "args": ""})["success"]
+        assert wait_for(lambda: len(outcomes.messages) > n, WAIT)
+        taught = outcomes.messages[-1]
+        assert (taught["outcome"], taught["initiator"], taught["action"], taught["situation"]) == (
+            "teacher_initiated", "teacher", "emotion.surprise", "speech_ended")
+    n = len(proposals.messages)
+    speak_and_wait(ros, pupils, "child_left")
+    assert [p["action"] for p in proposals.messages[n:]] == ["emotion.surprise"]
+    assert "yourself" in proposals.messages[-1]["reason"]
+    decide(ros, proposals.messages[-1]["id"], "accept")
+    path = Path(server.settings.autonomy_memory)
+    asyncio.run_coroutine_threadsafe(server.server.autonomy.flushed(), server.loop).result(WAIT)
+    memory = json.loads(path.read_text())
+    kinds = {(p["action"], p["outcome"]) for p in memory["points"]}
+    assert {("emotion.happy", "forbidden"), ("emotion.surprise", "teacher_initiated"),
+            ("emotion.surprise", "accepted")} <= kinds
+    for watch in (pupils, proposals, outcomes):
+        watch.close()
+
+
+def test_levels_teleoperated_stops_everything_and_autonomous_executes_its_proposals(server, ros):
+    pupils = Watch(ros, names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders")
+    proposals = Watch(ros, names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal")
+    outcomes = Watch(ros, names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome")
+    attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
+    refused(set_level(ros, "half"), "unknown autonomy level 'half': give one of teleoperated, supervised")
+    assert set_level(ros, "teleoperated")["success"]
+    assert wait_for(lambda: attention.latest.get("source") == "", WAIT)
+    mark = server.taps.mark()
+    speak_and_wait(ros, pupils, "child_right")
+    assert not [e for e in server.taps.since(mark) if e[0] == "command" and e[1] == AUTONOMY_NODE]
+    assert not proposals.messages
+    assert set_level(ros, "autonomous")["success"]
+    speak_and_wait(ros, pupils, "child_right")
+    assert wait_for(lambda: outcomes.any(lambda m: m["decided_by"] == "autonomy"), WAIT)
+    done = next(m for m in outcomes.messages if m["decided_by"] == "autonomy")
+    assert done["outcome"] == "accepted" and done["id"] == proposals.messages[-1]["id"]
+    assert set_level(ros, "supervised")["success"]
+    for watch in (pupils, proposals, outcomes, attention):
+        watch.close()
+
+
+def test_a_bad_memory_file_stops_the_server_with_its_name(tmp_path):
+    memory = tmp_path / "memory.json"
+    memory.write_text("{not json")
+    with pytest.raises(ValueError, match=f"autonomy memory {memory}"):
+        RunningServer(ServerSettings(port=0, backend="none", autonomy_memory=memory))
+    rules = tmp_path / "rules.yaml"
+    rules.write_text("rules:\n  - {id: a, when: silence, action: emotion.happy}\n")
+    with pytest.raises(ValueError, match=f"autonomy rules {rules}: 'rules.0.reason' is required"):
+        RunningServer(ServerSettings(port=0, backend="none", autonomy_rules=rules))
+
+
+def test_a_spectator_may_not_set_the_level_nor_decide(tmp_path):
+    server = RunningServer(ServerSettings(port=0, backend="sim", autonomy="supervised", bystander_interval=0,
+                                          operator_token="op-t", spectator_token="spec-t", gesture_dir=tmp_path / "g",
+                                          audio_dir=tmp_path / "a"))
+    try:
+        spectator, operator = RawClient(server.url), RawClient(server.url)
+        spectator.send({"op": "auth", "mac": "spec-t"})
+        operator.send({"op": "auth", "mac": "op-t"})
+        for client, service, args in ((spectator, names.AUTONOMY_LEVEL_SERVICE, {"level": "autonomous"}),
+                                      (spectator, names.AUTONOMY_DECIDE_SERVICE, {"id": "p-1", "decision": "accept"})):
+            client.send({"op": "call_service", "id": "s", "service": service, "args": args})
+            status = client.expect("status", WAIT, id="s")
+            assert status["level"] == "error" and f"role spectator may not call service {service}" in status["msg"]
+            reply = client.expect("service_response", WAIT, id="s")  # the refusal inside the response, too
+            assert reply["values"]["success"] is False and "spectators only watch" in reply["values"]["message"]
+        operator.send({"op": "call_service", "id": "o", "service": names.AUTONOMY_LEVEL_SERVICE,
+                       "args": {"level": "teleoperated"}})
+        reply = operator.expect("service_response", WAIT, id="o")
+        assert reply["result"] and reply["values"]["success"], reply
+        spectator.send({"op": "call_service", "id": "w", "service": names.WHOAMI_SERVICE})  # still connected
+        assert spectator.expect("service_response", WAIT, id="w")["values"]["role"] == "spectator"
+        spectator.close()
+        operator.close()
+    finally:
+        server.stop()
+
+
+def test_the_recording_holds_it_all_and_metrics_autonomy_measures_it(server, tmp_path):
+    """Last in the module: stops the module's server to read its recording."""
+    server.stop()
+    out = tmp_path / "autonomy.json"
+    done = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "metrics", "autonomy",
+                           str(server.settings.record), "--json", str(out)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "proposals" in done.stdout and "onset to pointing" in done.stdout
+    m = json.loads(out.read_text())
+    assert all(m["outcomes"][k] >= 1 for k in ("accepted", "rejected", "forbidden", "timed_out_executed"))
+    assert m["proposals"] >= sum(m["outcomes"].values()) - m["outcomes"]["dropped"] > 0
+    assert m["teacher_initiated"] >= 2 and m["decisions"] >= 3 and m["decision_s_median"] is not None
+    assert [level["level"] for level in m["levels"]][-3:] == ["teleoperated", "autonomous", "supervised"]
+    assert m["attention"]["speeches"] >= 2 and m["attention"]["onset_to_pointing_s_p50"] is not None
+    bad = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "metrics", "autonomy"], capture_output=True,
+                         text=True, timeout=120)
+    assert bad.returncode == 2 and "needs a session recording" in bad.stderr
