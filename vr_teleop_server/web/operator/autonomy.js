@@ -134,6 +134,7 @@ export class OperatorAutonomy {
     }});
     this.place = null;       // the attention target on the camera picture, as last drawn (tests read it)
     this.placed = null;      // {attention, image}: what it was drawn from
+    this.overlayKey = "";
     this.busy = false;
     document.getElementById("proposal-accept")?.addEventListener("click", () => this.decide("accept"));
     document.getElementById("proposal-reject")?.addEventListener("click", () => this.decide("reject"));
@@ -167,18 +168,25 @@ export class OperatorAutonomy {
             level: m.level === "teleoperated" ? "muted" : "info"};
   }
 
-  /** Redraws the card (every HUD tick: its countdown runs) and the attention overlay. */
+  /** Redraws the card (while a proposal waits: its countdown runs) and the attention overlay (when the target
+   * moved on the picture). Returns what changed: {card, overlay, proposal}. */
   draw(cardCanvas, overlayCanvas, {xr, head, hfovDeg, image}) {
     const p = this.model.current();
     const refusal = this.model.refusal && performance.now() - this.model.refusal.at < REFUSAL_KEEP_MS
       ? this.model.refusal.text : "";
-    drawProposal(cardCanvas, p, xr ? DECIDE_HINT.xr : DECIDE_HINT.flat, refusal);
-    this.place = attentionInImage(this.model.attention, head, hfovDeg, image);
+    const card = !!p || this.dirty;
+    if (card) drawProposal(cardCanvas, p, xr ? DECIDE_HINT.xr : DECIDE_HINT.flat, refusal);
+    const place = attentionInImage(this.model.attention, head, hfovDeg, image);
+    const words = attentionText(this.model.attention);
+    const key = JSON.stringify([place, words]);  // an unchanged overlay is neither redrawn nor uploaded again
+    const overlay = key !== this.overlayKey;
+    if (overlay) drawAttention(overlayCanvas, place, words);
+    this.overlayKey = key;
+    this.place = place;
     this.placed = {attention: this.model.attention, image};  // what the place was drawn from
-    drawAttention(overlayCanvas, this.place, attentionText(this.model.attention));
     this.showCard(p, refusal);
     this.dirty = false;
-    return p;
+    return {card, overlay, proposal: p};
   }
 
   showCard(p, refusal) {

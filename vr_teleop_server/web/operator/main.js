@@ -619,11 +619,11 @@ function updateHud(force = false) {
 }
 
 function drawAutonomy() {
-  const p = autonomy.draw(proposalCanvas, attentionCanvas, {
+  const drawn = autonomy.draw(proposalCanvas, attentionCanvas, {
     xr: !!state.xr, head: state.robotHead, hfovDeg: CAMERA_HFOV_DEG, image: cameraSource.size});
-  proposalTexture.needsUpdate = true;
-  attentionTexture.needsUpdate = true;
-  proposalMesh.visible = !!p && !!state.xr;  // the flat view has the page's own card
+  if (drawn.card) proposalTexture.needsUpdate = true;
+  if (drawn.overlay) attentionTexture.needsUpdate = true;
+  proposalMesh.visible = !!drawn.proposal && !!state.xr;  // the flat view has the page's own card
 }
 
 async function measureRoundTrip() {
