@@ -32,6 +32,16 @@ INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
 READY = "window.operator && window.operator.ros.connected && window.operator.state.teleop"
 VIEWPORT = {"width": 1000, "height": 620}
 SLOW = 120_000  # ms: a page, the stand-in and a software renderer share a busy machine
+# The server's flags per set of pictures: the teleoperation pictures without autonomy turning the head or
+# proposing; the autonomy pictures with a rule that answers a pupil's line and a minute to decide.
+SETS = {"headset": ("--autonomy", "teleoperated"), "flat": ("--autonomy", "teleoperated"),
+        "autonomy": ("--autonomy", "supervised", "--autonomy-rules", "RULES", "--bystander-interval", "0")}
+AUTONOMY_RULES = """timeout_s: 60
+on_timeout: drop
+rules:
+  - {id: nod, when: speech_ended, min_speech_s: 0.5, action: motion.play.list.nod,
+     reason: a pupil has just said something, confidence: 0.74}
+"""
 
 
 def free_port() -> int:
@@ -43,13 +53,13 @@ def free_port() -> int:
 class Server:
     """`vr-teleop serve --backend sim` in its own process, on loopback."""
 
-    def __init__(self, workdir: Path) -> None:
+    def __init__(self, workdir: Path, *extra: str) -> None:
         self.port = free_port()
         env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
         self.process = subprocess.Popen(
             [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--backend", "sim", "--host", "127.0.0.1",
              "--port", str(self.port), "--gesture-dir", str(workdir / "gestures"), "--audio-dir",
-             str(workdir / "audio"), "--log-level", "warning"], cwd=ROOT, env=env)
+             str(workdir / "audio"), "--log-level", "warning", *extra], cwd=ROOT, env=env)
         deadline = time.monotonic() + 120
         while True:
             if self.process.poll() is not None:
@@ -77,9 +87,15 @@ class Shots:
         self.browser, self.server, self.out = browser, server, out
         self.written: list[Path] = []
 
-    def save(self, page, name: str, **options) -> None:
-        """A PNG of the page in 256 colours (dithered): a third of the full-colour PNG's size, text stays sharp."""
-        png = page.screenshot(**options)
+    def save(self, page, name: str, stable: str = "", **options) -> None:
+        """A PNG of the page in 256 colours (dithered): a third of the full-colour PNG's size, text stays sharp.
+        stable: a JS condition that must hold before and after the picture (retaken until it does, ten times)."""
+        for _ in range(10):
+            if stable:
+                page.wait_for_function(stable, timeout=SLOW)
+            png = page.screenshot(**options)
+            if not stable or page.evaluate(stable):
+                break
         path = self.out / f"{name}.png"
         image = Image.open(io.BytesIO(png)).convert("RGB")
         image.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(
@@ -162,6 +178,62 @@ class Shots:
         finally:
             page.context.close()
 
+    def autonomy(self) -> None:
+        """Supervised autonomy: a pupil speaks, the robot proposes; the headset's card (the teacher holding control:
+        on a busy machine the panel's frames lag the face detector's boxes while autonomy turns the head), then the
+        dashboard's Autonomy panel, its attention box on the camera, after a proposal accepted and one rejected."""
+        page = self.operator(headset=True)
+        try:
+            page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+            page.get_by_role("button", name="Enter VR").click()
+            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                                   timeout=SLOW)
+            self.press(page, "right", "trigger")  # the teacher holds control: her head turns the robot's
+            self.wait_control(page)
+            self.speak(page, "child_left", "Can I ask the robot a question?")
+            page.wait_for_function("window.operator.autonomy.model.current() !== null", timeout=SLOW)
+            self.calm(page)
+            self.frames(page, 5)
+            self.save(page, "operator-vr-proposal")
+            self.press(page, "right", "trigger")  # released: autonomy looks at the pupils again
+            dashboard = self.browser.new_context(viewport={"width": 1400, "height": 1000}).new_page()
+            try:
+                dashboard.goto(f"http://127.0.0.1:{self.server.port}/#camera=jpeg")
+                dashboard.wait_for_function("window.dashboard.frames >= 3", timeout=SLOW)
+                for who, line, key in (("child_left", "Can I ask the robot a question?", "a"),
+                                       ("child_right", "What is your name, robot?", "r"),
+                                       ("adult_centre", "Look, it is waving at us.", "")):
+                    shown = dashboard.evaluate("window.dashboard.autonomy.current()?.id ?? ''")
+                    self.speak(page, who, line)
+                    dashboard.wait_for_function(f"(window.dashboard.autonomy.current()?.id ?? '') !== {shown!r} && "
+                                                "window.dashboard.autonomy.current() !== null", timeout=SLOW)
+                    if key:  # accepted, then rejected: two outcomes in the list
+                        dashboard.keyboard.press(key)
+                        dashboard.wait_for_function("window.dashboard.autonomy.current() === null", timeout=SLOW)
+                camera = dashboard.locator(".panel.camera").bounding_box()
+                panel = dashboard.locator("#autonomy").bounding_box()
+                top, bottom = camera["y"], panel["y"] + panel["height"]
+                # the attention box over a picture from the same moment: the head at rest for two seconds
+                rest = """(() => {
+                    const h = window.dashboard.robotHead, now = performance.now();
+                    const r = window.headRest ??= {yaw: h.yaw, pitch: h.pitch, since: now};
+                    if (Math.abs(h.yaw - r.yaw) > 0.5 || Math.abs(h.pitch - r.pitch) > 0.5) {
+                        Object.assign(r, {yaw: h.yaw, pitch: h.pitch, since: now});
+                    }
+                    return now - r.since > 2000 && !document.getElementById('attention-mark').hidden;
+                })()"""
+                self.save(dashboard, "dashboard-autonomy", stable=rest,
+                          clip={"x": panel["x"], "y": top, "width": panel["width"], "height": bottom - top})
+            finally:
+                dashboard.context.close()
+        finally:
+            page.context.close()
+
+    @staticmethod
+    def speak(page, who: str, text: str) -> None:
+        """A stand-in pupil says a line: a voice the robot hears, which the autonomy rules answer."""
+        page.evaluate(f"window.operator.ros.call('/sim/bystanders/speak', {{who: {who!r}, text: {text!r}}})")
+
     def dashboard(self) -> None:
         context = self.browser.new_context(viewport={"width": 1400, "height": 1000})
         page = context.new_page()
@@ -204,8 +276,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "images", help="directory for the pictures")
     parser.add_argument("--chromium", default=shutil.which("chromium") or shutil.which("chromium-browser"),
                         help="the Chromium to drive (default: Debian's, from PATH)")
-    parser.add_argument("--only", nargs="+", choices=("headset", "flat"), default=("headset", "flat"),
-                        help="take only these sets (headset: its views and the dashboard)")
+    parser.add_argument("--only", nargs="+", choices=tuple(SETS), default=tuple(SETS),
+                        help="take only these sets (headset: its views and the dashboard; autonomy: a proposal in "
+                             "the headset and the dashboard's autonomy panel)")
     args = parser.parse_args(argv)
     if not args.chromium:
         parser.error("Chromium is not installed: scripts/install-system-packages.sh installs it")
@@ -217,14 +290,21 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="vr-teleop-shots-") as tmp, sync_playwright() as p:
         browser = p.chromium.launch(executable_path=args.chromium,
                                     args=["--no-sandbox", "--enable-unsafe-swiftshader"])
-        server = Server(Path(tmp))
+        rules = Path(tmp) / "rules.yaml"
+        rules.write_text(AUTONOMY_RULES, encoding="utf-8")
         try:
-            shots = Shots(browser, server, args.out)
-            steps: dict[str, Callable[[], None]] = {"headset": shots.headset, "flat": shots.flat}
-            for name in args.only:
-                steps[name]()
+            for flags in dict.fromkeys(SETS[name] for name in args.only):  # one server per set of flags
+                server = Server(Path(tmp), *(f.replace("RULES", str(rules)) for f in flags))
+                try:
+                    shots = Shots(browser, server, args.out)
+                    steps: dict[str, Callable[[], None]] = {"headset": shots.headset, "flat": shots.flat,
+                                                            "autonomy": shots.autonomy}
+                    for name in args.only:
+                        if SETS[name] == flags:
+                            steps[name]()
+                finally:
+                    server.stop()
         finally:
-            server.stop()
             browser.close()
     return 0
 

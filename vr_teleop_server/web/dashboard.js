@@ -6,6 +6,7 @@ import {connect} from "./rosbridge.js";
 import {IceErrors, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn, mediaRoute,
         negotiate, onVideoFrames,
         webRtcMissing} from "./webrtc.js";
+import {AutonomyModel, attentionInImage, attentionText, outcomeText} from "./autonomy.js";
 
 const $ = (id) => document.getElementById(id);
 const el = (tag, props = {}, ...children) => {
@@ -261,6 +262,94 @@ $("estop").onclick = estop;
 $("release").onclick = () => ros.call(names.ENGAGE_SERVICE, {data: false})
   .then((r) => logLine($("events"), r.message)).catch((err) => logLine($("events"), err.message, "error"));
 
+// ---- autonomy: the level, the robot's proposal and its countdown, where it looks, how proposals ended ----------
+// The model is ./autonomy.js, shared with the operator page. A spectator's decision is refused by the server: the
+// refusal is shown under the card.
+const CAMERA_HFOV_DEG = 80;  // the head camera's horizontal field of view, as the operator page's panel spans it
+const robotHead = {yaw: 0, pitch: 0};
+const autonomy = new AutonomyModel(ros, {onChange: () => showAutonomy()});
+Object.assign(window.dashboard, {autonomy, robotHead});
+function showAutonomy() {
+  const m = autonomy;
+  $("autonomy-level").textContent = m.level || "not offered by this server";
+  for (const b of document.querySelectorAll("#autonomy [data-level]")) {
+    b.classList.toggle("current", b.dataset.level === m.level);
+    b.setAttribute("aria-checked", String(b.dataset.level === m.level));
+  }
+  const p = m.current();
+  $("proposal-card").hidden = !p;
+  $("proposal-none").hidden = !!p;
+  if (p) {
+    $("proposal-label").textContent = `${p.label || p.action}${p.others > 0 ? ` (+${p.others} more)` : ""}`;
+    $("proposal-reason").textContent = p.reason ? `because ${p.reason}` : "(no reason given)";
+    $("proposal-confidence").textContent = `${Math.round(100 * (p.confidence || 0))}% sure`;
+    $("proposal-bar").style.width = `${(100 * p.fraction).toFixed(1)}%`;
+    $("proposal-left").textContent = `${p.left.toFixed(1)} s, then ${p.on_timeout === "drop" ? "dropped" : "done"}` +
+      " unless rejected";
+  }
+  $("autonomy-refusal").hidden = !m.refusal;
+  $("autonomy-refusal").textContent = m.refusal?.text || "";
+  const a = m.attention;
+  $("autonomy-attention").textContent = a?.source
+    ? `${attentionText(a)} · yaw ${a.yaw.toFixed(0)}°, pitch ${a.pitch.toFixed(0)}° · score ${a.score.toFixed(2)}` : "nobody";
+  $("autonomy-running").textContent = m.running.length ? m.running.join(", ") : "nothing";
+  $("autonomy-owners").textContent = m.owners.length ? m.owners.map((o) => `${o.part}: ${o.owner}`).join(", ") : "–";
+  const fresh = m.outcomes.filter((o) => !o.logged);  // newest first: logged oldest first so the newest is on top
+  for (const o of fresh.reverse()) {
+    o.logged = true;
+    const level = {rejected: "warning", forbidden: "warning", dropped: "warning"}[o.outcome] || "info";
+    logLine($("outcomes"), outcomeText(o), level);
+  }
+  markAttention();
+}
+// The attention target over the camera picture: a box round the face, or a ring where it looks.
+function markAttention() {
+  const media = camera.path === "WebRTC" ? $("camera-video") : $("camera");
+  const image = media.tagName === "VIDEO" ? {width: media.videoWidth, height: media.videoHeight}
+    : {width: media.naturalWidth, height: media.naturalHeight};
+  const place = image.width ? attentionInImage(autonomy.attention, robotHead, CAMERA_HFOV_DEG, image) : null;
+  const mark = $("attention-mark");
+  window.dashboard.attentionPlace = place;
+  if (!place || (place.kind === "direction" && !place.inside)) { mark.hidden = true; return; }
+  const box = media.getBoundingClientRect(), frame = media.parentElement.getBoundingClientRect();
+  const scale = Math.min(box.width / image.width, box.height / image.height);  // object-fit: contain
+  const left = box.left - frame.left + (box.width - image.width * scale) / 2;
+  const top = box.top - frame.top + (box.height - image.height * scale) / 2;
+  const w = image.width * scale, h = image.height * scale;
+  mark.hidden = false;
+  mark.className = place.kind;
+  mark.firstChild.textContent = attentionText(autonomy.attention);
+  if (place.kind === "face") {
+    Object.assign(mark.style, {left: `${left + place.box.u * w}px`, top: `${top + place.box.v * h}px`,
+                               width: `${place.box.w * w}px`, height: `${place.box.h * h}px`});
+  } else {
+    Object.assign(mark.style, {left: `${left + place.u * w}px`, top: `${top + place.v * h}px`, width: "", height: ""});
+  }
+}
+ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (js) => {
+  js.name.forEach((name, i) => {
+    if (name === "HeadYaw") robotHead.yaw = js.position[i];
+    if (name === "HeadPitch") robotHead.pitch = js.position[i];
+  });
+}, {throttle_rate: 100, queue_length: 1});
+setInterval(() => { if (autonomy.pending.size || autonomy.attention?.source) showAutonomy(); }, 200);
+function decide(decision) {
+  if (!autonomy.current()) return;
+  const label = autonomy.current().label;
+  autonomy.decide(decision)
+    .then((message) => logLine($("events"), `${label}: ${message}`))
+    .catch((err) => logLine($("events"), `${decision} refused: ${err.message}`, "error"));
+}
+$("proposal-accept").onclick = () => decide("accept");
+$("proposal-reject").onclick = () => decide("reject");
+$("proposal-forbid").onclick = () => decide("forbid");
+for (const b of document.querySelectorAll("#autonomy [data-level]")) {
+  b.onclick = () => autonomy.setLevel(b.dataset.level)
+    .then((message) => logLine($("events"), message))
+    .catch((err) => logLine($("events"), `autonomy level refused: ${err.message}`, "error"));
+}
+showAutonomy();
+
 // ---- study: the trial, its live metrics, the experimenter's labels, overrides and preempt -------------------------
 // Labels are published as events on /study/labels, trial or not, so that the session recording holds them; a running
 // trial takes them as the start and stop of human actions and answers with a state update (or a warning).
@@ -326,7 +415,8 @@ $("override-ok").onclick = () => override(true);
 $("override-failed").onclick = () => override(false);
 $("preempt").onclick = preempt;
 const KEYS = {h: () => label("human_action_start"), j: () => label("human_action_stop"), i: () => label("intervention"),
-              o: () => override(true), f: () => override(false)};
+              o: () => override(true), f: () => override(false),
+              a: () => decide("accept"), r: () => decide("reject"), n: () => decide("forbid")};
 document.addEventListener("keydown", (event) => {
   if (event.key === "Escape") { estop(); return; }
   if (event.target.tagName === "INPUT" || event.ctrlKey || event.metaKey || event.altKey) return;

@@ -73,6 +73,7 @@ export class JpegCameraSource {
       this.texture.needsUpdate = true;
       this.uploading = stamp;
       this.aspect = bitmap.width / bitmap.height;
+      this.size = {width: bitmap.width, height: bitmap.height};
       if (old && typeof old.close === "function") old.close();  // an earlier bitmap: its pixels are on the GPU
     }
     if (this.pending) {
@@ -146,7 +147,10 @@ export class VideoCameraSource {
 
   presented(meta) {
     this.received += 1;
-    if (meta.width && meta.height) this.aspect = meta.width / meta.height;
+    if (meta.width && meta.height) {
+      this.aspect = meta.width / meta.height;
+      this.size = {width: meta.width, height: meta.height};
+    }
     if (meta.rtpTimestamp !== undefined) {
       this.latestRtp = meta.rtpTimestamp;
       this.renderTimes.saw(meta.rtpTimestamp);
@@ -232,6 +236,7 @@ export class CameraFeed {
   }
 
   get aspect() { return this.source?.aspect ?? 4 / 3; }
+  get size() { return this.source?.size ?? null; }  // the shown frames' pixels, once one is shown
   get uploaded() { return this.source?.uploaded ?? 0; }
   get ages() { return this.source?.ages ?? []; }
   frameAge() { return this.source ? this.source.frameAge() : null; }

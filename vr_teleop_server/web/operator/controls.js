@@ -8,14 +8,18 @@
 //   X / Y (left), A / B (right) open the menu bound to that button in the menu data (status, speech, commands,
 //                               emotions); the same button again goes back one level, then closes
 //   in a menu: thumbstick points at an item, either trigger selects it
+//   right thumbstick pushed right / left, no menu open, a proposal of the robot waiting: accept / reject it
+//                               (never the trigger, the thumbstick clicks or the menu buttons: those take control,
+//                               stop the robot and open menus)
 // Edges are detected here from the xr-standard gamepad (buttons[0] trigger, [3] thumbstick, [4] A/X, [5] B/Y).
 
 const PRESS = 0.75, RELEASE = 0.35;  // trigger hysteresis
+const FLICK = 0.8, CENTRED = 0.3;    // a thumbstick pushed sideways past FLICK decides once, until back in CENTRED
 const LETTERS = {left: ["X", "Y"], right: ["A", "B"]};
 
 export class ControllerActions {
   /** actions: {menuButton(hand, letter), menuOpen(), select(), toggleControl(), talk(on), calibrate(), estop(),
-   * stick(x, yUp, now)} */
+   * stick(x, yUp, now), decide("accept" | "reject"), proposalPending()} */
   constructor(actions) {
     this.actions = actions;
     this.prev = {left: null, right: null};
@@ -24,6 +28,7 @@ export class ControllerActions {
     this.stickDown = {left: false, right: false};
     this.rightClickSolo = false;  // the right stick went down with the left up, and the left has not joined
     this.estopLatched = false;
+    this.flicked = false;         // the right thumbstick was pushed sideways and has not come back to the centre
   }
 
   update(hand, gamepad, now) {
@@ -67,5 +72,17 @@ export class ControllerActions {
     const axes = gamepad.axes || [];
     const x = axes.length >= 4 ? axes[2] : 0, y = axes.length >= 4 ? axes[3] : 0;
     this.actions.stick(hand, x, -y, now);
+    if (hand === "right") this.flick(x, y);
+  }
+
+  flick(x, y) {
+    if (this.flicked) {
+      if (Math.hypot(x, y) < CENTRED) this.flicked = false;
+      return;
+    }
+    if (Math.abs(x) < FLICK || Math.abs(y) > Math.abs(x)) return;
+    this.flicked = true;  // a push that began before the proposal came, or in a menu, decides nothing
+    if (this.stickDown.right || this.actions.menuOpen() || !this.actions.proposalPending()) return;
+    this.actions.decide(x > 0 ? "accept" : "reject");
   }
 }

@@ -13,6 +13,7 @@ import {MenuError, MenuNavigator, TOGGLE_COMMANDS, parseMenus} from "./menus.js"
 import {drawHud, drawMenu} from "./panels.js";
 import {Audio} from "./audio.js";
 import {ControllerActions} from "./controls.js";
+import {OperatorAutonomy} from "./autonomy.js";
 
 const TOPICS = {
   head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
@@ -119,6 +120,14 @@ const panel = new THREE.Mesh(new THREE.PlaneGeometry(panelWidth, panelWidth),
                              new THREE.MeshBasicMaterial({map: cameraSource.texture, toneMapped: false}));
 panel.position.set(0, 0, -PANEL_DISTANCE);
 panelAnchor.add(panel);
+// The attention target over the camera picture (autonomy.js draws it): a transparent layer just in front.
+const attentionCanvas = canvas(640, 480);
+const attentionTexture = textTexture(attentionCanvas);
+const attentionLayer = new THREE.Mesh(panel.geometry, new THREE.MeshBasicMaterial({
+  map: attentionTexture, transparent: true, toneMapped: false, depthWrite: false}));
+attentionLayer.position.z = 0.002;
+attentionLayer.renderOrder = 1;
+panel.add(attentionLayer);
 scene.add(panelAnchor);
 
 // Head-locked: the heads-up display low in the view, the menu in front when open. Placed from the head pose of
@@ -133,6 +142,16 @@ const hud = new THREE.Mesh(new THREE.PlaneGeometry(0.95, 0.95 * 340 / 1400),
 hud.position.set(0, -0.48, -1.0);
 hud.renderOrder = 10;
 headLocked.add(hud);
+// The robot's proposal waiting for the teacher, just above the HUD while there is one (autonomy.js).
+const proposalCanvas = canvas(1400, 340);
+const proposalTexture = textTexture(proposalCanvas);
+const proposalMesh = new THREE.Mesh(new THREE.PlaneGeometry(0.95, 0.95 * 340 / 1400),
+                                    new THREE.MeshBasicMaterial({map: proposalTexture, transparent: true,
+                                                                 toneMapped: false, depthTest: false}));
+proposalMesh.position.set(0, -0.245, -1.0);
+proposalMesh.renderOrder = 10;
+proposalMesh.visible = false;
+headLocked.add(proposalMesh);
 const menuCanvas = canvas(1400, 1000);
 const menuTexture = textTexture(menuCanvas);
 const menuMesh = new THREE.Mesh(new THREE.PlaneGeometry(0.84, 0.6),
@@ -281,6 +300,9 @@ ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (msg) => {
 const toggles = {
   get(id) {
     const item = nav.tree?.byId.get(id);
+    if (item?.command === "set_autonomy" && autonomy.model.level) {  // the level in force is the one ON
+      try { return JSON.parse(item.args || "{}").level === autonomy.model.level; } catch { return undefined; }
+    }
     if (!item || !TOGGLE_COMMANDS.has(item.command)) return undefined;
     const states = {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording};
     return states[item.command];
@@ -406,6 +428,7 @@ async function estop() {
 }
 
 const audio = new Audio(ros, {onError: (text) => say(text, "error")});
+const autonomy = new OperatorAutonomy(ros, {say, onLevel: () => { menuDirty = true; }});
 function talk(on) {
   audio.talk(on);
   $("talk").classList.toggle("on", on);
@@ -414,7 +437,7 @@ function talk(on) {
 
 const controllers = new ControllerActions({
   menuButton: pressMenuButton, menuOpen: () => nav.open, select: selectInMenu, toggleControl, calibrate, estop,
-  talk,
+  talk, decide: (decision) => autonomy.decide(decision), proposalPending: () => autonomy.pending,
   stick: (hand, x, y, now) => {
     const menu = nav.menu;
     if (!menu || (menu.controller !== hand && menu.controller !== "any")) return;
@@ -547,6 +570,8 @@ function hudLines() {
   if (s && !s.robot_connected) {
     lines.push({id: "robot", text: "the ROBOT is DISCONNECTED from the server", level: "error"});
   }
+  const autonomyLine = autonomy.hudLine();
+  if (autonomyLine) lines.push(autonomyLine);
   const faults = Object.entries(state.motorFaults);
   if (faults.length) {
     lines.push({id: "motors", text: `MOTOR FAULT: ${faults.map(([m, f]) => `${m} (${f})`).join(", ")}`,
@@ -572,8 +597,8 @@ function hudLines() {
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
               level: "info"});
   if (!state.xr) {
-    lines.push({id: "keys", text: "drag: look · E: control · X Y A B: menus · hold T: talk · Esc: STOP",
-                level: "muted"});
+    lines.push({id: "keys", level: "muted",
+                text: "drag: look · E: control · X Y A B: menus · hold T: talk · → ←: accept, reject · Esc: STOP"});
   }
   const m = state.message;
   if (state.menusProblem) lines.push({id: "message", text: state.menusProblem, level: "error"});
@@ -585,6 +610,7 @@ function updateHud(force = false) {
   const now = performance.now();
   if (!force && now - hudAt < HUD_PERIOD_MS) return;
   hudAt = now;
+  if (autonomy.dirty || autonomy.pending || autonomy.place) drawAutonomy();
   const lines = hudLines();
   const text = JSON.stringify(lines);
   if (text === hudText) return;
@@ -598,6 +624,14 @@ function updateHud(force = false) {
     p.textContent = l.text;
     return p;
   }));
+}
+
+function drawAutonomy() {
+  const drawn = autonomy.draw(proposalCanvas, attentionCanvas, {
+    xr: !!state.xr, head: state.robotHead, hfovDeg: CAMERA_HFOV_DEG, image: cameraSource.size});
+  if (drawn.card) proposalTexture.needsUpdate = true;
+  if (drawn.overlay) attentionTexture.needsUpdate = true;
+  proposalMesh.visible = !!drawn.proposal && !!state.xr;  // the flat view has the page's own card
 }
 
 async function measureRoundTrip() {
@@ -728,6 +762,9 @@ window.addEventListener("keydown", (e) => {
   else if (e.key === "Tab" && nav.open) { nav.step(e.shiftKey ? -1 : 1); menuDirty = true; }
   else if (e.key === "Enter" && nav.open) selectInMenu();
   else if (e.key === "Backspace" && nav.open) { nav.back(); menuDirty = true; }
+  else if ((e.key === "ArrowRight" || e.key === "ArrowLeft") && !e.repeat && autonomy.pending) {
+    autonomy.decide(e.key === "ArrowRight" ? "accept" : "reject");
+  }
   else if (key === "E" && !e.repeat) toggleControl();
   else if (key === "C" && !e.repeat) calibrate();
   else if (key === "T" && !e.repeat) talk(true);
@@ -761,6 +798,6 @@ $("estop").addEventListener("click", estop);
 
 // What tests and the bench read (no control goes through here).
 window.operator = {
-  ros, state, nav, camera: cameraSource, audio, poses: poseChannel,
+  ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };

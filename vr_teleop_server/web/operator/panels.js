@@ -1,10 +1,10 @@
 // Text panels drawn on 2D canvases, shown in the 3D view as textures: the heads-up display and the radial menu.
 // Large type on dark backgrounds: a headset's pixels are big, and the camera image behind is busy.
 
-const COLORS = {info: "#e8eef5", ok: "#7ee2a8", warning: "#ffd166", error: "#ff6b6b", muted: "#9fb0c3"};
-const FONT = "system-ui, 'DejaVu Sans', sans-serif";
+export const COLORS = {info: "#e8eef5", ok: "#7ee2a8", warning: "#ffd166", error: "#ff6b6b", muted: "#9fb0c3"};
+export const FONT = "system-ui, 'DejaVu Sans', sans-serif";
 
-function roundRect(ctx, x, y, w, h, r) {
+export function roundRect(ctx, x, y, w, h, r) {
   ctx.beginPath();
   ctx.moveTo(x + r, y);
   ctx.arcTo(x + w, y, x + w, y + h, r);
@@ -14,7 +14,7 @@ function roundRect(ctx, x, y, w, h, r) {
   ctx.closePath();
 }
 
-function fitText(ctx, text, maxWidth) {
+export function fitText(ctx, text, maxWidth) {
   if (ctx.measureText(text).width <= maxWidth) return text;
   let t = text;
   while (t.length > 1 && ctx.measureText(t + "…").width > maxWidth) t = t.slice(0, -1);

@@ -1,0 +1,373 @@
+"""Supervised autonomy on both pages (issue 34), in Chromium through Playwright, IWER as the headset: the robot's
+proposal on the HUD with its reason and countdown, decided by the right thumbstick (and never by the buttons that
+take control, stop the robot or open menus), the attention target on the camera panel, the level; the dashboard's
+buttons and keys, its level switch, the outcomes as they come; a spectator's page that sees but cannot decide.
+
+The server is the real one on the MuJoCo stand-in; the pages speak to it over rosbridge, and what the pages call is
+read from the server's side (the outcomes topic, the level in its state).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from support import RawClient, RunningServer, wait_for
+from test_operator_page import INSTALL_HEADSET, IWER, READY, SLOW, enter_vr, frames, press
+from vr_teleop_server.features.autonomy.learner import Situation
+from vr_teleop_server.settings import ServerSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+WEB = ROOT / "vr_teleop_server" / "web"
+TOKENS = {"operator": "op-autonomy-1", "supervisor": "sup-autonomy-2", "spectator": "spec-autonomy-3"}
+SCREENSHOTS = ROOT / ".pytest_cache" / "screenshots"
+OUTCOMES = "/vr_teleop/autonomy/outcomes"
+
+
+class Autonomy:
+    """The server's autonomy feature as the tests reach it: proposals made in the server's process (as its rules
+    make them, on the server's loop), its level, and every outcome it publishes, read from its bus."""
+
+    OWNER = "test-autonomy-pages"
+
+    def __init__(self, server: RunningServer) -> None:
+        self.server = server
+        self.feature = server.server.autonomy
+        self.outcomes: list[dict] = []
+        server.call(lambda: server.server.bus.subscribe(self.OWNER, OUTCOMES, "vr_teleop_msgs/ProposalOutcome",
+                                                        self._outcome))
+
+    def _outcome(self, published) -> None:
+        self.outcomes.append(published.value.model_dump())
+
+    def propose(self, action: str, reason: str, confidence: float = 0.8) -> str:
+        a = self.feature
+        return self.server.call(lambda: a.propose(action, reason, confidence, Situation("speech_ended"),
+                                                  a.clock.monotonic()).id)
+
+    def outcome(self, ident: str) -> dict | None:
+        return next((o for o in self.outcomes if o["id"] == ident), None)
+
+    def decided(self, ident: str, outcome: str) -> bool:
+        """The proposal ended with `outcome`, decided by a person (not the time-out or the server)."""
+        o = self.outcome(ident)
+        return o is not None and o["outcome"] == outcome and o["decided_by"] not in ("timeout", "server", "autonomy")
+
+    def label(self, action: str) -> str:
+        return self.feature.menu_entry(action)[0]
+
+    @property
+    def level(self) -> str:
+        return self.server.call(lambda: self.feature.level)
+
+    def set_level(self, level: str) -> None:
+        self.server.call(lambda: self.feature.set_level(level, "test"))
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """The stand-in with tokens per role, its autonomy supervised, proposing nothing by itself (no rules) and
+    leaving a proposal a minute to be decided: the tests make the proposals."""
+    tmp = tmp_path_factory.mktemp("autonomy_pages")
+    rules = tmp / "rules.yaml"
+    rules.write_text("timeout_s: 60\non_timeout: drop\nrules: []\n")
+    running = RunningServer(ServerSettings(
+        port=0, backend="sim", gesture_dir=tmp / "g", audio_dir=tmp / "a", operator_token=TOKENS["operator"],
+        supervisor_token=TOKENS["supervisor"], spectator_token=TOKENS["spectator"], autonomy="supervised",
+        autonomy_rules=rules))
+    yield running
+    running.stop()
+
+
+@pytest.fixture(scope="module")
+def autonomy(server):
+    return Autonomy(server)
+
+
+def operator_page(browser, server, *, headset: bool, role: str = "operator"):
+    context = browser.new_context(viewport={"width": 960, "height": 600})
+    page = context.new_page()
+    page.errors = []  # type: ignore[attr-defined]
+    page.on("pageerror", lambda exc: page.errors.append(str(exc)))
+    if headset:
+        page.add_init_script(path=str(IWER))
+        page.add_init_script(script=INSTALL_HEADSET)
+    page.goto(f"http://127.0.0.1:{server.port}/operator#token={TOKENS[role]}&camera=jpeg")
+    page.wait_for_function(READY, timeout=SLOW)
+    page.wait_for_function("window.operator.autonomy.model.level !== ''", timeout=SLOW)
+    return page
+
+
+def dashboard_page(browser, server, role: str):
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    page.errors = []  # type: ignore[attr-defined]
+    page.on("pageerror", lambda exc: page.errors.append(str(exc)))
+    page.goto(f"http://127.0.0.1:{server.port}/#token={TOKENS[role]}&camera=jpeg")
+    page.wait_for_function("window.dashboard.autonomy.level !== ''", timeout=SLOW)
+    return page
+
+
+def stick(page, x: float, y: float = 0.0) -> None:
+    page.evaluate(f"xrDevice.controllers.right.updateAxes('thumbstick', {x}, {y})")
+    frames(page)
+
+
+def shown(page) -> dict | None:
+    return page.evaluate("window.operator.autonomy.model.current()")
+
+
+def screenshot(page, name: str) -> None:
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SCREENSHOTS / name))
+
+
+def test_the_headset_shows_the_proposal_and_the_right_thumbstick_decides(browser, server, autonomy):
+    page = operator_page(browser, server, headset=True)
+    try:
+        enter_vr(page)
+        page.wait_for_function("document.getElementById('hud-autonomy')?.textContent.includes('supervised')",
+                               timeout=SLOW)
+        before = len(autonomy.outcomes)
+        ident = autonomy.propose("emotion.happy", "Ana has stopped after speaking a while")
+        page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {ident!r}", timeout=SLOW)
+        p = shown(page)
+        assert p["reason"] == "Ana has stopped after speaking a while" and p["label"] == autonomy.label(p["action"])
+        assert p["timeout"] == 60 and p["confidence"] == 0.8
+        # the countdown runs down from the time-out
+        page.wait_for_function(f"window.operator.autonomy.model.current().left < {p['left'] - 0.5}", timeout=SLOW)
+        assert 0 < shown(page)["fraction"] < 1
+        assert page.evaluate("window.operator.proposalMesh.visible")
+        screenshot(page, "autonomy_hud.png")
+
+        stick(page, 1.0)  # the right thumbstick pushed right: accept
+        assert wait_for(lambda: autonomy.decided(ident, "accepted"), 10), autonomy.outcomes[before:]
+        page.wait_for_function("window.operator.autonomy.model.current() === null", timeout=SLOW)
+        page.wait_for_function("!window.operator.proposalMesh.visible", timeout=SLOW)
+        stick(page, 0.0)
+
+        second = autonomy.propose("emotion.sad", "Ana has just said something")
+        page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {second!r}", timeout=SLOW)
+        stick(page, -1.0)  # pushed left: reject
+        assert wait_for(lambda: autonomy.decided(second, "rejected"), 10), autonomy.outcomes[before:]
+        page.wait_for_function("window.operator.autonomy.model.current() === null", timeout=SLOW)
+        stick(page, 0.0)
+        assert [o["outcome"] for o in autonomy.outcomes[before:]] == ["accepted", "rejected"]  # a push, a decision
+        label = autonomy.label("emotion.sad")
+        page.wait_for_function(f"document.getElementById('hud-message')?.textContent === '{label}: rejected'",
+                               timeout=SLOW)
+        assert page.errors == []
+    finally:
+        page.context.close()
+
+
+def test_engage_talk_menus_and_estop_never_decide(browser, server, autonomy):
+    page = operator_page(browser, server, headset=True)
+    try:
+        enter_vr(page)
+        ident = autonomy.propose("emotion.surprise", "someone new is in view")
+        page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {ident!r}", timeout=SLOW)
+        press(page, "right", "trigger")  # take control
+        page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('YOU HAVE CONTROL')",
+                               timeout=SLOW)
+        press(page, "right", "a-button")  # the commands menu, and the right stick pushed right in it
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Commands'", timeout=SLOW)
+        stick(page, 1.0)
+        stick(page, 0.0)
+        press(page, "right", "a-button")  # closed again
+        page.wait_for_function("document.getElementById('menu-title').textContent === ''", timeout=SLOW)
+        press(page, "left", "trigger")  # push-to-talk
+        press(page, "right", "thumbstick")  # calibrate
+        frames(page, 10)
+        assert autonomy.outcome(ident) is None and shown(page)["id"] == ident  # still waiting
+        stick(page, 1.0)  # and the right input still decides it
+        assert wait_for(lambda: autonomy.decided(ident, "accepted"), 10), autonomy.outcome(ident)
+        stick(page, 0.0)
+
+        second = autonomy.propose("emotion.neutral", "a pupil looks away")
+        page.wait_for_function(f"window.operator.autonomy.model.current()?.id === {second!r}", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 1);"
+                      "xrDevice.controllers.right.updateButtonValue('thumbstick', 1)")  # both sticks: e-stop
+        page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('E-STOPPED')",
+                               timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 0);"
+                      "xrDevice.controllers.right.updateButtonValue('thumbstick', 0)")
+        frames(page)
+        # the e-stop ends the proposal as the server's drop, never as the teacher's decision
+        assert wait_for(lambda: autonomy.outcome(second) is not None, 10)
+        assert {k: autonomy.outcome(second)[k] for k in ("outcome", "decided_by")} == \
+            {"outcome": "dropped", "decided_by": "server"}
+        page.wait_for_function("window.operator.autonomy.model.current() === null", timeout=SLOW)
+        assert page.errors == []
+    finally:
+        page.context.close()
+        autonomy.set_level("supervised")  # the teacher's word that the robot may move again after the e-stop
+
+
+def test_the_attention_target_is_drawn_and_the_status_menu_switches_the_level(browser, server, autonomy):
+    page = operator_page(browser, server, headset=True)
+    try:
+        enter_vr(page)
+        page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+        # the robot's own attention (the stand-in's pupils, or a glance round the room) drawn over the camera panel
+        page.wait_for_function("window.operator.autonomy.place !== null", timeout=SLOW)
+        # one snapshot: the place as drawn, with the target and the picture's size it was drawn from
+        drawn = page.evaluate("({place: window.operator.autonomy.place, ...window.operator.autonomy.placed})")
+        attention, place, size = drawn["attention"], drawn["place"], drawn["image"]
+        if place["kind"] == "face":
+            f = attention["face"]
+            assert place["box"] == pytest.approx({"u": f["x"] / size["width"], "v": f["y"] / size["height"],
+                                                  "w": f["width"] / size["width"], "h": f["height"] / size["height"]})
+        page.wait_for_function(DRAWN, timeout=SLOW)
+        assert page.text_content("#hud-autonomy").startswith("autonomy: supervised · looking at")
+
+        # the drawing itself: a ring where a direction falls, an arrow at the edge for one outside the picture
+        rings = page.evaluate("""async () => {
+            const {drawAttention} = await import('/operator/autonomy.js');
+            const c = document.createElement('canvas');
+            c.width = 640; c.height = 480;
+            const alpha = (x, y) => c.getContext('2d').getImageData(x, y, 1, 1).data[3];
+            drawAttention(c, {kind: 'direction', u: 0.25, v: 0.5, inside: true}, 'Ana (voice)');
+            const ring = alpha(160 + 26, 240), centre = alpha(160, 240), corner = alpha(600, 440);
+            drawAttention(c, {kind: 'direction', u: 1.4, v: 0.5, inside: false}, 'Ben (voice)');
+            return {ring, centre, corner, edge: alpha(640 - 24, 240), middle: alpha(320, 240)};
+        }""")
+        assert rings == {"ring": 255, "centre": 0, "corner": 0, "edge": 255, "middle": 0}, rings
+
+        # Status (X) › Autonomy (the list item, on the top-left diagonal) › Teleoperated (left), by the left stick
+        page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
+        press(page, "left", "x-button")
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Status'", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', -0.7, -0.7)")
+        page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
+                               " === 'status.autonomy'", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
+        press(page, "left", "trigger")
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Status › Autonomy'",
+                               timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', -1, 0)")
+        page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
+                               " === 'status.autonomy.teleoperated'", timeout=SLOW)
+        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
+        screenshot(page, "autonomy_level_menu.png")
+        press(page, "left", "trigger")
+        assert wait_for(lambda: autonomy.level == "teleoperated", 10)
+        page.wait_for_function("document.getElementById('hud-autonomy')?.textContent === 'autonomy: teleoperated'",
+                               timeout=SLOW)
+        page.wait_for_function("window.operator.autonomy.place === null", timeout=SLOW)  # nobody attended now
+        assert page.evaluate("window.operator.autonomy.model.level") == "teleoperated"
+        assert page.errors == []
+    finally:
+        page.context.close()
+        autonomy.set_level("supervised")
+
+
+DRAWN = """() => {  // the target drawn last is on the overlay: the face box's left edge, or the ring, is opaque
+    const c = window.operator.attentionCanvas, ctx = c.getContext('2d'), place = window.operator.autonomy.place;
+    if (!place) return false;
+    const at = (x, y) => ctx.getImageData(Math.round(x), Math.round(y), 1, 1).data[3];
+    if (place.kind === 'face') return at(place.box.u * c.width, (place.box.v + place.box.h / 2) * c.height) > 0;
+    const x = Math.min(c.width - 24, Math.max(24, place.u * c.width));
+    const y = Math.min(c.height - 24, Math.max(24, place.v * c.height));
+    return (place.inside ? at(x + 26, y) : at(x, y)) > 0;
+}"""
+
+
+def test_the_flat_view_decides_with_the_arrow_keys_and_the_cards_buttons(browser, server, autonomy):
+    page = operator_page(browser, server, headset=False)
+    try:
+        ident = autonomy.propose("emotion.happy", "Ana smiled")
+        page.wait_for_selector("#proposal:not([hidden])", timeout=SLOW)
+        assert page.text_content("#proposal-reason") == "because Ana smiled"
+        page.keyboard.press("ArrowRight")
+        assert wait_for(lambda: autonomy.decided(ident, "accepted"), 10), autonomy.outcome(ident)
+        page.wait_for_selector("#proposal", state="hidden", timeout=SLOW)
+        second = autonomy.propose("emotion.sad", "Ana frowned")
+        page.wait_for_selector("#proposal:not([hidden])", timeout=SLOW)
+        page.click("#proposal-reject")
+        assert wait_for(lambda: autonomy.decided(second, "rejected"), 10), autonomy.outcome(second)
+        assert page.errors == []
+    finally:
+        page.context.close()
+
+
+def test_the_dashboard_decides_with_buttons_and_keys_and_switches_the_level(browser, server, autonomy):
+    page = dashboard_page(browser, server, "supervisor")
+    try:
+        page.wait_for_function("document.getElementById('autonomy-level').textContent === 'supervised'")
+        for outcome, how in (("accepted", "button"), ("rejected", "r"), ("forbidden", "n"), ("accepted", "a")):
+            ident = autonomy.propose("emotion.happy", "a pupil waved")
+            page.wait_for_function(f"window.dashboard.autonomy.current()?.id === {ident!r}", timeout=SLOW)
+            page.wait_for_selector("#proposal-card:not([hidden])", timeout=SLOW)
+            assert page.text_content("#proposal-reason") == "because a pupil waved"
+            if how == "button":
+                page.click("#proposal-accept")
+            else:
+                page.keyboard.press(how)
+            assert wait_for(lambda: autonomy.decided(ident, outcome), 10), autonomy.outcome(ident)
+            page.wait_for_selector("#proposal-card", state="hidden", timeout=SLOW)
+        page.wait_for_function("document.querySelectorAll('#outcomes li').length >= 4", timeout=SLOW)
+        outcomes = page.locator("#outcomes li")
+        assert "forbidden here" in outcomes.nth(1).text_content() and "rejected" in outcomes.nth(2).text_content()
+        page.click("#autonomy [data-level='autonomous']")
+        assert wait_for(lambda: autonomy.level == "autonomous", 10)
+        page.wait_for_function("document.getElementById('autonomy-level').textContent === 'autonomous'")
+        assert page.get_attribute("#autonomy [data-level='autonomous']", "aria-checked") == "true"
+        page.click("#autonomy [data-level='supervised']")
+        page.wait_for_function("document.getElementById('autonomy-level').textContent === 'supervised'")
+        assert page.errors == []
+    finally:
+        page.close()
+        autonomy.set_level("supervised")
+
+
+def test_a_spectator_sees_the_proposal_but_its_decision_is_refused(browser, server, autonomy):
+    decider = RawClient(server.url)  # an operator connected: a supervised robot proposes only then
+    decider.send({"op": "auth", "mac": TOKENS["operator"]})
+    page = dashboard_page(browser, server, "spectator")
+    try:
+        ident = autonomy.propose("emotion.happy", "Ben has just said something")
+        page.wait_for_function(f"window.dashboard.autonomy.current()?.id === {ident!r}", timeout=SLOW)
+        page.click("#proposal-accept")
+        page.wait_for_selector("#autonomy-refusal:not([hidden])", timeout=SLOW)
+        assert "spectators only watch" in page.text_content("#autonomy-refusal")
+        page.keyboard.press("r")
+        page.click("#autonomy [data-level='teleoperated']")
+        page.wait_for_function("document.getElementById('autonomy-refusal').textContent.startsWith('level')")
+        assert autonomy.outcome(ident) is None and autonomy.level == "supervised"  # refused before the feature
+        assert page.evaluate("window.dashboard.autonomy.current()?.id") == ident  # it still waits
+        assert page.errors == []
+    finally:
+        page.close()
+        decider.close()
+
+
+def test_the_geometry_under_node(tmp_path):
+    """Where a direction falls in the camera's picture, run by Node on the page's own module."""
+    script = tmp_path / "check.mjs"
+    script.write_text(f"""
+import {{directionInImage, attentionInImage}} from {json.dumps(str(WEB / 'autonomy.js'))};
+const out = {{
+  ahead: directionInImage(10, 5, 10, 5, 80, 4 / 3),
+  left: directionInImage(30, 5, 10, 5, 80, 4 / 3),
+  below: directionInImage(10, 15, 10, 5, 80, 4 / 3),
+  behind: directionInImage(190, 0, 0, 0, 80, 4 / 3),
+  face: attentionInImage({{source: "face", has_face: true, face: {{x: 64, y: 48, width: 32, height: 24}}}},
+                         {{yaw: 0, pitch: 0}}, 80, {{width: 640, height: 480}}),
+  nobody: attentionInImage({{source: ""}}, {{yaw: 0, pitch: 0}}, 80, null),
+}};
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["ahead"] == {"u": 0.5, "v": 0.5}
+    tan40 = 0.8390996311772799
+    # 20 degrees to the left of the head: left of the centre by tan(20) over the half width's tan(40)
+    assert out["left"]["u"] == pytest.approx(0.5 - 0.36397023426620234 / (2 * tan40), abs=1e-3)
+    assert out["below"]["u"] == pytest.approx(0.5) and out["below"]["v"] > 0.5  # pitch positive down: lower
+    assert out["behind"] is None
+    assert out["face"] == {"kind": "face", "box": {"u": 0.1, "v": 0.1, "w": 0.05, "h": 0.05}}
+    assert out["nobody"] is None
