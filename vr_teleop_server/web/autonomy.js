@@ -4,11 +4,8 @@
 // attention target on a picture of the robot's camera. No drawing here: the operator page draws on its canvases
 // (operator/autonomy.js), the dashboard in its DOM.
 
-export const AUTONOMY = {  // client_protocol/names.py, AUTONOMY_*
-  level: "/vr_teleop/autonomy/level", state: "/vr_teleop/autonomy/state", attention: "/vr_teleop/autonomy/attention",
-  proposals: "/vr_teleop/autonomy/proposals", decide: "/vr_teleop/autonomy/decide",
-  outcomes: "/vr_teleop/autonomy/outcomes",
-};
+import * as names from "./names.js";
+
 const OUTCOMES_KEPT = 8;
 const OUTCOME_WORDS = {
   accepted: "accepted", rejected: "rejected", forbidden: "forbidden here", timed_out_executed: "done after the time-out",
@@ -44,16 +41,16 @@ export class AutonomyModel {
     this.outcomes = [];       // newest first
     this.refusal = null;      // {text, at}: the server's word on the last refused decision or level
     this.decided = new Map(); // id -> label: proposals this page decided, until their outcome arrives
-    ros.subscribe(AUTONOMY.state, "vr_teleop_msgs/AutonomyState", (s) => this.onState(s));
-    ros.subscribe(AUTONOMY.attention, "vr_teleop_msgs/AttentionTarget", (a) => {
+    ros.subscribe(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", (s) => this.onState(s));
+    ros.subscribe(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", (a) => {
       this.attention = a;
       this.onChange();
     }, {throttle_rate: 100, queue_length: 1});
-    ros.subscribe(AUTONOMY.proposals, "vr_teleop_msgs/Proposal", (p) => {
+    ros.subscribe(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", (p) => {
       this.add(p);
       this.onChange();
     });
-    ros.subscribe(AUTONOMY.outcomes, "vr_teleop_msgs/ProposalOutcome", (o) => {
+    ros.subscribe(names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome", (o) => {
       const label = this.pending.get(o.id)?.proposal.label || this.decided.get(o.id) || "";
       this.pending.delete(o.id);
       this.decided.delete(o.id);
@@ -94,8 +91,7 @@ export class AutonomyModel {
     const p = this.current();
     if (!p) throw new Error("no proposal is waiting");
     try {
-      const r = await this.ros.call(AUTONOMY.decide, {id: p.id, decision});
-      if (r && r.success === false) throw new Error(r.message || "refused");
+      const r = await this.ros.call(names.AUTONOMY_DECIDE_SERVICE, {id: p.id, decision});
       if (this.pending.delete(p.id)) this.decided.set(p.id, p.label);
       this.refusal = null;
       this.onChange();
@@ -108,8 +104,7 @@ export class AutonomyModel {
 
   async setLevel(level) {
     try {
-      const r = await this.ros.call(AUTONOMY.level, {level});
-      if (r && r.success === false) throw new Error(r.message || "refused");
+      const r = await this.ros.call(names.AUTONOMY_LEVEL_SERVICE, {level});
       this.refusal = null;
       this.onChange();
       return r?.message || `autonomy: ${level}`;

@@ -326,7 +326,7 @@ function markAttention() {
     Object.assign(mark.style, {left: `${left + place.u * w}px`, top: `${top + place.v * h}px`, width: "", height: ""});
   }
 }
-ros.subscribe("/qt_robot/joints/state", "sensor_msgs/JointState", (js) => {
+ros.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", (js) => {
   js.name.forEach((name, i) => {
     if (name === "HeadYaw") robotHead.yaw = js.position[i];
     if (name === "HeadPitch") robotHead.pitch = js.position[i];
