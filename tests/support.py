@@ -318,11 +318,12 @@ def engage(ros: roslibpy.Ros) -> None:
 
 
 def wait_subscribed(server: RunningServer, topic: str, clients: int = 1, timeout: float = 5.0) -> bool:
-    """Waits until `clients` clients (not the server's own features) subscribe to `topic`: roslibpy's subscribe
-    returns before the server has it, and a message published in between would be missed."""
-    from vr_teleop_server.core.bus import SERVER_NODE
+    """Waits until `clients` client connections (not the server's own features, whatever node name they subscribe
+    under: autonomy's is its own) subscribe to `topic`: roslibpy's subscribe returns before the server has it, and a
+    message published in between would be missed."""
 
     def count() -> int:
         t = server.server.bus.topics.get(topic)
-        return 0 if t is None else len({owner for owner, _cb in t.subscribers.values() if owner != SERVER_NODE})
+        sessions = server.server.sessions
+        return 0 if t is None else len({owner for owner, _cb in t.subscribers.values() if owner in sessions})
     return wait_for(lambda: server.call(count) >= clients, timeout)
