@@ -58,6 +58,9 @@ class EventKind(str, enum.Enum):
     MOTOR_ERROR = "motor_error"
     MOTOR_OK = "motor_ok"
     VOICE_ACTIVITY = "voice_activity"
+    # supervised autonomy (source autonomy)
+    LEVEL = "level"
+    ACTION_FAILED = "action_failed"
     # the experimenter's labels on /study/labels (source experimenter)
     HUMAN_ACTION_START = "human_action_start"
     HUMAN_ACTION_STOP = "human_action_stop"
@@ -152,6 +155,18 @@ class VoiceActivity(EventDetail):
     direction_deg: float | None = Field(None, description="the microphone array's direction estimate")
 
 
+class AutonomyLevel(EventDetail):
+    level: str = Field(description="the autonomy level now (teleoperated, supervised, autonomous)")
+    was: str = Field(description="the level before")
+    by: str = Field(description="the operator, or the connection, that chose it")
+
+
+class ActionFailed(EventDetail):
+    id: str = Field(description="the proposal's id")
+    action: str = Field(description="the menu item it would have done")
+    reason: str
+
+
 class Label(EventDetail):
     model_config = ConfigDict(extra="allow", frozen=True)  # a label may carry the experimenter's own notes
 
@@ -199,6 +214,8 @@ KINDS: dict[EventKind, KindSpec] = {
     K.MOTOR_ERROR: KindSpec(MotorFault, "backend", "a motor reports faults"),
     K.MOTOR_OK: KindSpec(Motor, "backend", "a motor's faults cleared"),
     K.VOICE_ACTIVITY: KindSpec(VoiceActivity, "backend", "a voice started, stopped or moved near the robot"),
+    K.LEVEL: KindSpec(AutonomyLevel, "autonomy", "the autonomy level was chosen"),
+    K.ACTION_FAILED: KindSpec(ActionFailed, "autonomy", "a proposal's action, accepted or timed out, did not run"),
     K.HUMAN_ACTION_START: KindSpec(Label, "experimenter", "the experimenter marks a human action's start"),
     K.HUMAN_ACTION_STOP: KindSpec(Label, "experimenter", "the experimenter marks a human action's end"),
     K.INTERVENTION: KindSpec(Label, "experimenter", "the experimenter marks an intervention"),
