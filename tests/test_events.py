@@ -26,7 +26,7 @@ def bus_and_events(clock=None) -> tuple[Bus, list]:
 def test_every_kind_has_a_model_and_a_source():
     assert set(KINDS) == set(EventKind)
     assert {spec.source for spec in KINDS.values()} == {"teleop", "menu", "gestures", "motivation", "backend",
-                                                        "experimenter"}
+                                                        "autonomy", "experimenter"}
 
 
 def test_a_detail_as_a_model_or_a_dict_reaches_the_wire_as_the_same_json_text():
