@@ -137,6 +137,17 @@ class Physics:
             self._goal = goal
         return out
 
+    def set_scene_joint(self, name: str, deg: float) -> None:
+        """Put a joint of the scene's own (not the robot's: no motor drives it) at deg and still (a pupil's neck)."""
+        m = self.model
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j < 0 or name in self._index:
+            raise KeyError(f"no scene joint {name!r}")
+        with self.lock:
+            self.data.qpos[m.jnt_qposadr[j]] = math.radians(deg)
+            self.data.qvel[m.jnt_dofadr[j]] = 0.0
+            mujoco.mj_kinematics(m, self.data)
+
     def set_velocity_caps(self, caps: Mapping[str, float]) -> None:
         """Change velocity caps (deg/s) at run time; validated by RobotModel.with_velocity_caps."""
         robot = self.robot.with_velocity_caps(caps)

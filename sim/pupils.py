@@ -17,6 +17,14 @@ FIGURES: tuple[tuple[str, tuple[float, float], float, tuple[float, ...], tuple[f
 )
 
 
+AWAY_DEG = 110.0  # a pupil looking away turns its head this far: its eyes and mouth go round out of the robot's view
+
+
+def neck_joint(name: str) -> str:
+    """The scene's joint that turns a pupil's head (0: facing the robot, positive: to the pupil's left)."""
+    return f"{name}_neck"
+
+
 def head_radius(height: float) -> float:
     return 0.085 if height < 1.5 else 0.1
 

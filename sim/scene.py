@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from robot_models import RobotModel, load_qtrobot
 from robot_models.mjcf import build_qtrobot_mjcf
 
-from .pupils import FIGURES, TABLE_HEIGHT, head_radius
+from .pupils import FIGURES, TABLE_HEIGHT, head_radius, neck_joint
 
 ARUCO_DICTIONARY = "DICT_4X4_50"
 OVERVIEW_CAMERA = "overview"  # looks at the robot's face from where a child would sit
@@ -205,22 +205,25 @@ def build_classroom(robot: RobotModel | None = None, *, shadows: bool = False, a
                           size=[0.035, 0, 0], fromto=[0, side * 0.17 * height / 1.5, head_z - 0.28 * height / 1.5,
                                                        0.04, side * 0.2 * height / 1.5, 0.5 * height],
                           rgba=list(shirt))
-        body.add_geom(name=f"{name}_head", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[head_r, 0, 0], pos=[0, 0, head_z],
-                      rgba=list(skin))
-        body.add_geom(name=f"{name}_hair", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+        # The head turns on a neck (a vertical hinge through its centre, sim/pupils.py's neck_joint): a pupil who
+        # looks away shows the robot the back of its head. No force turns it but the stand-in's look().
+        head = body.add_body(name=f"{name}_head", pos=[0, 0, head_z])
+        head.add_joint(name=neck_joint(name), type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1], damping=1.0)
+        head.add_geom(name=f"{name}_head", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[head_r, 0, 0], rgba=list(skin))
+        head.add_geom(name=f"{name}_hair", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
                       size=[head_r * 1.02, head_r * 1.04, head_r * 0.75],
-                      pos=[-0.25 * head_r, 0, head_z + 0.45 * head_r], rgba=list(hair))
+                      pos=[-0.25 * head_r, 0, 0.45 * head_r], rgba=list(hair))
         # Dark brows and eyes over lighter cheeks: the contrast a face detector (and a child) reads as a face.
         def on_face(yaw: float, z: float, out: float = 1.0) -> list[float]:
             c = np.sqrt(1.0 - z * z)
-            return [out * c * np.cos(yaw) * head_r, out * c * np.sin(yaw) * head_r, head_z + z * head_r]
+            return [out * c * np.cos(yaw) * head_r, out * c * np.sin(yaw) * head_r, z * head_r]
         for side in (-1, 1):
-            body.add_geom(name=f"{name}_eye_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.14 * head_r, 0, 0],
+            head.add_geom(name=f"{name}_eye_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.14 * head_r, 0, 0],
                           pos=on_face(side * 0.36, 0.08, 0.93), rgba=[0.1, 0.08, 0.07, 1])
-            body.add_geom(name=f"{name}_brow_{side}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.06 * head_r, 0, 0],
+            head.add_geom(name=f"{name}_brow_{side}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.06 * head_r, 0, 0],
                           fromto=on_face(side * 0.15, 0.33, 0.99) + on_face(side * 0.6, 0.36, 0.97),
                           rgba=list(hair))
-        body.add_geom(name=f"{name}_mouth", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.07 * head_r, 0, 0],
+        head.add_geom(name=f"{name}_mouth", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.07 * head_r, 0, 0],
                       fromto=on_face(-0.3, -0.45, 0.97) + on_face(0.3, -0.45, 0.97), rgba=[0.55, 0.2, 0.2, 1])
 
     # Lights: a key light from above the table and a fill from behind the robot; no shadows unless asked.

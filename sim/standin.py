@@ -31,6 +31,7 @@ from worker_process.frame_ring import FrameRing
 
 from .camera import Camera
 from .physics import JointSnapshot, Physics, PhysicsStats
+from .pupils import AWAY_DEG, neck_joint, pupil
 from .render_process import RenderProcess
 from .scene import ClassroomScene, build_classroom
 
@@ -111,6 +112,10 @@ class StandIn:
         """Set joint goals in degrees; returns the goals applied after clamping to the joint limits.
         Joints whose motor is not ON ignore the command and are left out of the result."""
         return self.physics.set_targets(targets)
+
+    def pupil_looks(self, name: str, at_robot: bool) -> None:
+        """Turn a pupil's head towards the robot or away from it: the head camera's next frame shows it."""
+        self.physics.set_scene_joint(neck_joint(pupil(name).name), 0.0 if at_robot else AWAY_DEG)
 
     def set_velocity_caps(self, caps: Mapping[str, float]) -> None:
         """Change velocity caps (deg/s) at run time; validated by RobotModel.with_velocity_caps."""

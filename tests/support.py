@@ -327,3 +327,29 @@ def wait_subscribed(server: RunningServer, topic: str, clients: int = 1, timeout
         sessions = server.server.sessions
         return 0 if t is None else len({owner for owner, _cb in t.subscribers.values() if owner in sessions})
     return wait_for(lambda: server.call(count) >= clients, timeout)
+
+
+def bystanders_in_view(robot, width: int, height: int) -> dict[str, tuple[float, float]]:
+    """Where each bystander's head centre falls in the head camera's image (pixels), from the scene and the
+    forward kinematics at the current joint state."""
+    import mujoco
+    import numpy as np
+
+    from robot_models.kinematics import forward_kinematics
+    from vr_teleop_server.study.perception.aruco import camera_matrix
+
+    standin = robot.standin
+    scene, model = standin.scene, robot.model
+    data = mujoco.MjData(standin.model)
+    mujoco.mj_forward(standin.model, data)
+    base_from_camera = forward_kinematics(model, {**model.home_pose(), **robot.joint_state().as_dict()})["camera"]
+    camera_from_world = np.linalg.inv(scene.robot_base_world @ base_from_camera)
+    k = camera_matrix(model, width, height)
+    seen = {}
+    for name in scene.bystanders:
+        head = data.geom_xpos[mujoco.mj_name2id(standin.model, mujoco.mjtObj.mjOBJ_GEOM, f"{name}_head")]
+        p = camera_from_world @ np.append(head, 1.0)
+        u, v, _ = k @ (p[:3] / p[2])
+        if p[2] > 0 and 0 <= u < width and 0 <= v < height:
+            seen[name] = (u, v)
+    return seen

@@ -18,7 +18,18 @@ from pathlib import Path
 
 import pytest
 import roslibpy
-from support import Headset, RawClient, RunningServer, Watch, call, engage, joints, refused, wait_for
+from support import (
+    Headset,
+    RawClient,
+    RunningServer,
+    Watch,
+    bystanders_in_view,
+    call,
+    engage,
+    joints,
+    refused,
+    wait_for,
+)
 
 from client_protocol import names
 from sim.pupils import pupil
@@ -145,6 +156,49 @@ def test_the_pupils_are_listed_and_speak_from_their_places(ros):
                     WAIT)
     call(ros, names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook", {"who": "child_right", "at": "robot"})
     pupils.close()
+
+
+def test_a_pupil_looking_away_turns_its_rendered_head_and_the_face_detector_loses_its_face(server, ros):
+    """/sim/bystanders/look turns the figure's head in the stand-in's scene: in the head camera's frames the face
+    detector (/perception/faces) loses that pupil's face while it looks away and finds it again when it looks back,
+    and still finds the others."""
+    robot = server.server.robot
+    camera = robot.standin.camera
+    who = "child_left"
+    assert set_level(ros, "teleoperated")["success"]  # the head stays where this test puts it
+    faces = Watch(ros, names.FACES_TOPIC, "vr_teleop_msgs/Faces")
+    try:
+        server.call(lambda: robot.set_joint_targets({"HeadYaw": 0.0, "HeadPitch": 0.0}))
+        assert wait_for(lambda: all(abs(robot.joint_state().as_dict()[j]) < 0.3 for j in ("HeadYaw", "HeadPitch")),
+                        WAIT)
+        assert wait_for(lambda: faces.latest, WAIT)
+        heads = bystanders_in_view(robot, faces.latest["image_width"], faces.latest["image_height"])
+        assert who in heads and len(heads) == 3, heads
+
+        def found(message: dict) -> set[str]:
+            return {name for name, (u, v) in heads.items() for f in message["faces"]
+                    if f["x"] <= u <= f["x"] + f["width"] and f["y"] <= v <= f["y"] + f["height"]}
+
+        def detected_after_look(at: str, frames: int = 6) -> list[set[str]]:
+            """What the detector finds in the next frames drawn wholly after the look (a frame being drawn when
+            the look returned was begun from the state before it)."""
+            reply = call(ros, names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook", {"who": who, "at": at})
+            assert reply["success"], reply
+            assert wait_for(lambda: camera.frame is not None, WAIT)
+            seq = camera.frame.seq + 1
+            after = lambda: [m for m in list(faces.messages) if m["frame_seq"] > seq]  # noqa: E731
+            assert wait_for(lambda: len(after()) >= frames, WAIT), len(after())
+            return [found(m) for m in after()[:frames]]
+
+        assert any(who in seen for seen in detected_after_look("robot")), heads
+        away = detected_after_look("away")
+        assert not any(who in seen for seen in away), away
+        assert set().union(*away) == set(heads) - {who}, away  # the detector still sees the others
+        assert any(who in seen for seen in detected_after_look("robot")), heads
+    finally:
+        call(ros, names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook", {"who": who, "at": "robot"})
+        faces.close()
+        assert set_level(ros, "supervised")["success"]
 
 
 def test_attention_turns_to_a_pupil_who_speaks_and_then_to_the_next(server, ros):
@@ -368,6 +422,13 @@ def test_the_recording_holds_it_all_and_metrics_autonomy_measures_it(server, tmp
     assert m["teacher_initiated"] >= 2 and m["decisions"] >= 3 and m["decision_s_median"] is not None
     assert [level["level"] for level in m["levels"]][-3:] == ["teleoperated", "autonomous", "supervised"]
     assert m["attention"]["speeches"] >= 2 and m["attention"]["onset_to_pointing_s_p50"] is not None
+    # the replay report of the same session carries the same measures (the pupils and decisions are not replayed)
+    replayed = tmp_path / "replay.json"
+    done = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(server.settings.record),
+                           "--speed", "max", "--no-camera", "--quiet", "--json", str(replayed)], capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(replayed.read_text())["autonomy"] == {k: v for k, v in m.items() if k != "file"}
     bad = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "metrics", "autonomy"], capture_output=True,
                          text=True, timeout=120)
     assert bad.returncode == 2 and "needs a session recording" in bad.stderr

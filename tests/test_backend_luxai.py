@@ -235,6 +235,46 @@ def test_voice_activity_in_the_base_frame(zmq_robot):
         hub.mic_event = {"activity": False, "direction": 0}
 
 
+def test_supervised_attention_turns_the_head_to_the_microphones_voice_within_its_limits(zmq_robot):
+    """Issue 34 on a v3 robot: a voice in the microphone's events is, in the base frame (the array's angle plus the
+    head's yaw), where supervised autonomy turns the head, through the hub's motor commands and never past the
+    robot's own limits (HeadYaw -40..45); the attention target says voice."""
+    hub, server, ros = zmq_robot
+    autonomy, backend = server.server.autonomy, server.server.robot
+    attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
+    lower, upper = NARROW["HeadYaw"]["position_min"], NARROW["HeadYaw"]["position_max"]
+
+    def level(name: str) -> None:
+        reply = call(ros, names.AUTONOMY_LEVEL_SERVICE, "vr_teleop_msgs/SetAutonomy", {"level": name})
+        assert reply["success"], reply
+
+    try:
+        for direction in (30.0, -70.0):  # a voice to the left, then one to the right beyond the head's reach
+            level("teleoperated")  # no glance moves the head while the voice starts
+            assert wait_for(lambda: abs(hub.positions["HeadYaw"] - hub.targets.get("HeadYaw", 0.0)) < 0.1, 30)
+            yaw = hub.positions["HeadYaw"]
+            assert wait_for(lambda: abs(server.call(lambda: backend.joint_state().as_dict()["HeadYaw"]) - yaw) < 0.5,
+                            30)  # the server knows where the head is
+            hub.mic_event = {"activity": True, "direction": round(direction - yaw) % 360}
+            assert wait_for(lambda: server.call(lambda: autonomy.voice is not None
+                                                and autonomy.voice.direction is not None), 30)
+            assert server.call(lambda: autonomy.voice.direction) == pytest.approx(direction, abs=1.5)
+            before = len(hub.commands)
+            level("supervised")
+            expected = min(max(direction, lower), upper)
+            assert wait_for(lambda: abs(hub.positions["HeadYaw"] - expected) <= 10.0, 30), hub.positions
+            assert wait_for(lambda: attention.any(lambda m: m["source"] == "voice"
+                                                  and abs(m["yaw"] - expected) <= 10.0), 30), attention.latest
+            sent = [c["HeadYaw"]["position"] for c in hub.commands[before:] if "HeadYaw" in c]
+            assert sent and all(lower <= y <= upper for y in sent), sent
+            hub.mic_event = {"activity": False, "direction": 0}
+            assert wait_for(lambda: server.call(lambda: autonomy.voice is None), 30)
+    finally:
+        hub.mic_event = {"activity": False, "direction": 0}
+        level("supervised")  # the module's level, as the server started
+        attention.close()
+
+
 def test_the_operators_voice_over_rosbridge_reaches_the_speaker_stream(zmq_robot):
     """A client's voice on /vr_teleop/audio/operator (48 kHz stereo, as its AudioInfo says) reaches the media
     foreground audio stream as 16 kHz mono PCM at its pitch, and is logged."""

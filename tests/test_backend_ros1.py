@@ -24,6 +24,11 @@ pytestmark = pytest.mark.slow  # a ROS 1 robot-side rosbridge
 
 SAY = names.SPEECH_SAY_SERVICE
 STOP = names.SPEECH_STOP_SERVICE
+WAIT = 30.0  # a failure bound on a loaded machine, never a measure
+
+
+def set_level(ros: roslibpy.Ros, level: str) -> dict:
+    return call(ros, names.AUTONOMY_LEVEL_SERVICE, "vr_teleop_msgs/SetAutonomy", {"level": level})
 
 
 @pytest.fixture(scope="module")
@@ -222,3 +227,42 @@ def test_the_operators_voice_over_rosbridge_reaches_the_speaker_topic(server: Ru
     assert np.sqrt(np.mean(heard.astype(np.float32) ** 2)) > 5000
     assert abs(pitch(heard, 16000) - 440) < 10
     assert wait_for(lambda: logged(server.settings.audio_dir) == (48000, 2, pcm), 30)
+
+
+def test_supervised_attention_turns_the_head_to_the_respeakers_voice_within_its_limits(server: RunningServer,
+                                                                                       robot: Ros1QTrobot,
+                                                                                       ros: roslibpy.Ros):
+    """Issue 34 on a ROS 1 robot: a voice the ReSpeaker hears (latched is_speaking and sound_direction) is, in the
+    base frame (the head's yaw less the array's angle), where supervised autonomy turns the head, through the
+    robot-side head command topic and never past the head's limits; the attention target says voice."""
+    head_topic = "/qt_robot/head_position/command"
+    autonomy = server.server.autonomy
+    attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
+    lower, upper = -60.0, 60.0  # qtrobot.yaml's HeadYaw
+    try:
+        for direction in (35.0, -100.0):  # a voice to the left, then one to the right beyond the head's reach
+            # teleoperated while the voice starts: no glance moves the head between reading it and the news
+            assert set_level(ros, "teleoperated")["success"]
+            yaw = robot.positions["HeadYaw"]
+            assert wait_for(lambda: server.call(lambda: server.server.robot.joint_state().as_dict()["HeadYaw"])
+                            == yaw, WAIT)  # the server knows where the head is
+            robot.publish(names.RESPEAKER_DIRECTION_TOPIC, {"data": round(yaw - direction) % 360}, latch=True)
+            robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": True}, latch=True)
+            heard = yaw - round(yaw - direction)  # the direction as the array's whole degrees give it
+            assert wait_for(lambda: server.call(lambda: autonomy.voice is not None
+                                                and autonomy.voice.direction is not None), WAIT)
+            assert server.call(lambda: autonomy.voice.direction) == pytest.approx(heard)
+            before = len(robot.published.get(head_topic, []))
+            assert set_level(ros, "supervised")["success"]
+            expected = min(max(heard, lower), upper)
+            assert wait_for(lambda: abs(robot.positions["HeadYaw"] - expected) <= 10.0, WAIT), robot.positions
+            assert wait_for(lambda: attention.any(lambda m: m["source"] == "voice"
+                                                  and abs(m["yaw"] - expected) <= 10.0), WAIT), attention.latest
+            sent = [m["data"][0] for m in robot.published[head_topic][before:]]
+            assert sent and all(lower <= y <= upper for y in sent), sent
+            robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": False}, latch=True)
+            assert wait_for(lambda: server.call(lambda: autonomy.voice is None), WAIT)
+    finally:
+        robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": False}, latch=True)
+        set_level(ros, "supervised")  # the module's level, as the server started
+        attention.close()

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from study_support import EXAMPLE, on_loop, prepared, small_study
-from support import RawClient, RunningServer, wait_for
+from support import RawClient, RunningServer, bystanders_in_view, wait_for
 
 from vr_teleop_server.client import Client, Refused, connect
 from vr_teleop_server.study.people import SimulatedPeople
@@ -121,31 +121,6 @@ def test_the_face_detector_finds_the_face_in_a_portrait():
     assert 225 < cx < 305 and 180 < cy < 280 and 150 < f.width < 280, f
 
 
-def _bystanders_in_view(robot, width: int, height: int) -> dict[str, tuple[float, float]]:
-    """Where each bystander's head centre falls in the head camera's image (pixels), from the scene and the
-    forward kinematics at the current joint state."""
-    import mujoco
-
-    from robot_models.kinematics import forward_kinematics
-    from vr_teleop_server.study.perception.aruco import camera_matrix
-
-    standin = robot.standin
-    scene, model = standin.scene, robot.model
-    data = mujoco.MjData(standin.model)
-    mujoco.mj_forward(standin.model, data)
-    base_from_camera = forward_kinematics(model, {**model.home_pose(), **robot.joint_state().as_dict()})["camera"]
-    camera_from_world = np.linalg.inv(scene.robot_base_world @ base_from_camera)
-    k = camera_matrix(model, width, height)
-    seen = {}
-    for name in scene.bystanders:
-        head = data.geom_xpos[mujoco.mj_name2id(standin.model, mujoco.mjtObj.mjOBJ_GEOM, f"{name}_head")]
-        p = camera_from_world @ np.append(head, 1.0)
-        u, v, _ = k @ (p[:3] / p[2])
-        if p[2] > 0 and 0 <= u < width and 0 <= v < height:
-            seen[name] = (u, v)
-    return seen
-
-
 def test_bystanders_faces_are_published_from_the_camera_frames_while_watched(server):
     robot = server.server.robot
     server.call(lambda: robot.set_joint_targets({"HeadYaw": 0.0, "HeadPitch": 0.0}))
@@ -163,7 +138,7 @@ def test_bystanders_faces_are_published_from_the_camera_frames_while_watched(ser
     assert (width, height) == (robot.standin.camera_width, robot.standin.camera_height)
     assert first["detector"].startswith("opencv-haar") and first["header"]["frame_id"]
     assert [m["frame_seq"] for m in messages] == sorted(set(m["frame_seq"] for m in messages)), "frames repeat"
-    heads = _bystanders_in_view(robot, width, height)
+    heads = bystanders_in_view(robot, width, height)
     assert len(heads) == 3, heads  # the scene puts all three in view of the head at rest
     found = set()
     for m in messages:

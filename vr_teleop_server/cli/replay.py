@@ -78,8 +78,8 @@ def run_replay(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"vr-teleop replay: cannot reach {server}: {exc}", file=sys.stderr)
         return 1
-    result = {"file": str(args.file), "client": client, "server": server, **report(steps, got, elapsed,
-                                                                                     args.speed)}
+    result = {"file": str(args.file), "client": client, "server": server,
+              **report(steps, got, elapsed, args.speed, recording=args.file)}
     text = json.dumps(result, indent=2)
     if args.json is not None and str(args.json) != "-":
         args.json.write_text(text + "\n")

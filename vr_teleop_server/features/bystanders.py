@@ -4,7 +4,8 @@
 stand-in's `hear`, which the WebRTC audio mixes as a real robot's microphone: the operator hears the pupil), and
 reports voice activity with the pupil's direction as a microphone array would (`Robot._voice_activity`). With
 `interval` > 0 the pupils also take turns saying a line every `interval` seconds (the classroom's background).
-`/sim/bystanders/look` turns a pupil's attention to the robot or away; the pupils' list, places and states are
+`/sim/bystanders/look` turns a pupil's head to the robot or away (the scene's figure turns: the head camera, the face
+detector and attention see it); the pupils' list, places and states are
 latched on `/sim/bystanders`.
 """
 
@@ -38,7 +39,7 @@ class Bystanders:
     def __init__(self, bus: Bus, robot: Any, render: Render, *, clock: Clock = WALL, interval: float = 0.0,
                  lines: tuple[str, ...] = LINES) -> None:
         self.bus = bus
-        self.robot = robot  # the stand-in (SimRobot): hear() and _voice_activity()
+        self.robot = robot  # the stand-in (SimRobot): hear(), _voice_activity() and its standin's pupil_looks()
         self.render = render
         self.clock = clock
         self.interval = interval
@@ -116,6 +117,7 @@ class Bystanders:
             return {"success": False, "message": f"no pupil {who!r}; the pupils are {self._known()}"}
         if at not in ("robot", "away"):
             return {"success": False, "message": f"at must be robot or away, not {at!r}"}
+        self.robot.standin.pupil_looks(who, at == "robot")  # the head camera sees the face, or the back of the head
         self.looking[who] = at
         self._publish()
         return {"success": True, "message": f"{who} looks {'at the robot' if at == 'robot' else 'away'}"}

@@ -11,6 +11,8 @@ What is measured, all from what the server sends back:
   the same send times (the server runs the same mapping; differences are timing, or a bug);
 - camera frames received, their rate and their age (receive time minus the frame's stamp);
 - menu selections acknowledged (successful service responses) and errors (status errors, failed calls).
+The report also carries the recorded session's own supervision and attention measures (`autonomy`, as `vr-teleop
+metrics autonomy` gives them), read from the file: they are not replayed.
 With a `road` (tests and benches: the poses data channel), the operator's /vr/* streams take it while the replayed
 operator holds control (as the issue-21 channel requires) and the WebSocket otherwise.
 The plot shows, per joint, the commanded angles against the measured ones (/qt_robot/joints/state).
@@ -50,6 +52,7 @@ from ..app import TeleopServer
 from ..client import Client, RosbridgeError, connect, outcome
 from ..recording.format import read_recording
 from ..settings import ServerSettings
+from ..study.metrics.autonomy import autonomy_metrics
 
 from ..teleop import TeleopError, TeleopMapper, TeleopSettings
 
@@ -465,8 +468,11 @@ def _reason(values: Any) -> Any:
 
 
 def report(steps: list[Step], got: Collected, elapsed: float, speed: float,
-           settings: TeleopSettings | None = None) -> dict[str, Any]:
-    """`settings`: the server's teleop settings, for the offline mapping (default: the defaults)."""
+           settings: TeleopSettings | None = None, recording: Path | None = None) -> dict[str, Any]:
+    """`settings`: the server's teleop settings, for the offline mapping (default: the defaults). `recording`: the
+    session's MCAP file, whose supervision and attention measures (study/metrics/autonomy.py, as `vr-teleop metrics
+    autonomy` gives them) the report carries as `autonomy`: what the replay sends back cannot show them, since the
+    pupils and the teacher's decisions are not replayed."""
     duration = steps[-1].t if steps else 0.0
     lag = _engage_lag(steps, got, settings=settings)
     expected = expected_commands(steps, got, settings, engage_lag=lag)
@@ -520,7 +526,12 @@ def report(steps: list[Step], got: Collected, elapsed: float, speed: float,
                  if menu_ids else []},
         "errors": {"count": len(got.errors) + len(failed_calls), "status": got.errors[:20],
                    "failed_calls": {c: v for c, v in list(failed_calls.items())[:20]}},
+        **({"autonomy": _session_autonomy(recording)} if recording is not None else {}),
     }
+
+
+def _session_autonomy(recording: Path) -> dict[str, Any]:
+    return {k: v for k, v in autonomy_metrics(recording).items() if k != "file"}
 
 
 def plot(got: Collected, out: Path) -> None:
