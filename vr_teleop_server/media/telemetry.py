@@ -125,7 +125,7 @@ class Telemetry:
         if published.topic != names.CAMERA_TOPIC:
             return
         self._camera_published += 1
-        stamp = (published.plain or {}).get("header", {}).get("stamp") if published.plain is not None else None
+        stamp = (published.data or {}).get("header", {}).get("stamp")
         if stamp is None:
             return
         render = (stamp.get("secs", stamp.get("sec", 0)) or 0) + (stamp.get("nsecs", stamp.get("nanosec", 0)) or 0) / 1e9

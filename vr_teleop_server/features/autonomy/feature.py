@@ -219,24 +219,23 @@ class Autonomy:
         return yaw, pitch
 
     def _on_faces(self, published: Published) -> None:
-        msg = published.value
+        msg = published.data
         cam = self.camera
-        if cam is None or not msg.image_width:
+        if cam is None or not msg["image_width"]:
             return
         now = self.clock.monotonic()
-        scale = msg.image_width / cam.width
+        scale = msg["image_width"] / cam.width
         fx, fy, cx, cy = cam.fx * scale, cam.fy * scale, cam.cx * scale, cam.cy * scale
-        stamp = msg.header.stamp
-        head_yaw, head_pitch = self._head_at(getattr(stamp, "secs", getattr(stamp, "sec", 0))
-                                             + getattr(stamp, "nsecs", getattr(stamp, "nanosec", 0)) * 1e-9)
+        stamp = msg["header"]["stamp"]
+        head_yaw, head_pitch = self._head_at(stamp.get("secs", stamp.get("sec", 0))
+                                             + stamp.get("nsecs", stamp.get("nanosec", 0)) * 1e-9)
         seen: set[str] = set()
-        for face in msg.faces:
-            u, v = face.x + face.width / 2, face.y + face.height / 2
+        for face in msg["faces"]:
+            u, v = face["x"] + face["width"] / 2, face["y"] + face["height"] / 2
             yaw = head_yaw + math.degrees(math.atan2(cx - u, fx))  # image right is the robot's right (yaw -)
             pitch = head_pitch + math.degrees(math.atan2(v - cy, fy))  # image down is pitch + (the head's down)
-            distance = fy * self.cfg.face_height_m / max(face.height, 1)
-            box = {"x": face.x, "y": face.y, "width": face.width, "height": face.height,
-                   "confidence": face.confidence}
+            distance = fy * self.cfg.face_height_m / max(face["height"], 1)
+            box = {k: face[k] for k in ("x", "y", "width", "height", "confidence")}
             free = [t for t in self.tracks.values() if t.key not in seen]
             near = min(free, key=lambda t: abs(t.yaw - yaw), default=None)
             if near is not None and abs(near.yaw - yaw) <= self.cfg.match_deg:
@@ -441,11 +440,11 @@ class Autonomy:
 
     def _on_event(self, published: Published) -> None:
         """The teacher's own actions from the menus: recorded as teacher-initiated, and learned."""
-        msg = published.value
-        if msg.source != "menu" or msg.kind != "select":
+        msg = published.data
+        if msg["source"] != "menu" or msg["kind"] != "select":
             return
         try:
-            detail = json.loads(msg.detail)
+            detail = json.loads(msg["detail"])
         except ValueError:
             return
         by = str(detail.get("by", ""))
