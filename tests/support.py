@@ -223,6 +223,8 @@ class Headset:
         self.grips = {"left": 0.0, "right": 0.0}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._sent = threading.Condition()
+        self.head_poses_sent = 0
 
     def start(self) -> Headset:
         self._stop.clear()
@@ -235,10 +237,21 @@ class Headset:
         if self._thread is not None:
             self._thread.join(2)
 
+    def send_head_poses(self, count: int, timeout: float = 60.0) -> None:
+        """Wait until `count` more head poses went out (at 90 Hz, count / 90 s on an idle machine): a motion held
+        for a number of poses is the same session on a loaded machine, where the sleeps between poses run long."""
+        with self._sent:
+            target = self.head_poses_sent + count
+            if not self._sent.wait_for(lambda: self.head_poses_sent >= target, timeout):
+                raise TimeoutError(f"the headset sent {self.head_poses_sent} head poses, not {target}, in {timeout} s")
+
     def _run(self) -> None:
         n = 0
         while not self._stop.is_set():
             self.head.publish(roslibpy.Message(pose_msg((0.0, EYE_HEIGHT, 0.0), self.head_orientation)))
+            with self._sent:
+                self.head_poses_sent += 1
+                self._sent.notify_all()
             for side, topic in self.hands.items():
                 topic.publish(roslibpy.Message(pose_msg(self.hand_positions[side], IDENTITY)))
             if n % 3 == 0:

@@ -186,9 +186,9 @@ def test_a_recorded_session_replays_against_another_server(servers, tmp_path, re
         ros.run(timeout=10)
         headset = Headset(ros).start()
         engage(ros)
-        for yaw in (20, 40, 0, -30, 0):
+        for yaw in (20, 40, 0, -30, 0):  # each held for 36 poses, 0.4 s at 90 Hz: 180 head poses after engaging
             headset.head_orientation = unity_yaw_pitch(yaw)
-            time.sleep(0.4)
+            headset.send_head_poses(36)
         call(ros, "/vr_teleop/menu/select", "vr_teleop_msgs/MenuSelect", {"id": "emotion.happy", "args": ""})
         headset.stop()
         ros.close()
@@ -197,6 +197,9 @@ def test_a_recorded_session_replays_against_another_server(servers, tmp_path, re
     report = replay(path, replay_server.url, "--speed", "2", "--no-camera")
     assert report["client"].startswith("/rosbridge_websocket/client_")
     assert report["calls_sent"] >= 2 and report["menu"]["selected"] == report["menu"]["acknowledged"] == 1
+    # the recording holds every pose the headset sent after engaging (a count, whatever the machine's load): the
+    # offline mapping of them expects a head command each, and the server sends them
+    assert report["commands_expected"].get("head", 0) >= 180, report
     assert report["commands_received"].get("head", 0) > 100, report
     # The head only, and on average: the operator's steps of 20-40 degrees run into the head's velocity cap, which
     # the server integrates over its own step times, so a loaded machine drifts those moments by a degree or two
