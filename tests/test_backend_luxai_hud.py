@@ -10,11 +10,11 @@ from test_backend_luxai import luxai_server
 from client_protocol import names
 
 
-def test_the_operators_hud_shows_motor_faults_and_a_voice_in_the_room(tmp_path, browser):
+def test_the_operators_hud_shows_motor_faults_and_a_voice_in_the_room(servers, browser):
     """The operator page (Chromium) on the v3 backend: a motor fault and a voice the robot's microphone array hears
     appear on the HUD, and go when they end."""
     hub = FakeQtrobotV3(camera=False).start()
-    server = luxai_server(hub, tmp_path, robot_url=f"tcp://127.0.0.1:{hub.hub_port}",
+    server = luxai_server(servers, robot_url=f"tcp://127.0.0.1:{hub.hub_port}",
                           camera_url=f"tcp://127.0.0.1:{free_port()}")
     context = browser.new_context(viewport={"width": 960, "height": 600})
     page = context.new_page()

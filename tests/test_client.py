@@ -51,7 +51,10 @@ def test_over_the_in_process_connection_on_the_simulated_clock():
     clock = SimulatedClock()
 
     async def main() -> float:
-        server = TeleopServer(ServerSettings(port=0, backend="sim", host="127.0.0.1"), clock)  # a stand-in's
+        # A stand-in's, with nothing of its own to do (no pupils talking, no attention rendering the camera for its
+        # face detector): the simulated minute below then passes at once.
+        server = TeleopServer(ServerSettings(port=0, backend="sim", host="127.0.0.1", autonomy="teleoperated",
+                                             bystander_interval=0), clock)
         async with server:
             async with Client(server.transport.connect_local()) as client:
                 await _exercise(client)
