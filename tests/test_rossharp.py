@@ -221,8 +221,8 @@ def test_joint_states_in_radians_for_the_joint_state_patcher(sim_server, rig):
 # ---- log-in from the URL (a server with tokens) ------------------------------------------------------------------
 
 @pytest.fixture
-def token_server(server_factory):
-    return server_factory(operator_token=TOKEN)
+def token_server(servers):
+    return servers(operator_token=TOKEN)
 
 
 def test_a_token_in_the_url_logs_in(token_server):
@@ -240,9 +240,8 @@ def test_a_wrong_token_in_the_url_is_refused_at_the_handshake(token_server):
 
 
 @pytest.fixture
-def token_sim_server(server_factory, tmp_path):
-    return server_factory(backend="sim", operator_token=TOKEN, gesture_dir=tmp_path / "gestures",
-                          audio_dir=tmp_path / "audio")
+def token_sim_server(servers):
+    return servers(backend="sim", operator_token=TOKEN)
 
 
 def test_one_operator_on_several_connections_engages_from_any(token_sim_server):

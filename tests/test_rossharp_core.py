@@ -22,10 +22,8 @@ ENGAGE = "/vr_teleop/control/engage"
 
 
 @pytest.fixture
-def token_server(server_factory, tmp_path):
-    return server_factory(backend="sim", operator_token=TOKEN, spectator_token=SPECTATOR,
-                          record=tmp_path / "session.mcap", gesture_dir=tmp_path / "gestures",
-                          audio_dir=tmp_path / "audio")
+def token_server(servers, tmp_path):
+    return servers(backend="sim", operator_token=TOKEN, spectator_token=SPECTATOR, record=tmp_path / "session.mcap")
 
 
 def _call(client: RawClient, service: str, args: dict | None = None, call_id: str = "c1") -> dict:
