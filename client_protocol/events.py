@@ -179,6 +179,12 @@ class KindSpec:
     model: type[EventDetail]
     source: str
     doc: str
+    # The kind as the wire spells it, when it is not the enum's value: a pattern over the detail's fields. Motivation
+    # events have always named their variable in the kind (`frustration_high`), and clients match on that.
+    wire: str = ""
+
+    def wire_kind(self, kind: EventKind, detail: EventDetail) -> str:
+        return self.wire.format(**detail.model_dump()) if self.wire else kind.value
 
 
 K = EventKind
@@ -204,10 +210,11 @@ KINDS: dict[EventKind, KindSpec] = {
     K.MENU_FAILED: KindSpec(MenuFailure, "menu", "a menu item's command did not run"),
     K.GESTURE_RECORDING: KindSpec(GestureRecording, "gestures", "a gesture recording started or stopped"),
     K.MOTIVATION_HIGH: KindSpec(MotivationLimit, "motivation", "a variable rose past its high limit (danger "
-                                                               "at its max)"),
+                                                               "at its max)", "{variable}_high"),
     K.MOTIVATION_LOW: KindSpec(MotivationLimit, "motivation", "a variable fell past its low limit (danger at "
-                                                              "its min)"),
-    K.MOTIVATION_OK: KindSpec(MotivationLimit, "motivation", "a variable is back within its limits"),
+                                                              "its min)", "{variable}_low"),
+    K.MOTIVATION_OK: KindSpec(MotivationLimit, "motivation", "a variable is back within its limits",
+                              "{variable}_ok"),
     K.RECONNECTED: KindSpec(BackendLink, "backend", "the connection to the robot is back"),
     K.DISCONNECTED: KindSpec(BackendLink, "backend", "the connection to the robot was lost"),
     K.CAMERA_UNAVAILABLE: KindSpec(CameraProblem, "backend", "the robot's camera cannot be read"),
@@ -222,9 +229,9 @@ KINDS: dict[EventKind, KindSpec] = {
 }
 
 
-def detail_json(kind: EventKind | str, detail: EventDetail | dict[str, Any]) -> tuple[EventKind, str]:
-    """The kind as its enum and the detail as the wire's JSON text, checked against the kind's model; ValueError
-    (pydantic's ValidationError is one) names what is wrong."""
+def detail_json(kind: EventKind | str, detail: EventDetail | dict[str, Any]) -> tuple[str, str]:
+    """The kind as the wire spells it and the detail as the wire's JSON text, checked against the kind's model;
+    ValueError (pydantic's ValidationError is one) names what is wrong."""
     try:
         kind = EventKind(kind)
     except ValueError:
@@ -232,7 +239,7 @@ def detail_json(kind: EventKind | str, detail: EventDetail | dict[str, Any]) -> 
     model = KINDS[kind].model
     if not isinstance(detail, model):
         detail = model.model_validate(detail.model_dump() if isinstance(detail, BaseModel) else detail)
-    return kind, json.dumps(detail.model_dump(mode="json"), sort_keys=True)
+    return KINDS[kind].wire_kind(kind, detail), json.dumps(detail.model_dump(mode="json"), sort_keys=True)
 
 
 def parse_detail(kind: EventKind | str, text: str) -> EventDetail:

@@ -162,7 +162,8 @@ def events() -> str:
             f"{code(key)}: {schema_type(prop, schema.get('$defs'))}" + ("" if key in required else " (optional)")
             + (f"; {cell(prop['description'])}" if prop.get("description") else "")
             for key, prop in schema.get("properties", {}).items())
-        rows.append([code(kind.value), code(spec.source), cell(spec.doc), fields or "none"])
+        spelled = spec.wire.replace("{", "<").replace("}", ">") if spec.wire else kind.value
+        rows.append([code(spelled), code(spec.source), cell(spec.doc), fields or "none"])
     out.append(table(["Kind", "Source", "When", "Detail fields"], rows))
     return "".join(out)
 

@@ -69,3 +69,12 @@ def test_event_headers_are_on_the_registrys_clock():
     assert got[0].data["header"]["stamp"] == {"secs": int(EPOCH) + 12, "nsecs": 500_000_000}
     assert got[0].plain is not None  # stamped as plain data: the server's own messages take the plain path too
     assert TypeRegistry(clock=clock, time_style="ros2").now() == {"sec": int(EPOCH) + 12, "nanosec": 500_000_000}
+
+
+def test_a_motivation_event_names_its_variable_in_the_kind_as_it_always_has():
+    bus, got = bus_and_events()
+    publish_event(bus, "motivation", EventKind.MOTIVATION_HIGH, "warning",
+                  {"variable": "frustration", "value": 81.0, "side": "high", "limit": 80.0})
+    (event,) = (p.data for p in got)
+    assert event["kind"] == "frustration_high"
+    assert parse_detail(EventKind.MOTIVATION_HIGH, event["detail"]).variable == "frustration"

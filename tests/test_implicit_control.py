@@ -204,24 +204,24 @@ def test_motivation_crossing_its_limit_sends_the_event(ros, events):
     call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
          {"name": "frustration", "value": 10})
     def frustration(kind: str, level: str | None = None) -> list[dict]:
-        """The variable is the detail's `variable` field (its kind is one of the fixed motivation_*)."""
+        """The kind names the variable, as it always has (`frustration_high`); the detail's `variable` too."""
         return [e for e in events.messages if e["source"] == "motivation" and e["kind"] == kind
                 and json.loads(e["detail"])["variable"] == "frustration" and level in (None, e["level"])]
 
-    assert wait_for(lambda: frustration("motivation_high", "warning"), 5)
-    detail = json.loads(frustration("motivation_high")[0]["detail"])
+    assert wait_for(lambda: frustration("frustration_high", "warning"), 5)
+    detail = json.loads(frustration("frustration_high")[0]["detail"])
     assert detail["limit"] == 80 and detail["value"] >= 80 and detail["side"] == "high"
     assert wait_for(lambda: dict(zip(state.latest.get("name", []), state.latest.get("level", []))).get(
         "frustration") == "high", 5)
     reply = call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
                  {"name": "frustration", "value": 100})
     assert reply["value"] == 90 and "clamped" in reply["message"]
-    assert wait_for(lambda: frustration("motivation_high", "danger"), 5)
+    assert wait_for(lambda: frustration("frustration_high", "danger"), 5)
     refused(call(ros, "/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange",
                  {"name": "boredom", "value": 1}),
             "unknown motivation variable 'boredom'")
     call(ros, "/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", {"name": "frustration"})
-    assert wait_for(lambda: frustration("motivation_ok"), 5)
+    assert wait_for(lambda: frustration("frustration_ok"), 5)
     state.close()
 
 

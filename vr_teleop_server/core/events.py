@@ -21,5 +21,5 @@ def publish_event(bus: Bus, source: str, kind: EventKind | str, level: EventLeve
     """Puts a server event on /vr_teleop/events (recordings, the dashboard and logs all read it there); a kind or
     a detail its model does not know raises ValueError."""
     kind, text = detail_json(kind, detail if detail is not None else {})
-    bus.publish(names.EVENT_TOPIC, {"header": {"stamp": bus.registry.now()}, "source": source, "kind": kind.value,
+    bus.publish(names.EVENT_TOPIC, {"header": {"stamp": bus.registry.now()}, "source": source, "kind": kind,
                                     "level": EventLevel(level).value, "detail": text})
