@@ -306,10 +306,11 @@ class Emulator:
         for d in DIRECTIONS if direction == "both" else (direction,):
             self.params[d] = params
 
-    def stats(self) -> dict[str, Any]:
+    def stats(self, late_samples: bool = False) -> dict[str, Any]:
         """Per direction ("stats": the profile's; "link": the client edge's own link, if any): packets, delivered,
-        lost, queue_dropped, cut, reordered."""
-        return self._command({"cmd": "stats"})
+        lost, queue_dropped, cut, reordered; "late_ms", how late the forwarder's timed writes ran since the last
+        call (and with `late_samples`, each of them in "late_s", seconds: the host's share of what a probe sees)."""
+        return self._command({"cmd": "stats", "late_samples": late_samples})
 
     @property
     def forwarder_pid(self) -> int | None:

@@ -5,6 +5,7 @@ Run by netem.emulator as `python -m netem.forwarder SPEC_JSON`. It prints one JS
 (`{"ready": true}`), then answers JSON commands read from stdin, one a line:
     {"cmd": "set", "direction": "up" | "down" | "both", "params": {...}}   replace the impairment (all keys)
     {"cmd": "stats"}                                                         counters per direction
+    {"cmd": "stats", "late_samples": true}                                   and every timed write's lateness (s)
 The spec's optional "link" (per direction) is the client edge's own link, stacked with "params" (edges.py).
 It exits when stdin closes (so it dies with whoever started it; its TUN devices vanish with it: they are not
 persistent) or on SIGTERM.
@@ -141,10 +142,13 @@ class Forwarder:
             def pct(q: float) -> float | None:
                 return round(late[min(len(late) - 1, int(q * len(late)))] * 1e3, 3) if late else None
 
-            return {"ok": True, "stats": {d: m.counters.to_dict() for d, m in self.dirs.items()},
-                    "link": {d: m.counters.to_dict() for d, m in self.links.items()},
-                    "write_errors": self.write_errors, "not_ipv4": self.not_ipv4,
-                    "late_ms": {"n": len(late), "p50": pct(0.5), "p99": pct(0.99)}}
+            out = {"ok": True, "stats": {d: m.counters.to_dict() for d, m in self.dirs.items()},
+                   "link": {d: m.counters.to_dict() for d, m in self.links.items()},
+                   "write_errors": self.write_errors, "not_ipv4": self.not_ipv4,
+                   "late_ms": {"n": len(late), "p50": pct(0.5), "p99": pct(0.99)}}
+            if msg.get("late_samples"):
+                out["late_s"] = late
+            return out
         return {"ok": False, "error": f"unknown command {cmd!r}; use set or stats"}
 
 

@@ -256,6 +256,20 @@ def _jitter(values: list[float]) -> float:
     return float(q3 - q1) / 1.349
 
 
+def _expected_jitter(profile, late_s: list[float]) -> float:
+    """The spread (as _jitter measures it) of a round trip across the profile's two directions, each packet also
+    written as late as the forwarder's own measured lateness (drawn from its samples): what the probes should see
+    on this host now. On an idle host the lateness is a fraction of a millisecond and this is the profile's."""
+    rng = np.random.default_rng(7)
+    n = 200_000
+    rtt = (np.maximum(0.0, rng.normal(profile.up.delay_ms, profile.up.jitter_ms, n))
+           + np.maximum(0.0, rng.normal(profile.down.delay_ms, profile.down.jitter_ms, n)))
+    if late_s:
+        late_ms = np.asarray(late_s) * 1e3
+        rtt += rng.choice(late_ms, n) + rng.choice(late_ms, n)
+    return _jitter(rtt)
+
+
 @needs_netns
 def test_continent_rtt_jitter_and_loss_match_the_profile() -> None:
     with Emulator("continent") as net:
@@ -267,13 +281,20 @@ def test_continent_rtt_jitter_and_loss_match_the_profile() -> None:
         seen: set[int] = set()
         server = net.start_in("server", _echo_server, net.server_ip, 7001, seen, 2.0)
         time.sleep(0.2)
+        net.stats()  # the forwarder's lateness counts from here
         rtt = net.run_in("client", _probe, net.server_ip, 7001, 3000, 0.006, 1.0)
         net.set(keep_order=True)
+        host = net.stats(late_samples=True)
         rtts_ms = [v * 1e3 for v in rtt.values()]
-        figures = (f"RTT median {statistics.median(rtts_ms):.1f} ms, jitter {_jitter(rtts_ms):.2f} ms; the "
-                   f"forwarder's own lateness {net.stats()['late_ms']}")
+        expected = _expected_jitter(profile, host["late_s"])
+        figures = (f"RTT median {statistics.median(rtts_ms):.1f} ms, jitter {_jitter(rtts_ms):.2f} ms (the profile "
+                   f"{profile.rtt_jitter_ms:.2f}, with the forwarder's own lateness {expected:.2f}); that lateness "
+                   f"{host['late_ms']}")
         assert statistics.median(rtts_ms) == pytest.approx(profile.rtt_ms, rel=0.1), figures
-        assert _jitter(rtts_ms) == pytest.approx(profile.rtt_jitter_ms, rel=0.1), figures
+        # The link's spread is the profile's; a busy host only adds to it, by as much as the forwarder measured
+        # itself late (the cause of this assertion's failures under load: jitter 21.3 ms against 15.0 with the
+        # forwarder's lateness at p99 76 ms).
+        assert 0.9 * profile.rtt_jitter_ms <= _jitter(rtts_ms) <= 1.1 * expected, figures
         server.join()
         # Loss: 40 000 probes quickly (about 800 losses each way expected: a 10% error is 2.9 binomial sigmas).
         before = net.stats()["stats"]
