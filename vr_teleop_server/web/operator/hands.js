@@ -111,9 +111,10 @@ export function inputKind(sources) {
  * actions.openMenus(), actions.back(), actions.point(x, y, now) and actions.joy(hand, joy, now).
  * pointer(rayTransform) says what a hand points at: {on: "menu", x, y} (the menu's thumbstick), {on: "hud"} or null. */
 export class HandActions {
-  constructor(actions, pointer) {
+  constructor(actions, pointer, draw = () => {}) {
     this.actions = actions;
     this.pointer = pointer;
+    this.draw = draw;  // draw(hand, ray or null, target): the ray shown from the hand (handRays)
     this.gestures = {left: new HandGesture(), right: new HandGesture()};
     this.tracked = {left: false, right: false};
     this.talking = false;
@@ -126,15 +127,15 @@ export class HandActions {
     const wasPinch = g.pinch;
     g.update(reading, now);
     this.tracked[hand] = !!reading;
-    const target = reading?.ray && this.actions.menuOpen() ? this.pointer(reading.ray) : null;
-    if (target?.on === "menu") this.actions.point(target.x, target.y, now);
-    if (g.pinch && !wasPinch) this.pinched(hand, reading);
+    const target = reading?.ray ? this.pointer(reading.ray) : null;
+    if (target?.on === "menu" && this.actions.menuOpen()) this.actions.point(target.x, target.y, now);
+    this.draw(hand, reading?.ray ?? null, target);
+    if (g.pinch && !wasPinch) this.pinched(hand, target);
     else if (!g.pinch && wasPinch && hand === "left" && this.talking) this.stopTalking();
     this.actions.joy(hand, g.joy(), now);
   }
 
-  pinched(hand, reading) {
-    const target = reading.ray ? this.pointer(reading.ray) : null;
+  pinched(hand, target) {
     if (this.actions.menuOpen()) {
       if (target?.on === "menu") this.actions.select();
       else this.actions.back();
@@ -150,6 +151,7 @@ export class HandActions {
     const was = g.deadman || g.pinch;
     g.update(null, now);
     this.tracked[hand] = false;
+    this.draw(hand, null, null);
     if (hand === "left" && this.talking) this.stopTalking();
     if (was) this.actions.joy(hand, g.joy(), now);
   }
@@ -172,9 +174,36 @@ export function rayPointer(THREE, {menu, hud, menuStick}) {
     raycaster.set(origin, direction);
     if (menu.visible) {
       const hit = raycaster.intersectObject(menu, false)[0];
-      return hit?.uv ? {on: "menu", ...menuStick(hit.uv.x, hit.uv.y)} : null;
+      return hit?.uv ? {on: "menu", distance: hit.distance, ...menuStick(hit.uv.x, hit.uv.y)} : null;
     }
-    if (hud.visible && raycaster.intersectObject(hud, false).length) return {on: "hud"};
-    return null;
+    const hit = hud.visible ? raycaster.intersectObject(hud, false)[0] : null;
+    return hit ? {on: "hud", distance: hit.distance} : null;
+  };
+}
+
+const RAY_IDLE_M = 0.4;  // a ray pointing at nothing is drawn this long
+
+/** draw() for HandActions: a thin line from each tracked hand along its ray, to the panel it points at (lit) or a
+ * short way into nothing, so the teacher sees what a pinch would press. */
+export function handRays(THREE, scene) {
+  const lines = {};
+  for (const hand of ["left", "right"]) {
+    const geometry = new THREE.BufferGeometry().setFromPoints([new THREE.Vector3(0, 0, 0), new THREE.Vector3(0, 0, -1)]);
+    const line = new THREE.Line(geometry, new THREE.LineBasicMaterial({color: 0x9fb0c3, transparent: true,
+                                                                      opacity: 0.7, depthTest: false}));
+    line.renderOrder = 12;
+    line.visible = false;
+    scene.add(line);
+    lines[hand] = line;
+  }
+  return (hand, ray, target) => {
+    const line = lines[hand];
+    line.visible = !!ray;
+    if (!ray) return;
+    const {position: p, orientation: o} = ray;
+    line.position.set(p.x, p.y, p.z);
+    line.quaternion.set(o.x, o.y, o.z, o.w);
+    line.scale.set(1, 1, target?.distance ?? RAY_IDLE_M);
+    line.material.color.setHex(target ? 0x2f80ed : 0x9fb0c3);
   };
 }

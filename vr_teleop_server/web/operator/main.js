@@ -13,7 +13,7 @@ import {MenuError, MenuNavigator, TOGGLE_COMMANDS, parseMenus} from "./menus.js"
 import {drawHud, drawMenu, menuStick} from "./panels.js";
 import {Audio} from "./audio.js";
 import {ControllerActions} from "./controls.js";
-import {HAND_MENU_ID, HandActions, inputKind, rayPointer, readHand, withHandMenu} from "./hands.js";
+import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, withHandMenu} from "./hands.js";
 import {OperatorAutonomy} from "./autonomy.js";
 
 const TOPICS = {
@@ -455,7 +455,7 @@ const actions = {
 };
 const controllers = new ControllerActions(actions);
 const handActions = new HandActions(actions, rayPointer(THREE, {
-  menu: menuMesh, hud, menuStick: (u, v) => menuStick(menuCanvas, u, v)}));
+  menu: menuMesh, hud, menuStick: (u, v) => menuStick(menuCanvas, u, v)}), handRays(THREE, scene));
 
 // ---- poses, once per frame ------------------------------------------------------------------------------------
 function headAngles(q) {
