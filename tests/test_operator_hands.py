@@ -132,8 +132,15 @@ def test_a_pinch_selects_in_the_menus_and_is_the_trigger_and_the_controllers_tak
         page.wait_for_function("!window.operator.nav.open", timeout=SLOW)
         assert not hud(page, "control").startswith("YOU HAVE CONTROL")
 
-        # The controllers back mid-session: the HUD says so and the right trigger takes control.
+        # A left pinch held talks; the controllers back mid-session end it (nothing stays held across a switch),
+        # the HUD says so and the right trigger takes control.
+        aim(page, "left", [-0.2, 1.2, -0.3], [-0.3, 0.0, -0.6])
+        page.evaluate("xrDevice.hands.left.updatePinchValue(1)")
+        page.wait_for_function("window.operator.hands.talking", timeout=SLOW)
         page.evaluate("xrDevice.primaryInputMode = 'controller'")
+        page.wait_for_function("!window.operator.hands.talking && !window.operator.hands.gestures.left.pinch",
+                               timeout=SLOW)
+        page.evaluate("xrDevice.hands.left.updatePinchValue(0)")
         page.wait_for_function("document.getElementById('hud-input')?.textContent === 'input: controllers'",
                                timeout=SLOW)
         take_control(page)

@@ -480,6 +480,7 @@ function publishPose(topic, position, orientation) {
   if (publishStream(topic, poseStamped(position, orientation))) state.posesSent += 1;
 }
 
+const RELEASED_JOY = {axes: [0, 0, 0, 0], buttons: [0, 0, 0, 0]};
 function publishJoy(hand, joy, now) {
   if (othersHold()) return;
   if (sameJoy(joy, state.joy[hand]) && now - state.joySent[hand] < JOY_KEEPALIVE_MS) return;
@@ -502,7 +503,7 @@ function xrFrame(frame, now) {
     state.head.quaternion.set(o.x, o.y, o.z, o.w);
     publishPose(TOPICS.head, p, o);
   }
-  const sources = frame.session.inputSources, handsSeen = new Set();
+  const sources = frame.session.inputSources, handsSeen = new Set(), controllersSeen = new Set();
   for (const source of sources) {
     const hand = source.handedness;
     if (hand !== "left" && hand !== "right") continue;
@@ -520,9 +521,15 @@ function xrFrame(frame, now) {
     if (source.gamepad) {
       publishJoy(hand, joyFromGamepad(source.gamepad), now);
       controllers.update(hand, source.gamepad, now);
+      controllersSeen.add(hand);
     }
   }
-  for (const hand of ["left", "right"]) if (!handsSeen.has(hand)) handActions.gone(hand, now);
+  for (const hand of ["left", "right"]) {
+    if (!handsSeen.has(hand)) handActions.gone(hand, now);
+    if (controllersSeen.has(hand)) continue;
+    controllers.gone(hand);
+    if (!handsSeen.has(hand) && state.joy[hand]?.axes[3] > 0) publishJoy(hand, RELEASED_JOY, now);  // nothing held
+  }
   noteInput(inputKind(sources));
 }
 
