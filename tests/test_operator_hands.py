@@ -228,7 +228,8 @@ def test_hand_gestures_under_node(tmp_path):
     script.write_text(f"""
 import * as h from {json.dumps(str(web / 'hands.js'))};
 import {{parseMenus, MenuNavigator}} from {json.dumps(str(web / 'menus.js'))};
-const open = {{index: 1.9, middle: 1.9, ring: 1.8, pinky: 1.6}}, fist = {{index: 0.8, middle: 0.8, ring: 0.7, pinky: 0.7}};
+const open = {{index: 1.9, middle: 1.9, ring: 1.8, pinky: 1.6}};
+const fist = {{index: 0.8, middle: 0.8, ring: 0.7, pinky: 0.7}};
 const r = (pinch, curl) => ({{pinch, curl}});
 const g = new h.HandGesture(), out = {{}};
 const seq = (steps) => steps.map(([reading, t]) => {{ g.update(reading, t); return [g.pinch, g.fist, g.deadman]; }});
@@ -240,10 +241,12 @@ out.lost = seq([[null, 1010]]);
 out.fistPinch = seq([[r(0.005, fist), 2000]]);  // thumb on the curled index finger: a fist, not a pinch
 out.kinds = [h.inputKind([{{handedness: "left", hand: {{}}}}, {{handedness: "right", hand: {{}}}}]),
              h.inputKind([{{handedness: "left", gamepad: {{}}}}, {{handedness: "none"}}]),
-             h.inputKind([{{handedness: "left", hand: {{}}}}, {{handedness: "right", gamepad: {{}}}}]), h.inputKind([])];
+             h.inputKind([{{handedness: "left", hand: {{}}}}, {{handedness: "right", gamepad: {{}}}}]),
+             h.inputKind([])];
 const tree = h.withHandMenu(parseMenus({{menus: [{{id: "e", label: "E", controller: "right", button: "B"}},
   {{id: "s", label: "S", controller: "left", button: "X"}}], items: [
-  {{id: "e.t", parent: "e", slot: "top", label: "T", command: "x"}}, {{id: "s.t", parent: "s", slot: "top", label: "U", command: "y"}}]}}));
+  {{id: "e.t", parent: "e", slot: "top", label: "T", command: "x"}},
+  {{id: "s.t", parent: "s", slot: "top", label: "U", command: "y"}}]}}));
 const nav = new MenuNavigator(); nav.setTree(tree); nav.press(h.HAND_MENU_ID);
 out.ring = nav.level.entries.map((e) => [e.item.id, e.angle]);
 nav.stick(0, -1, 0); out.entered = nav.select(); out.title = nav.title;

@@ -66,7 +66,8 @@ export class HandGesture {
     else if (this.fistSince === null) this.fistSince = now;
     this.deadman = this.fist && now - this.fistSince >= FIST_HOLD_MS;
     const indexOut = reading.curl.index >= FIST_ON;
-    this.pinch = this.fist ? false : this.pinch ? reading.pinch <= PINCH_OFF_M : reading.pinch < PINCH_ON_M && indexOut;
+    if (this.fist) this.pinch = false;
+    else this.pinch = this.pinch ? reading.pinch <= PINCH_OFF_M : reading.pinch < PINCH_ON_M && indexOut;
     return this;
   }
 
@@ -188,7 +189,8 @@ const RAY_IDLE_M = 0.4;  // a ray pointing at nothing is drawn this long
 export function handRays(THREE, scene) {
   const lines = {};
   for (const hand of ["left", "right"]) {
-    const geometry = new THREE.BufferGeometry().setFromPoints([new THREE.Vector3(0, 0, 0), new THREE.Vector3(0, 0, -1)]);
+    const geometry = new THREE.BufferGeometry().setFromPoints([new THREE.Vector3(0, 0, 0),
+                                                              new THREE.Vector3(0, 0, -1)]);
     const line = new THREE.Line(geometry, new THREE.LineBasicMaterial({color: 0x9fb0c3, transparent: true,
                                                                       opacity: 0.7, depthTest: false}));
     line.renderOrder = 12;
