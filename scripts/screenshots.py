@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import math
 import os
 import shutil
 import socket
@@ -35,6 +36,7 @@ SLOW = 120_000  # ms: a page, the stand-in and a software renderer share a busy 
 # The server's flags per set of pictures: the teleoperation pictures without autonomy turning the head or
 # proposing; the autonomy pictures with a rule that answers a pupil's line and a minute to decide.
 SETS = {"headset": ("--autonomy", "teleoperated"), "flat": ("--autonomy", "teleoperated"),
+        "hands": ("--autonomy", "teleoperated"),
         "autonomy": ("--autonomy", "supervised", "--autonomy-rules", "RULES", "--bystander-interval", "0")}
 AUTONOMY_RULES = """timeout_s: 60
 on_timeout: drop
@@ -178,6 +180,49 @@ class Shots:
         finally:
             page.context.close()
 
+    @staticmethod
+    def aim(page, hand: str, position: tuple[float, float, float], target: tuple[float, float, float]) -> None:
+        """IWER's hand at `position`, its ray (-z) pointing at `target`."""
+        d = [t - p for t, p in zip(target, position)]
+        n = math.sqrt(sum(v * v for v in d))
+        d = [v / n for v in d]
+        axis = (d[1], -d[0], 0.0)  # (0, 0, -1) x d
+        s = math.sqrt(axis[0] ** 2 + axis[1] ** 2)
+        half = math.acos(max(-1.0, min(1.0, -d[2]))) / 2
+        q = [a / s * math.sin(half) for a in axis] + [math.cos(half)] if s > 1e-9 else [0.0, 0.0, 0.0, 1.0]
+        page.evaluate(f"xrDevice.hands.{hand}.position.set(...{list(position)});"
+                      f"xrDevice.hands.{hand}.quaternion.set(...{q})")
+
+    def pinch(self, page, hand: str) -> None:
+        page.evaluate(f"xrDevice.hands.{hand}.updatePinchValue(1)")
+        page.wait_for_function(f"window.operator.hands.gestures.{hand}.pinch", timeout=SLOW)
+        page.evaluate(f"xrDevice.hands.{hand}.updatePinchValue(0)")
+        page.wait_for_function(f"!window.operator.hands.gestures.{hand}.pinch", timeout=SLOW)
+
+    def hands(self) -> None:
+        """The controllers put down: the hands' ray on the ring of menus a pinch on the HUD opened."""
+        page = self.operator(headset=True)
+        try:
+            page.get_by_role("button", name="Enter VR").click()
+            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                                   timeout=SLOW)
+            page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
+            page.evaluate("xrDevice.primaryInputMode = 'hand'")
+            page.wait_for_function("document.getElementById('hud-input')?.textContent === 'input: hands'",
+                                   timeout=SLOW)
+            hand = (0.2, 1.2, -0.3)
+            self.aim(page, "right", hand, (0.0, 1.12, -1.0))  # the HUD's centre
+            self.frames(page)
+            self.pinch(page, "right")
+            page.wait_for_function("document.getElementById('menu-title').textContent === 'Menus'", timeout=SLOW)
+            self.aim(page, "right", hand, (0.30, 1.64, -0.85))  # the ring's right place: A's menu (Commands)
+            page.wait_for_function("window.operator.nav.highlight >= 0", timeout=SLOW)
+            self.calm(page)
+            self.frames(page, 5)
+            self.save(page, "operator-vr-hands")
+        finally:
+            page.context.close()
+
     def autonomy(self) -> None:
         """Supervised autonomy: a pupil speaks, the robot proposes; the headset's card (the teacher holding control:
         on a busy machine the panel's frames lag the face detector's boxes while autonomy turns the head), then the
@@ -278,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the Chromium to drive (default: Debian's, from PATH)")
     parser.add_argument("--only", nargs="+", choices=tuple(SETS), default=tuple(SETS),
                         help="take only these sets (headset: its views and the dashboard; autonomy: a proposal in "
-                             "the headset and the dashboard's autonomy panel)")
+                             "the headset and the dashboard's autonomy panel; hands: the menus with hands)")
     args = parser.parse_args(argv)
     if not args.chromium:
         parser.error("Chromium is not installed: scripts/install-system-packages.sh installs it")
@@ -298,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
                 try:
                     shots = Shots(browser, server, args.out)
                     steps: dict[str, Callable[[], None]] = {"headset": shots.headset, "flat": shots.flat,
-                                                            "autonomy": shots.autonomy}
+                                                            "autonomy": shots.autonomy, "hands": shots.hands}
                     for name in args.only:
                         if SETS[name] == flags:
                             steps[name]()

@@ -75,6 +75,20 @@ export class ControllerActions {
     if (hand === "right") this.flick(x, y);
   }
 
+  /** The hand's controller no longer reported (put down for hand tracking, or lost): what it held ends. */
+  gone(hand) {
+    if (!LETTERS[hand] || (!this.prev[hand] && !this.trigger[hand] && !this.stickDown[hand])) return;
+    if (hand === "left" && this.talking) {
+      this.talking = false;
+      this.actions.talk(false);
+    }
+    this.prev[hand] = null;
+    this.trigger[hand] = false;
+    this.stickDown[hand] = false;
+    this.rightClickSolo = false;
+    if (!this.stickDown.left && !this.stickDown.right) this.estopLatched = false;
+  }
+
   flick(x, y) {
     if (this.flicked) {
       if (Math.hypot(x, y) < CENTRED) this.flicked = false;

@@ -10,9 +10,10 @@ import {poseStamped, joyFromGamepad, joyMessage, sameJoy} from "./ros_axes.js";
 import {CameraFeed} from "./camera.js";
 import {PoseChannel} from "./pose_channel.js";
 import {MenuError, MenuNavigator, TOGGLE_COMMANDS, parseMenus} from "./menus.js";
-import {drawHud, drawMenu} from "./panels.js";
+import {drawHud, drawMenu, menuStick} from "./panels.js";
 import {Audio} from "./audio.js";
 import {ControllerActions} from "./controls.js";
+import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, withHandMenu} from "./hands.js";
 import {OperatorAutonomy} from "./autonomy.js";
 
 const TOPICS = {
@@ -55,6 +56,7 @@ const state = {
   head: {position: new THREE.Vector3(0, EYE_HEIGHT, 0), quaternion: new THREE.Quaternion()},
   flat: {yaw: 0, pitch: 0, dragging: false},
   xr: null, joy: {left: null, right: null}, joySent: {left: 0, right: 0},
+  input: null,                         // "controllers", "hands", "a hand and a controller" (hands.js inputKind)
   posesSent: 0, frames: 0, frameCount: 0, fps: 0, frameTimes: [], workTimes: [], lastFrameAt: null,
   lastClamped: new Set(),
   motorFaults: {},                     // motor -> what it reports wrong (a real robot's joints error stream)
@@ -287,7 +289,7 @@ const nav = new MenuNavigator();
 let menuDirty = true;
 ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (msg) => {
   try {
-    nav.setTree(parseMenus(msg));
+    nav.setTree(withHandMenu(parseMenus(msg)));  // hands open the menus from a ring of them (hands.js)
     state.menusProblem = null;
   } catch (err) {
     if (!(err instanceof MenuError)) console.error(err);
@@ -432,17 +434,28 @@ function talk(on) {
   updateHud(true);
 }
 
-const controllers = new ControllerActions({
+function pointInMenu(x, y, now) {
+  const before = nav.highlight;
+  nav.stick(x, y, now);
+  if (nav.highlight !== before) menuDirty = true;
+}
+
+const actions = {
   menuButton: pressMenuButton, menuOpen: () => nav.open, select: selectInMenu, toggleControl, calibrate, estop,
   talk, decide: (decision) => autonomy.decide(decision), proposalPending: () => autonomy.pending,
   stick: (hand, x, y, now) => {
     const menu = nav.menu;
-    if (!menu || (menu.controller !== hand && menu.controller !== "any")) return;
-    const before = nav.highlight;
-    nav.stick(x, y, now);
-    if (nav.highlight !== before) menuDirty = true;
+    if (menu && (menu.controller === hand || menu.controller === "any")) pointInMenu(x, y, now);
   },
-});
+  // the hands' own (hands.js): the menus' ring, back one level, the ray as thumbstick, their Joy
+  openMenus: () => { nav.press(HAND_MENU_ID); state.footer = null; menuDirty = true; },
+  back: () => { nav.back(); menuDirty = true; },
+  point: pointInMenu,
+  joy: (hand, joy, now) => publishJoy(hand, joy, now),
+};
+const controllers = new ControllerActions(actions);
+const handActions = new HandActions(actions, rayPointer(THREE, {
+  menu: menuMesh, hud, menuStick: (u, v) => menuStick(menuCanvas, u, v)}), handRays(THREE, scene));
 
 // ---- poses, once per frame ------------------------------------------------------------------------------------
 function headAngles(q) {
@@ -467,8 +480,8 @@ function publishPose(topic, position, orientation) {
   if (publishStream(topic, poseStamped(position, orientation))) state.posesSent += 1;
 }
 
-function publishJoy(hand, gamepad, now) {
-  const joy = joyFromGamepad(gamepad);
+const RELEASED_JOY = {axes: [0, 0, 0, 0], buttons: [0, 0, 0, 0]};
+function publishJoy(hand, joy, now) {
   if (othersHold()) return;
   if (sameJoy(joy, state.joy[hand]) && now - state.joySent[hand] < JOY_KEEPALIVE_MS) return;
   if (publishStream(hand === "left" ? TOPICS.leftJoy : TOPICS.rightJoy, joyMessage(joy))) {
@@ -490,18 +503,42 @@ function xrFrame(frame, now) {
     state.head.quaternion.set(o.x, o.y, o.z, o.w);
     publishPose(TOPICS.head, p, o);
   }
-  for (const source of frame.session.inputSources) {
+  const sources = frame.session.inputSources, handsSeen = new Set(), controllersSeen = new Set();
+  for (const source of sources) {
     const hand = source.handedness;
     if (hand !== "left" && hand !== "right") continue;
+    if (source.hand) {  // a tracked hand (whatever gamepad it carries): hands.js, the wrist as the arm's target
+      const reading = readHand(frame, source, refSpace);
+      if (reading) publishPose(TOPICS[hand], reading.wrist.position, reading.wrist.orientation);
+      handActions.update(hand, reading, now);
+      handsSeen.add(hand);
+      continue;
+    }
     if (source.gripSpace) {
       const pose = frame.getPose(source.gripSpace, refSpace);
       if (pose) publishPose(TOPICS[hand], pose.transform.position, pose.transform.orientation);
     }
     if (source.gamepad) {
-      publishJoy(hand, source.gamepad, now);
+      publishJoy(hand, joyFromGamepad(source.gamepad), now);
       controllers.update(hand, source.gamepad, now);
+      controllersSeen.add(hand);
     }
   }
+  for (const hand of ["left", "right"]) {
+    if (!handsSeen.has(hand)) handActions.gone(hand, now);
+    if (controllersSeen.has(hand)) continue;
+    controllers.gone(hand);
+    if (!handsSeen.has(hand) && state.joy[hand]?.axes[3] > 0) publishJoy(hand, RELEASED_JOY, now);  // nothing held
+  }
+  noteInput(inputKind(sources));
+}
+
+// Which input the headset reports (controllers or hands): said when it changes, and on the HUD.
+function noteInput(kind) {
+  if (kind === state.input) return;
+  state.input = kind;
+  if (kind) say(kind === "hands" ? "hands: pinch to select, hold a fist to move that arm" : `input: ${kind}`, "ok");
+  menuDirty = true;
 }
 
 function flatFrame() {
@@ -534,6 +571,7 @@ function placePanels() {
 
 function menuHint() {
   const button = nav.menu?.button || "";
+  if (state.xr && state.input === "hands") return ["point", "pinch: select", "pinch off the menu: back"];
   return state.xr ? ["stick: point", "trigger: select", `${button}: back`]
                   : ["arrows: point", "Enter: select", `${button} or Backspace: back`];
 }
@@ -550,7 +588,7 @@ function hudLines() {
     lines.push({id: "connection", text: `○ DISCONNECTED (${state.disconnectReason}): reconnecting in ${wait} s`,
                 level: "error"});
   }
-  const hint = state.xr ? "right trigger" : "E";
+  const hint = state.xr ? (state.input === "hands" ? "right pinch" : "right trigger") : "E";
   if (!s) lines.push({id: "control", text: "control: waiting for the server", level: "muted"});
   else if (s.state === "estopped") {
     lines.push({id: "control", text: `E-STOPPED: the robot holds (${hint}: take control again)`, level: "error"});
@@ -593,6 +631,7 @@ function hudLines() {
   const talking = audio.status ? ` · ${audio.status}` : "";
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
               level: "info"});
+  if (state.xr && state.input) lines.push({id: "input", text: `input: ${state.input}`, level: "info"});
   if (!state.xr) {
     lines.push({id: "keys", level: "muted",
                 text: "drag: look · E: control · X Y A B: menus · hold T: talk · → ←: accept, reject · Esc: STOP"});
@@ -686,7 +725,8 @@ function readPixels(requests) {
 async function enterVr() {
   audio.unlock();
   try {
-    const session = await navigator.xr.requestSession("immersive-vr", {requiredFeatures: ["local-floor"]});
+    const session = await navigator.xr.requestSession("immersive-vr", {requiredFeatures: ["local-floor"],
+                                                                           optionalFeatures: ["hand-tracking"]});
     session.addEventListener("end", () => {
       state.xr = null;
       $("enter-vr").textContent = "Enter VR";
@@ -796,5 +836,6 @@ $("estop").addEventListener("click", estop);
 // What tests and the bench read (no control goes through here).
 window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
+  hands: handActions,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };

@@ -54,6 +54,17 @@ export function drawHud(canvas, lines) {
 }
 
 /** The open menu: nav (a MenuNavigator), toggles (item id -> true/false), footer (the last result). */
+function ringGeometry(width, height) {
+  return {cx: width / 2, cy: height / 2 + 40, rx: 0.365 * width, ry: 0.33 * height};
+}
+
+/** A point of the menu (u, v from 0, 0 bottom left to 1, 1 top right) as the thumbstick pointing there would be:
+ * x right, y up, 1 on the ring of items (hands.js points at the menu with this). */
+export function menuStick(canvas, u, v) {
+  const {cx, cy, rx, ry} = ringGeometry(canvas.width, canvas.height);
+  return {x: (u * canvas.width - cx) / rx, y: (cy - (1 - v) * canvas.height) / ry};
+}
+
 export function drawMenu(canvas, nav, toggles, footer, hint) {
   const ctx = canvas.getContext("2d");
   const {width, height} = canvas;
@@ -75,7 +86,7 @@ export function drawMenu(canvas, nav, toggles, footer, hint) {
   };
   if (level.kind === "ring") {
     // Eight places on an ellipse, wide enough that a diagonal box never overlaps its compass neighbours.
-    const cx = width / 2, cy = height / 2 + 40, rx = 0.365 * width, ry = 0.33 * height;
+    const {cx, cy, rx, ry} = ringGeometry(width, height);
     const w = 0.24 * width, h = 116;
     ctx.strokeStyle = "rgba(159, 176, 195, 0.35)";
     ctx.lineWidth = 6;
