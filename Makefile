@@ -12,8 +12,11 @@ export MUJOCO_GL ?= egl
 run: $(STAMP)
 	$(VENV)/bin/vr-teleop serve --host $(HOST) --port $(PORT)
 
+# The suite on TEST_WORKERS processes (pytest-xdist), each module whole on one of them, so that a module's shared
+# server is started once; TEST_WORKERS=0 runs it in this process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py
