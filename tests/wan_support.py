@@ -86,7 +86,9 @@ class Observer:
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
         self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
                                stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
-        deadline = time.monotonic() + 30
+        # It says "ready" once subscribed, or exits; the deadline is only a backstop (the process imports the
+        # package first: 30 s was not always enough at load 30-40, which failed tests with this error)
+        deadline = time.monotonic() + 100
         while time.monotonic() < deadline:
             self._out.seek(0)
             if self._out.readline().strip() == '"ready"':
