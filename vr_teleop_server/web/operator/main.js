@@ -14,6 +14,7 @@ import {drawHud, drawMenu} from "./panels.js";
 import {Audio} from "./audio.js";
 import {ControllerActions} from "./controls.js";
 import {OperatorAutonomy} from "./autonomy.js";
+import {Comfort, COMMAND as COMFORT_COMMAND, optionFromAddress} from "./comfort.js";
 
 const TOPICS = {
   head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
@@ -303,6 +304,7 @@ const toggles = {
     if (item?.command === "set_autonomy" && autonomy.model.level) {  // the level in force is the one ON
       try { return JSON.parse(item.args || "{}").level === autonomy.model.level; } catch { return undefined; }
     }
+    if (item?.command === COMFORT_COMMAND) return comfort.enabled;
     if (!item || !TOGGLE_COMMANDS.has(item.command)) return undefined;
     const states = {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording};
     return states[item.command];
@@ -324,7 +326,7 @@ async function runItem(item) {
   state.footer = {text: `${item.label}…`, level: "ok"};
   menuDirty = true;
   try {
-    const reply = await ros.call(SERVICES.select, {id: item.id, args: ""});
+    const reply = await ros.call(SERVICES.select, {id: item.id, args: comfort.menuItem(item) ?? ""});
     let text = reply.message || "done";
     if (item.command === "show_status") text = summariseStatus(text);
     state.footer = {text: `${item.label}: ${text}`, level: "ok"};
@@ -426,6 +428,8 @@ async function estop() {
 
 const audio = new Audio(ros, {onError: (text) => say(text, "error")});
 const autonomy = new OperatorAutonomy(ros, {say, onLevel: () => { menuDirty = true; }});
+const comfort = new Comfort({scene, headLocked, enabled: optionFromAddress(location), checkbox: $("vignette"),
+                             onChange: () => { menuDirty = true; }});  // the vignette and the reticle
 function talk(on) {
   audio.talk(on);
   $("talk").classList.toggle("on", on);
@@ -664,6 +668,7 @@ renderer.setAnimationLoop((time, frame) => {
   else flatFrame();
   poseChannel.flush();  // the frame's poses and Joy taken by the channel, as one binary message
   placePanels();
+  comfort.update(state, holding() && state.headOn, now);
   updateHud();
   renderer.render(scene, camera);
   if (pixelRequests.length) readPixels(pixelRequests.splice(0));
@@ -796,5 +801,6 @@ $("estop").addEventListener("click", estop);
 // What tests and the bench read (no control goes through here).
 window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
+  comfort,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };
