@@ -24,7 +24,7 @@ const CLEAR_DEG = 42;                // at the faintest, the view is clear withi
 const DARK_DEG = 70;                 // ...and dark beyond 70; at full strength both shrink by NARROWEST
 const NARROWEST = 0.45;              // (tangents scaled by 0.45: clear within 22 degrees, dark beyond 51)
 const RETICLE_DISTANCE = 1.9;        // metres: just in front of the camera panel (2.0)
-const RETICLE_SIZE = 0.1;            // metres at 1.9 m: three degrees across
+const RETICLE_SIZE = 0.15;           // metres at 1.9 m: four and a half degrees across
 const TINT = new THREE.Color("#0a1018");  // the HUD's background, rgba(10, 16, 24) (sRGB, made linear)
 
 /** The page's option from its address: off with vignette=off|0|false in the hash or the query. */
