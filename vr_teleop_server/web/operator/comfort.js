@@ -5,8 +5,10 @@
 //
 // Lag: the angle between the operator's line of sight and the robot's (HeadYaw/HeadPitch from the joint states,
 // about the engage zero). Strength 0 below LAG_START_DEG, 1 from LAG_FULL_DEG, smoothstep between, eased over
-// EASE_S. Cheap by construction: both meshes are built once; a frame changes an opacity, a scale, a colour and a
-// visibility, never a canvas or a texture. The vignette is not drawn at all while its strength is 0.
+// EASE_S. Cheap by construction: the meshes are built once; a frame changes an opacity, a scale, a colour and a
+// visibility, never a canvas or a texture. The vignette is not drawn at all while its strength is 0, and once its
+// outer part is fully dark that part is drawn opaque, first, writing depth: the camera panel's pixels behind it are
+// then never shaded (a software renderer shades every pixel on the CPU; a headset's GPU saves the fill too).
 //
 // The option: on by default; `#vignette=off` (or `?vignette=off`) in the page's address starts it off; the flat
 // page's "Comfort vignette" checkbox and the status menu's item (command set_comfort_vignette) switch it.
@@ -18,7 +20,6 @@ export const LAG_START_DEG = 5;      // the robot's head within 5 degrees of the
 export const LAG_FULL_DEG = 25;      // 25 degrees behind or more: the vignette at its darkest and narrowest
 export const COMMAND = "set_comfort_vignette";
 const EASE_S = 0.12;                 // the strength follows the lag with this time constant: no flicker
-const MAX_OPACITY = 0.92;
 const DISTANCE = 0.2;                // metres: inside the menu (0.85) and the HUD (1.0), which are drawn over it
 const CLEAR_DEG = 42;                // at the faintest, the view is clear within 42 degrees of its centre...
 const DARK_DEG = 70;                 // ...and dark beyond 70; at full strength both shrink by NARROWEST
@@ -36,17 +37,8 @@ export function optionFromAddress(loc) {
   return true;
 }
 
-/** A ring facing +z at z=0: transparent inside `clear`, opaque from `dark` out to far beyond the view, in tangent
- * units (radius / distance); the alpha rises by smoothstep across the gradient. */
-function vignetteGeometry(clear, dark, segments = 64, stops = 10) {
-  const radii = [], alphas = [];
-  for (let j = 0; j <= stops; j++) {
-    const t = j / stops;
-    radii.push(clear + (dark - clear) * t);
-    alphas.push(t * t * (3 - 2 * t));
-  }
-  radii.push(60);  // 89 degrees: the corners of any eye's view
-  alphas.push(1);
+/** Rings facing +z at z=0 through `radii` (tangent units: radius / distance) with those alphas. */
+function ringGeometry(radii, alphas, segments = 64) {
   const positions = [], colors = [], index = [];
   for (let j = 0; j < radii.length; j++) {
     for (let i = 0; i < segments; i++) {
@@ -67,6 +59,18 @@ function vignetteGeometry(clear, dark, segments = 64, stops = 10) {
   geometry.setAttribute("color", new THREE.Float32BufferAttribute(colors, 4));  // 4: per-vertex alpha
   geometry.setIndex(index);
   return geometry;
+}
+
+/** The gradient (transparent inside `clear`, dark at `dark`, smoothstep between) and the dark outer part (from
+ * `dark` to 89 degrees: the corners of any eye's view). */
+function vignetteGeometries(clear, dark, stops = 10) {
+  const radii = [], alphas = [];
+  for (let j = 0; j <= stops; j++) {
+    const t = j / stops;
+    radii.push(clear + (dark - clear) * t);
+    alphas.push(t * t * (3 - 2 * t));
+  }
+  return {gradient: ringGeometry(radii, alphas), outer: ringGeometry([dark, 60], [1, 1])};
 }
 
 /** The reticle's picture, drawn once: a ring with four ticks and a dot, white on a dark outline (tinted by the
@@ -115,15 +119,22 @@ export class Comfort {
     this.checkbox = checkbox;
     this.onChange = onChange;
     this.lastAt = null;
-    this.vignette = new THREE.Mesh(vignetteGeometry(Math.tan(THREE.MathUtils.degToRad(CLEAR_DEG)),
-                                                    Math.tan(THREE.MathUtils.degToRad(DARK_DEG))),
-                                   new THREE.MeshBasicMaterial({vertexColors: true, transparent: true, opacity: 0,
-                                                                depthTest: false, depthWrite: false,
-                                                                toneMapped: false}));
+    const geometries = vignetteGeometries(Math.tan(THREE.MathUtils.degToRad(CLEAR_DEG)),
+                                          Math.tan(THREE.MathUtils.degToRad(DARK_DEG)));
+    const faded = () => new THREE.MeshBasicMaterial({vertexColors: true, transparent: true, opacity: 0,
+                                                     depthTest: false, depthWrite: false, toneMapped: false});
+    this.gradient = new THREE.Mesh(geometries.gradient, faded());
+    this.outerFaded = faded();
+    this.outerSolid = new THREE.MeshBasicMaterial({color: TINT, toneMapped: false});  // opaque, writes depth
+    this.outer = new THREE.Mesh(geometries.outer, this.outerFaded);
+    this.vignette = new THREE.Group();
+    for (const mesh of [this.gradient, this.outer]) {
+      mesh.renderOrder = 5;           // over the camera panel, under the HUD (10) and the menu (11)
+      mesh.frustumCulled = false;
+      this.vignette.add(mesh);
+    }
     this.vignette.position.set(0, 0, -DISTANCE);
-    this.vignette.renderOrder = 5;    // over the camera panel, under the HUD (10) and the menu (11)
     this.vignette.visible = false;
-    this.vignette.frustumCulled = false;
     headLocked.add(this.vignette);
     this.reticle = new THREE.Mesh(new THREE.PlaneGeometry(RETICLE_SIZE, RETICLE_SIZE),
                                   new THREE.MeshBasicMaterial({map: reticleTexture(), transparent: true,
@@ -185,7 +196,11 @@ export class Comfort {
     const shown = this.strength > 0.002;
     this.vignette.visible = shown;
     if (shown) {
-      this.vignette.material.opacity = MAX_OPACITY * Math.min(1, this.strength * 1.5);
+      const opacity = Math.min(1, this.strength * 1.5);
+      this.gradient.material.opacity = this.outerFaded.opacity = opacity;
+      const solid = opacity >= 0.999;
+      this.outer.material = solid ? this.outerSolid : this.outerFaded;
+      this.outer.renderOrder = solid ? -1 : 5;  // opaque: drawn before the panel, which it hides
       this.vignette.scale.setScalar(1 - (1 - NARROWEST) * this.strength);
     }
     this.reticle.visible = this.enabled && active;
@@ -205,7 +220,8 @@ export class Comfort {
   snapshot() {
     return {enabled: this.enabled, active: this.active, lagDeg: this.lagDeg, target: this.target,
             strength: this.strength, vignetteVisible: this.vignette.visible,
-            opacity: this.vignette.visible ? this.vignette.material.opacity : 0, scale: this.vignette.scale.x,
+            opacity: this.vignette.visible ? this.gradient.material.opacity : 0, scale: this.vignette.scale.x,
+            solid: this.vignette.visible && this.outer.material === this.outerSolid,
             reticleVisible: this.reticle.visible, robotLook: this.robotLook,
             reticle: this.reticle.visible ? this.reticle.position.toArray() : null};
   }
