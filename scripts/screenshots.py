@@ -303,7 +303,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the Chromium to drive (default: Debian's, from PATH)")
     parser.add_argument("--only", nargs="+", choices=tuple(SETS), default=tuple(SETS),
                         help="take only these sets (headset: its views and the dashboard; autonomy: a proposal in "
-                             "the headset and the dashboard's autonomy panel; comfort: the vignette and the reticle in the headset)")
+                             "the headset and the dashboard's autonomy panel; comfort: the vignette and the reticle "
+                             "in the headset)")
     args = parser.parse_args(argv)
     if not args.chromium:
         parser.error("Chromium is not installed: scripts/install-system-packages.sh installs it")

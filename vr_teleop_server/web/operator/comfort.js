@@ -5,10 +5,10 @@
 //
 // Lag: the angle between the operator's line of sight and the robot's (HeadYaw/HeadPitch from the joint states,
 // about the engage zero). Strength 0 below LAG_START_DEG, 1 from LAG_FULL_DEG, smoothstep between, eased over
-// EASE_S. Cheap by construction: the meshes are built once; a frame changes an opacity, a scale, a colour and a
-// visibility, never a canvas or a texture. The vignette is not drawn at all while its strength is 0, and once its
-// outer part is fully dark that part is drawn opaque, first, writing depth: the camera panel's pixels behind it are
-// then never shaded (a software renderer shades every pixel on the CPU; a headset's GPU saves the fill too).
+// EASE_S. Cheap by construction: the vignette is no extra layer to fill but a few instructions added once to the
+// shaders of the world's materials (the camera panel, its overlay, the floor grid, the controllers; not the HUD or
+// the menus), which darken a pixel by its angle off the eye's axis; a frame sets four shared uniforms, the reticle's
+// place, colour and visibility, never a canvas or a texture.
 //
 // The option: on by default; `#vignette=off` (or `?vignette=off`) in the page's address starts it off; the flat
 // page's "Comfort vignette" checkbox and the status menu's item (command set_comfort_vignette) switch it.
@@ -20,7 +20,6 @@ export const LAG_START_DEG = 5;      // the robot's head within 5 degrees of the
 export const LAG_FULL_DEG = 25;      // 25 degrees behind or more: the vignette at its darkest and narrowest
 export const COMMAND = "set_comfort_vignette";
 const EASE_S = 0.12;                 // the strength follows the lag with this time constant: no flicker
-const DISTANCE = 0.2;                // metres: inside the menu (0.85) and the HUD (1.0), which are drawn over it
 const CLEAR_DEG = 42;                // at the faintest, the view is clear within 42 degrees of its centre...
 const DARK_DEG = 70;                 // ...and dark beyond 70; at full strength both shrink by NARROWEST
 const NARROWEST = 0.45;              // (tangents scaled by 0.45: clear within 22 degrees, dark beyond 51)
@@ -37,41 +36,14 @@ export function optionFromAddress(loc) {
   return true;
 }
 
-/** Rings facing +z at z=0 through `radii` (tangent units: radius / distance) with those alphas. */
-function ringGeometry(radii, alphas, segments = 64) {
-  const positions = [], colors = [], index = [];
-  for (let j = 0; j < radii.length; j++) {
-    for (let i = 0; i < segments; i++) {
-      const a = (i / segments) * 2 * Math.PI;
-      positions.push(radii[j] * DISTANCE * Math.cos(a), radii[j] * DISTANCE * Math.sin(a), 0);
-      colors.push(TINT.r, TINT.g, TINT.b, alphas[j]);
-    }
-  }
-  for (let j = 0; j < radii.length - 1; j++) {
-    for (let i = 0; i < segments; i++) {
-      const a = j * segments + i, b = j * segments + (i + 1) % segments;
-      const c = a + segments, d = b + segments;
-      index.push(a, c, b, b, c, d);
-    }
-  }
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute("position", new THREE.Float32BufferAttribute(positions, 3));
-  geometry.setAttribute("color", new THREE.Float32BufferAttribute(colors, 4));  // 4: per-vertex alpha
-  geometry.setIndex(index);
-  return geometry;
-}
-
-/** The gradient (transparent inside `clear`, dark at `dark`, smoothstep between) and the dark outer part (from
- * `dark` to 89 degrees: the corners of any eye's view). */
-function vignetteGeometries(clear, dark, stops = 10) {
-  const radii = [], alphas = [];
-  for (let j = 0; j <= stops; j++) {
-    const t = j / stops;
-    radii.push(clear + (dark - clear) * t);
-    alphas.push(t * t * (3 - 2 * t));
-  }
-  return {gradient: ringGeometry(radii, alphas), outer: ringGeometry([dark, 60], [1, 1])};
-}
+/** GLSL added to a world material: the colour mixed toward the tint by the fragment's angle off the eye's axis
+ * (its tangent, in view space), 0 inside comfortClear, `comfortOpacity` beyond comfortDark, smoothstep between. */
+const VERTEX_DECLARE = "varying vec3 vComfortView;\n";
+const VERTEX_SET = "#include <project_vertex>\n\tvComfortView = mvPosition.xyz;";
+const FRAGMENT_DECLARE = "varying vec3 vComfortView;\nuniform float comfortOpacity;\nuniform float comfortClear;\n" +
+  "uniform float comfortDark;\nuniform vec3 comfortTint;\n";
+const FRAGMENT_MIX = "#include <opaque_fragment>\n\tgl_FragColor.rgb = mix(gl_FragColor.rgb, comfortTint," +
+  " comfortOpacity * smoothstep(comfortClear, comfortDark, length(vComfortView.xy) / max(-vComfortView.z, 1e-4)));";
 
 /** The reticle's picture, drawn once: a ring with four ticks and a dot, white on a dark outline (tinted by the
  * material's colour). */
@@ -119,23 +91,20 @@ export class Comfort {
     this.checkbox = checkbox;
     this.onChange = onChange;
     this.lastAt = null;
-    const geometries = vignetteGeometries(Math.tan(THREE.MathUtils.degToRad(CLEAR_DEG)),
-                                          Math.tan(THREE.MathUtils.degToRad(DARK_DEG)));
-    const faded = () => new THREE.MeshBasicMaterial({vertexColors: true, transparent: true, opacity: 0,
-                                                     depthTest: false, depthWrite: false, toneMapped: false});
-    this.gradient = new THREE.Mesh(geometries.gradient, faded());
-    this.outerFaded = faded();
-    this.outerSolid = new THREE.MeshBasicMaterial({color: TINT, toneMapped: false});  // opaque, writes depth
-    this.outer = new THREE.Mesh(geometries.outer, this.outerFaded);
-    this.vignette = new THREE.Group();
-    for (const mesh of [this.gradient, this.outer]) {
-      mesh.renderOrder = 5;           // over the camera panel, under the HUD (10) and the menu (11)
-      mesh.frustumCulled = false;
-      this.vignette.add(mesh);
-    }
-    this.vignette.position.set(0, 0, -DISTANCE);
-    this.vignette.visible = false;
-    headLocked.add(this.vignette);
+    this.scene = scene;
+    this.headLocked = headLocked;
+    this.uniforms = {comfortOpacity: {value: 0}, comfortTint: {value: TINT},
+                     comfortClear: {value: Math.tan(THREE.MathUtils.degToRad(CLEAR_DEG))},
+                     comfortDark: {value: Math.tan(THREE.MathUtils.degToRad(DARK_DEG))}};
+    this.patched = new WeakSet();
+    this.scale = 1;
+    this.frames = 0;
+    this.patch = (shader) => {  // one function for every material: one program per kind of material
+      Object.assign(shader.uniforms, this.uniforms);
+      shader.vertexShader = VERTEX_DECLARE + shader.vertexShader.replace("#include <project_vertex>", VERTEX_SET);
+      shader.fragmentShader = FRAGMENT_DECLARE +
+        shader.fragmentShader.replace("#include <opaque_fragment>", FRAGMENT_MIX);
+    };
     this.reticle = new THREE.Mesh(new THREE.PlaneGeometry(RETICLE_SIZE, RETICLE_SIZE),
                                   new THREE.MeshBasicMaterial({map: reticleTexture(), transparent: true,
                                                                depthTest: false, depthWrite: false,
@@ -143,6 +112,7 @@ export class Comfort {
     this.reticle.renderOrder = 6;
     this.reticle.visible = false;
     scene.add(this.reticle);
+    this.darkenWorld();
     this.tint = "info";
     this._euler = new THREE.Euler(0, 0, 0, "YXZ");
     this._robot = new THREE.Vector3();
@@ -154,6 +124,23 @@ export class Comfort {
         checkbox.blur();  // the flat view's keys (E, arrows...) ignore a focused input
       });
     }
+  }
+
+  /** Adds the vignette to the shaders of the world's materials not yet given it (the head-locked HUD and menus,
+   * and the reticle, keep theirs). Run at start and once a second, for objects added later. */
+  darkenWorld() {
+    const visit = (object) => {
+      if (object === this.headLocked || object === this.reticle) return;
+      for (const material of [object.material].flat()) {
+        const kind = material && (material.isMeshBasicMaterial || material.isLineBasicMaterial);
+        if (!kind || this.patched.has(material)) continue;
+        material.onBeforeCompile = this.patch;
+        material.needsUpdate = true;
+        this.patched.add(material);
+      }
+      object.children.forEach(visit);
+    };
+    visit(this.scene);
   }
 
   /** Switches the vignette and the reticle on or off (the checkbox and the menu's state follow). */
@@ -193,16 +180,13 @@ export class Comfort {
     this.strength += (this.target - this.strength) * k;
     if (Math.abs(this.strength - this.target) < 0.002) this.strength = this.target;
 
+    if (++this.frames % 60 === 0) this.darkenWorld();
     const shown = this.strength > 0.002;
-    this.vignette.visible = shown;
-    if (shown) {
-      const opacity = Math.min(1, this.strength * 1.5);
-      this.gradient.material.opacity = this.outerFaded.opacity = opacity;
-      const solid = opacity >= 0.999;
-      this.outer.material = solid ? this.outerSolid : this.outerFaded;
-      this.outer.renderOrder = solid ? -1 : 5;  // opaque: drawn before the panel, which it hides
-      this.vignette.scale.setScalar(1 - (1 - NARROWEST) * this.strength);
-    }
+    const u = this.uniforms;
+    u.comfortOpacity.value = shown ? Math.min(1, this.strength * 1.5) : 0;
+    this.scale = 1 - (1 - NARROWEST) * (shown ? this.strength : 0);  // tangents: the clear middle narrows
+    u.comfortClear.value = this.scale * Math.tan(THREE.MathUtils.degToRad(CLEAR_DEG));
+    u.comfortDark.value = this.scale * Math.tan(THREE.MathUtils.degToRad(DARK_DEG));
     this.reticle.visible = this.enabled && active;
     if (this.reticle.visible) {
       this.reticle.position.copy(head.position).addScaledVector(this._robot, RETICLE_DISTANCE);
@@ -219,9 +203,10 @@ export class Comfort {
   /** What tests and the bench read. */
   snapshot() {
     return {enabled: this.enabled, active: this.active, lagDeg: this.lagDeg, target: this.target,
-            strength: this.strength, vignetteVisible: this.vignette.visible,
-            opacity: this.vignette.visible ? this.gradient.material.opacity : 0, scale: this.vignette.scale.x,
-            solid: this.vignette.visible && this.outer.material === this.outerSolid,
+            strength: this.strength, vignetteVisible: this.uniforms.comfortOpacity.value > 0,
+            opacity: this.uniforms.comfortOpacity.value, scale: this.scale,
+            clearDeg: THREE.MathUtils.radToDeg(Math.atan(this.uniforms.comfortClear.value)),
+            darkDeg: THREE.MathUtils.radToDeg(Math.atan(this.uniforms.comfortDark.value)),
             reticleVisible: this.reticle.visible, robotLook: this.robotLook,
             reticle: this.reticle.visible ? this.reticle.position.toArray() : null};
   }
