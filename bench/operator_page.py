@@ -271,7 +271,7 @@ def report_vignette(out: dict) -> None:
             row(f"  work per frame p{p} (ms) vs the 11.1 ms budget", percentile(r["work"], p), budget)
         for p in (50, 95):
             row(f"  frame interval p{p} (ms) vs the 11.1 ms budget", percentile(r["frame"], p), budget)
-    row("the vignette's per-frame update, median of 20 runs (us) vs the budget", percentile(out["update_us"], 50),
+    row("vignette update per frame, median of 20 runs (us) vs the budget", percentile(out["update_us"], 50),
         budget * 1000)
     for p in (50, 95):
         row(f"work per frame p{p} (ms), vignette on vs off (head trailing)", percentile(out["on"]["work"], p),
