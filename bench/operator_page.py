@@ -15,11 +15,18 @@ The emulated display clock is an init script (like IWER, test-side only) that pa
 chosen rate; IWER runs its XR frames off it. Rendering is SwiftShader (CPU), so on a small machine the page may
 not keep up at 90 Hz: the frame interval figures say so. `--quick` runs 4 s per rate instead of 10.
 
+`--vignette` is the comfort vignette's check instead (issue 36): the page at 90 Hz on the JPEG topic, holding
+control, the emulated headset turned 85 degrees left so the robot's head stops at its 60 degree limit and trails by
+25 (the vignette at its darkest and narrowest, the reticle shown), in alternating blocks with the vignette switched
+off and on in the same page; then on with the robot's head following (nothing drawn). It prints the work per frame
+(the XR animation-frame callback: poses, panels, the vignette's update, rendering) and the frame interval p50/p95,
+against the 11.1 ms budget of a 90 Hz display, and on against off as a ratio.
+
 `--long 60` is the long-run check instead (issue 29): the page on WebRTC at 72 Hz for 60 s, the camera frame's age
 at display p50/p95 per 10 s window, and the last window's p95 against the first's (target: within 1.2x; a jitter
 buffer that raises its delay and keeps it shows as a growing age).
 
-    MUJOCO_GL=egl PYTHONPATH=. python bench/operator_page.py [--quick] [--long 60]
+    MUJOCO_GL=egl PYTHONPATH=. python bench/operator_page.py [--quick] [--long 60 | --vignette]
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import math
 import os
 import shutil
 import socket
@@ -177,6 +185,102 @@ def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, came
             "arrival_ages": counter.arrival_ages, "camera": result["stats"], "windows": windows}
 
 
+def run_vignette(browser, port: int, seconds: float, viewport: dict, blocks: int = 8) -> dict:
+    """The page at 90 Hz holding control with the robot's head trailing: per block, the vignette off or on; then on
+    with the head following. Returns {"off": {...}, "on": {...}, "following": {...}} of frame and work times (ms)."""
+    rate = 90
+    context = browser.new_context(viewport=viewport)
+    page = context.new_page()
+    page.add_init_script(script=PACED_FRAMES % {"rate": rate})
+    page.add_init_script(path=str(IWER))
+    page.add_init_script(script=INSTALL_HEADSET)
+    page.goto(f"http://127.0.0.1:{port}/operator#camera=jpeg")
+    page.wait_for_function("window.operator && window.operator.ros.connected && window.operator.state.teleop",
+                           timeout=60_000)
+    page.get_by_role("button", name="Enter VR").click()
+    page.wait_for_function("window.operator.state.xr !== null && window.operator.camera.uploaded > 5",
+                           timeout=60_000)
+
+    def frames(n: int) -> None:
+        start = page.evaluate("window.operator.state.frameCount")
+        page.wait_for_function(f"window.operator.state.frameCount >= {start + n}", timeout=60_000)
+
+    page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")  # the right trigger: take control
+    frames(3)
+    page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
+    page.wait_for_function("window.operator.comfort.active", timeout=60_000)
+
+    def turn(yaw_deg: float) -> None:
+        half = math.radians(yaw_deg) / 2
+        page.evaluate(f"xrDevice.quaternion.set(0, {math.sin(half)}, 0, {math.cos(half)})")
+
+    def block(on: bool, expect: str) -> dict:
+        page.evaluate(f"window.operator.comfort.set({'true' if on else 'false'})")
+        page.wait_for_function(expect, timeout=60_000)
+        page.evaluate("() => { const s = window.operator.state; s.frameTimes.length = 0; s.workTimes.length = 0; }")
+        time.sleep(seconds)
+        return page.evaluate("() => ({frame: window.operator.state.frameTimes.slice(),"
+                             " work: window.operator.state.workTimes.slice(),"
+                             " comfort: window.operator.comfort.snapshot()})")
+
+    turn(85.0)  # past HeadYaw's 60 degree limit: the robot's head trails by 25 degrees
+    page.wait_for_function("window.operator.comfort.lagDeg > 20", timeout=60_000)
+    out: dict = {"off": {"frame": [], "work": [], "lag": []}, "on": {"frame": [], "work": [], "lag": []}}
+    for k in range(blocks):
+        on = k % 2 == 1
+        r = block(on, "window.operator.comfort.snapshot().strength > 0.95" if on
+                  else "!window.operator.comfort.snapshot().vignetteVisible")
+        key = "on" if on else "off"
+        out[key]["frame"] += r["frame"]
+        out[key]["work"] += r["work"]
+        out[key]["lag"].append(r["comfort"]["lagDeg"])
+    turn(0.0)  # the robot's head catches up: the vignette on, nothing to draw
+    page.wait_for_function("window.operator.comfort.lagDeg < 3", timeout=60_000)
+    r = block(True, "!window.operator.comfort.snapshot().vignetteVisible")
+    out["following"] = {"frame": r["frame"], "work": r["work"], "lag": [r["comfort"]["lagDeg"]]}
+    # The vignette's own share of a frame: its per-frame update (lag, easing, uniforms, reticle) timed alone, in
+    # runs of 2000 calls (the clock's resolution in a page is coarse), trailing so every branch runs.
+    turn(85.0)
+    page.wait_for_function("window.operator.comfort.lagDeg > 20", timeout=60_000)
+    out["update_us"] = page.evaluate("""() => {
+        const c = window.operator.comfort, s = window.operator.state, runs = [];
+        let now = performance.now();
+        for (let r = 0; r < 20; r++) {
+            const t0 = performance.now();
+            for (let i = 0; i < 2000; i++) c.update(s, true, now += 11.1);
+            runs.push((performance.now() - t0) * 1000 / 2000);
+        }
+        return runs;
+    }""")
+    context.close()
+    return out
+
+
+def report_vignette(out: dict) -> None:
+    budget = 1000 / 90
+
+    def row(name: str, value: float, baseline: float) -> None:
+        print(f"{name:64s} {value:>9.2f}  {baseline:>9.2f}  {value / baseline if baseline else float('nan'):>7.2f}")
+
+    for key, label in (("off", "vignette off, head trailing"), ("on", "vignette on, head trailing (full)"),
+                       ("following", "vignette on, head following (none)")):
+        r = out[key]
+        lags = f"{min(r['lag']):.1f}-{max(r['lag']):.1f}"
+        print(f"{label}: {len(r['work'])} frames, lag {lags} degrees at the blocks' ends")
+        for p in (50, 95):
+            row(f"  work per frame p{p} (ms) vs the 11.1 ms budget", percentile(r["work"], p), budget)
+        for p in (50, 95):
+            row(f"  frame interval p{p} (ms) vs the 11.1 ms budget", percentile(r["frame"], p), budget)
+    row("vignette update per frame, median of 20 runs (us) vs the budget", percentile(out["update_us"], 50),
+        budget * 1000)
+    for p in (50, 95):
+        row(f"work per frame p{p} (ms), vignette on vs off (head trailing)", percentile(out["on"]["work"], p),
+            percentile(out["off"]["work"], p))
+    for p in (50, 95):
+        row(f"frame interval p{p} (ms), vignette on vs off (head trailing)", percentile(out["on"]["frame"], p),
+            percentile(out["off"]["frame"], p))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="4 s per rate instead of 10")
@@ -187,6 +291,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the long-run check instead: WebRTC at 72 Hz for SECONDS, age per 10 s window")
     parser.add_argument("--viewport", default="960x600", help="the emulated headset's canvas, WxH (SwiftShader "
                         "shades every pixel on the CPU)")
+    parser.add_argument("--vignette", action="store_true",
+                        help="the comfort vignette's check instead: 90 Hz, JPEG, off and on in alternating blocks")
     args = parser.parse_args(argv)
     seconds = args.seconds or (4.0 if args.quick else 10.0)
     if not IWER.is_file():
@@ -201,7 +307,9 @@ def main(argv: list[str] | None = None) -> int:
             browser = p.chromium.launch(executable_path=chromium,
                                         args=["--no-sandbox", "--enable-unsafe-swiftshader"])
             width, height = (int(v) for v in args.viewport.split("x"))
-            if args.long:
+            if args.vignette:
+                vignette = run_vignette(browser, server.port, seconds / 4, {"width": width, "height": height})
+            elif args.long:
                 results = [run_rate(browser, server.port, 72, args.long, {"width": width, "height": height},
                                     "webrtc", window=10.0)]
             else:
@@ -222,6 +330,11 @@ def main(argv: list[str] | None = None) -> int:
         ratio = value / baseline if baseline else float("nan")
         print(f"{name:64s} {value:>9.1f}{unit:1s} {baseline:>9.1f}{unit:1s} {ratio:>7.2f}")
 
+    if args.vignette:
+        print(f"(the comfort vignette at 90 Hz, JPEG camera, 8 alternating blocks of {seconds / 4:g} s off and on, "
+              f"then {seconds / 4:g} s on with the head following)")
+        report_vignette(vignette)
+        return 0
     if args.long:
         windows = results[0]["windows"]
         for k, ages in enumerate(windows):

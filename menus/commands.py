@@ -80,6 +80,11 @@ class AutonomyArgs(_Args):
     level: Literal["teleoperated", "supervised", "autonomous"]
 
 
+class VignetteArgs(_Args):
+    enable: bool | None = Field(None, description="true, false, or absent to toggle; the operator page's own "
+                                "display (the comfort vignette and the robot's reticle): the server only records it")
+
+
 COMMANDS: dict[str, type[_Args]] = {
     "show_emotion": EmotionArgs,
     "say": SayArgs,
@@ -98,4 +103,5 @@ COMMANDS: dict[str, type[_Args]] = {
     "show_status": StatusArgs,
     "change_motivation": MotivationArgs,
     "set_autonomy": AutonomyArgs,
+    "set_comfort_vignette": VignetteArgs,  # handled by the operator page itself; the server records the choice
 }

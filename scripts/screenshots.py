@@ -36,7 +36,7 @@ SLOW = 120_000  # ms: a page, the stand-in and a software renderer share a busy 
 # The server's flags per set of pictures: the teleoperation pictures without autonomy turning the head or
 # proposing; the autonomy pictures with a rule that answers a pupil's line and a minute to decide.
 SETS = {"headset": ("--autonomy", "teleoperated"), "flat": ("--autonomy", "teleoperated"),
-        "hands": ("--autonomy", "teleoperated"),
+        "hands": ("--autonomy", "teleoperated"), "comfort": ("--autonomy", "teleoperated"),
         "autonomy": ("--autonomy", "supervised", "--autonomy-rules", "RULES", "--bystander-interval", "0")}
 AUTONOMY_RULES = """timeout_s: 60
 on_timeout: drop
@@ -223,6 +223,30 @@ class Shots:
         finally:
             page.context.close()
 
+    def comfort(self) -> None:
+        """The comfort vignette and the reticle: holding control, the robot's head braked (it holds and ignores
+        commands) while the teacher turns 20 degrees left, so the robot's head trails by 20 degrees."""
+        page = self.operator(headset=True)
+        mode = "window.operator.ros.call('/qt_robot/motors/setControlMode', {parts: ['head'], mode: %d})"
+        try:
+            page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+            page.get_by_role("button", name="Enter VR").click()
+            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                                   timeout=SLOW)
+            self.press(page, "right", "trigger")
+            self.wait_control(page)
+            page.evaluate(mode % 2)  # M_BREAK
+            page.evaluate("xrDevice.quaternion.set(0, Math.sin(Math.PI / 18), 0, Math.cos(Math.PI / 18))")  # 20 deg
+            page.wait_for_function("window.operator.comfort.snapshot().strength > 0.8", timeout=SLOW)
+            page.wait_for_function("window.operator.camera.uploaded >= 10", timeout=SLOW)
+            self.calm(page)
+            self.frames(page, 10)
+            self.save(page, "operator-vr-vignette", stable="window.operator.comfort.snapshot().strength > 0.8")
+            page.evaluate(mode % 0)  # M_ON
+            self.press(page, "right", "trigger")  # release control
+        finally:
+            page.context.close()
+
     def autonomy(self) -> None:
         """Supervised autonomy: a pupil speaks, the robot proposes; the headset's card (the teacher holding control:
         on a busy machine the panel's frames lag the face detector's boxes while autonomy turns the head), then the
@@ -323,7 +347,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the Chromium to drive (default: Debian's, from PATH)")
     parser.add_argument("--only", nargs="+", choices=tuple(SETS), default=tuple(SETS),
                         help="take only these sets (headset: its views and the dashboard; autonomy: a proposal in "
-                             "the headset and the dashboard's autonomy panel; hands: the menus with hands)")
+                             "the headset and the dashboard's autonomy panel; hands: the menus with hands; "
+                             "comfort: the vignette and the reticle in the headset)")
     args = parser.parse_args(argv)
     if not args.chromium:
         parser.error("Chromium is not installed: scripts/install-system-packages.sh installs it")
@@ -343,7 +368,8 @@ def main(argv: list[str] | None = None) -> int:
                 try:
                     shots = Shots(browser, server, args.out)
                     steps: dict[str, Callable[[], None]] = {"headset": shots.headset, "flat": shots.flat,
-                                                            "autonomy": shots.autonomy, "hands": shots.hands}
+                                                            "autonomy": shots.autonomy, "hands": shots.hands,
+                                                            "comfort": shots.comfort}
                     for name in args.only:
                         if SETS[name] == flags:
                             steps[name]()

@@ -242,6 +242,11 @@ class MenuService:
     async def _do_set_autonomy(self, a: Any, caller: str) -> str:
         return await self._trigger(names.AUTONOMY_LEVEL_SERVICE, {"level": a.level}, caller)
 
+    async def _do_set_comfort_vignette(self, a: Any, _caller: str) -> str:
+        # The operator page's own display: the page switches it when the item is selected and sends the state it
+        # chose; the server only answers and records it (the menu's select event), for the session's log.
+        return "comfort vignette " + ("toggled" if a.enable is None else "on" if a.enable else "off")
+
     async def _do_change_motivation(self, a: Any, caller: str) -> str:
         service = {"set": names.MOTIVATION_SET_SERVICE, "increment": names.MOTIVATION_INCREMENT_SERVICE,
                    "reset": names.MOTIVATION_RESET_SERVICE}[a.op]

@@ -15,6 +15,7 @@ import {Audio} from "./audio.js";
 import {ControllerActions} from "./controls.js";
 import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, withHandMenu} from "./hands.js";
 import {OperatorAutonomy} from "./autonomy.js";
+import {Comfort, COMMAND as COMFORT_COMMAND, optionFromAddress} from "./comfort.js";
 
 const TOPICS = {
   head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
@@ -305,6 +306,7 @@ const toggles = {
     if (item?.command === "set_autonomy" && autonomy.model.level) {  // the level in force is the one ON
       try { return JSON.parse(item.args || "{}").level === autonomy.model.level; } catch { return undefined; }
     }
+    if (item?.command === COMFORT_COMMAND) return comfort.enabled;
     if (!item || !TOGGLE_COMMANDS.has(item.command)) return undefined;
     const states = {set_head_control: state.headOn, set_arms_control: state.armsOn, record_toggle: state.recording};
     return states[item.command];
@@ -326,7 +328,7 @@ async function runItem(item) {
   state.footer = {text: `${item.label}…`, level: "ok"};
   menuDirty = true;
   try {
-    const reply = await ros.call(SERVICES.select, {id: item.id, args: ""});
+    const reply = await ros.call(SERVICES.select, {id: item.id, args: comfort.menuItem(item) ?? ""});
     let text = reply.message || "done";
     if (item.command === "show_status") text = summariseStatus(text);
     state.footer = {text: `${item.label}: ${text}`, level: "ok"};
@@ -428,6 +430,8 @@ async function estop() {
 
 const audio = new Audio(ros, {onError: (text) => say(text, "error")});
 const autonomy = new OperatorAutonomy(ros, {say, onLevel: () => { menuDirty = true; }});
+const comfort = new Comfort({scene, headLocked, enabled: optionFromAddress(location), checkbox: $("vignette"),
+                             onChange: () => { menuDirty = true; }});  // the vignette and the reticle
 function talk(on) {
   audio.talk(on);
   $("talk").classList.toggle("on", on);
@@ -703,6 +707,7 @@ renderer.setAnimationLoop((time, frame) => {
   else flatFrame();
   poseChannel.flush();  // the frame's poses and Joy taken by the channel, as one binary message
   placePanels();
+  comfort.update(state, holding() && state.headOn, now);
   updateHud();
   renderer.render(scene, camera);
   if (pixelRequests.length) readPixels(pixelRequests.splice(0));
@@ -836,6 +841,6 @@ $("estop").addEventListener("click", estop);
 // What tests and the bench read (no control goes through here).
 window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
-  hands: handActions,
+  hands: handActions, comfort,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };
