@@ -514,9 +514,10 @@ function flatFrame() {
 
 function placePanels() {
   const {zero, robotHead, head} = state;
+  const look = cameraSource.placementPose(robotHead);  // where the shown frame was taken (camera.js)
   panelAnchor.position.copy(head.position);
-  panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(robotHead.pitch),
-                           zero.yaw + THREE.MathUtils.degToRad(robotHead.yaw), 0, "YXZ");
+  panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(look.pitch),
+                           zero.yaw + THREE.MathUtils.degToRad(look.yaw), 0, "YXZ");
   panel.material.map = cameraSource.texture;  // the source changes: placeholder, WebRTC video or JPEG
   panel.scale.y = 1 / cameraSource.aspect;
   headLocked.position.copy(head.position);
@@ -798,3 +799,4 @@ window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };
+window.operator.panel = panelAnchor;  // the camera panel's anchor: its rotation is where the panel hangs
