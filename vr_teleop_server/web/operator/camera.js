@@ -391,7 +391,7 @@ export class CameraFeed {
     }
     this.placed = {key, yaw: use.yaw, pitch: use.pitch, by};
     if (this.trace) {
-      this.trace.push({t: now, key, yaw: use.yaw, pitch: use.pitch, by, path: this.path});
+      this.trace.push({t: now, key, yaw: use.yaw, pitch: use.pitch, by, mode: this.placement, path: this.path});
       if (this.trace.length > TRACE_KEPT) this.trace.splice(0, this.trace.length - TRACE_KEPT);
     }
     return use;
