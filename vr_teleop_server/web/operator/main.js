@@ -626,7 +626,8 @@ function updateHud(force = false) {
 
 function drawAutonomy() {
   const drawn = autonomy.draw(proposalCanvas, attentionCanvas, {
-    xr: !!state.xr, head: state.robotHead, hfovDeg: CAMERA_HFOV_DEG, image: cameraSource.size});
+    xr: !!state.xr, head: cameraSource.capturePose() ?? state.robotHead, hfovDeg: CAMERA_HFOV_DEG,
+    image: cameraSource.size});  // where the shown picture was taken
   if (drawn.card) proposalTexture.needsUpdate = true;
   if (drawn.overlay) attentionTexture.needsUpdate = true;
   proposalMesh.visible = !!drawn.proposal && !!state.xr;  // the flat view has the page's own card
