@@ -221,9 +221,8 @@ def measure(profile: str, seconds: float) -> dict:
     row: dict = {"profile": profile, "seconds": seconds, **out, "frames_unmatched": unknown,
                  "capture_frames_held": held}
     for mode, values in errors.items():
-        row[mode] = {"n": len(values),
-                     "p50_deg": round(float(np.percentile(values, 50)), 3) if values else None,
-                     "p95_deg": round(float(np.percentile(values, 95)), 3) if values else None}
+        row[mode] = {"n": len(values), **{f"{name}_deg": round(float(np.percentile(values, q)), 3) if values else None
+                                           for name, q in (("p50", 50), ("p95", 95), ("p99", 99), ("max", 100))}}
     if errors["capture"] and errors["newest"]:
         row["p95_ratio_capture_to_newest"] = round(row["capture"]["p95_deg"] / max(row["newest"]["p95_deg"], 1e-9),
                                                    3)
