@@ -195,7 +195,7 @@ def angle_deg(yaw_a: float, pitch_a: float, yaw_b: float, pitch_b: float) -> flo
     return math.degrees(math.acos(float(np.clip(unit(yaw_a, pitch_a) @ unit(yaw_b, pitch_b), -1.0, 1.0))))
 
 
-def measure(profile: str, seconds: float) -> dict:
+def measure(profile: str, seconds: float, trace_to: Path | None = None) -> dict:
     cleanup_leftovers()
     with Emulator(profile) as net:
         serve(net)
@@ -209,6 +209,7 @@ def measure(profile: str, seconds: float) -> dict:
     t0 = trace[0]["t"] if trace else 0.0
     errors: dict[str, list[float]] = {"capture": [], "newest": []}
     held = unknown = 0
+    samples: list[dict] = []
     for entry in trace:
         if entry["t"] - t0 < SETTLE_S * 1e3 or entry["path"] != "WebRTC" or entry["key"] is None:
             continue
@@ -216,10 +217,14 @@ def measure(profile: str, seconds: float) -> dict:
         if real is None:
             unknown += 1
             continue
-        held += entry["by"] == "held"
+        held += entry["by"] == "nearest"
         errors[entry["mode"]].append(angle_deg(entry["yaw"], entry["pitch"], *real))
+        if trace_to is not None:
+            samples.append({**entry, "real": real, "error": errors[entry["mode"]][-1]})
+    if trace_to is not None:
+        trace_to.write_text("\n".join(json.dumps(s) for s in samples))
     row: dict = {"profile": profile, "seconds": seconds, **out, "frames_unmatched": unknown,
-                 "capture_frames_held": held}
+                 "capture_frames_by_nearest": held}
     for mode, values in errors.items():
         row[mode] = {"n": len(values), **{f"{name}_deg": round(float(np.percentile(values, q)), 3) if values else None
                                            for name, q in (("p50", 50), ("p95", 95), ("p99", 99), ("max", 100))}}
@@ -234,13 +239,17 @@ def main() -> int:
     parser.add_argument("--profiles", default="lan,continent",
                         help=f"comma-separated, of: {', '.join(load_profiles())}")
     parser.add_argument("--seconds", type=float, default=40.0, help="of head motion per profile")
+    parser.add_argument("--trace", type=Path, help="write each profile's rendered frames, joined with the truth, to "
+                                                  "TRACE.PROFILE.jsonl")
     args = parser.parse_args()
     why = available()
     if why:
         print(f"bench/view_stability.py: {why}", file=sys.stderr)
         return 2
     for profile in args.profiles.split(","):
-        row = measure(profile.strip(), args.seconds)
+        profile = profile.strip()
+        row = measure(profile, args.seconds,
+                      None if args.trace is None else args.trace.with_suffix(f".{profile}.jsonl"))
         print(json.dumps(row))
         if "p95_ratio_capture_to_newest" in row:
             print(f"{profile}: p95 {row['capture']['p95_deg']} deg with the capture pose, {row['newest']['p95_deg']}"

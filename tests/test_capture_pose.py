@@ -9,8 +9,10 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import subprocess
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import roslibpy
@@ -19,6 +21,8 @@ from support import RunningServer, Watch, wait_for, wait_subscribed
 
 from client_protocol import names
 from vr_teleop_server.robot.head_history import HeadHistory
+
+CAMERA_JS = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web" / "operator" / "camera.js"
 
 WAIT = 30.0  # a failure bound on a loaded machine, never a measure
 HEAD = names.HEAD_COMMAND_TOPIC
@@ -54,6 +58,37 @@ def test_the_history_ignores_what_is_out_of_order_or_not_finite_and_keeps_the_ne
     assert len(history) == 4  # the newest `keep`
     assert history.at(0.0).yaw == 4.0 and history.at(5.5).yaw == pytest.approx(5.5)
     assert history.at(math.nan) is None
+
+
+def test_the_pages_pose_lookup_under_node(tmp_path):
+    """camera.js's CapturePoses, run by Node: a frame's own pose, else the nearest frame's taken within 0.2 s (RTP
+    timestamps across a wrap), else none; and the URL's placement option."""
+    script = tmp_path / "check.mjs"
+    script.write_text(f"""
+import {{CapturePoses, placementMode}} from {json.dumps(str(CAMERA_JS))};
+import {{rtpDelta}} from {json.dumps(str(CAMERA_JS.parent.parent / "webrtc.js"))};
+const poses = new CapturePoses((a, b) => Math.abs(rtpDelta(a, b)) / 90000, 3);
+poses.add(4294967000, {{head_yaw: 1, head_pitch: 0, stamp_gap: 0, source: "render"}});
+poses.add(2704, {{head_yaw: 3, head_pitch: -1, stamp_gap: 0, source: "render"}});  // 3000 ticks later, wrapped
+poses.add(null, {{head_yaw: 9, head_pitch: 0}});
+poses.add(9000, {{head_yaw: NaN, head_pitch: 0}});
+const out = {{
+  own: poses.get(2704), near: poses.nearest(4294967100), far: poses.nearest(2704 + 90000) ?? null,
+  none: poses.nearest(null) ?? null, received: poses.received,
+  modes: [placementMode("#token=x&placement=newest"), placementMode("#camera=jpeg"), placementMode("")],
+}};
+for (let i = 0; i < 5; i++) poses.add(100000 + i, {{head_yaw: i, head_pitch: 0}});
+out.kept = poses.poses.size;
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout.splitlines()[-1])
+    assert out["own"] == {"yaw": 3, "pitch": -1, "gap": 0, "source": "render"}
+    assert out["near"]["yaw"] == 1  # 100 ticks from the first, 3000 from the second (across the wrap)
+    assert out["far"] is None and out["none"] is None  # a second away: no neighbour's pose stands in
+    assert out["received"] == 2 and out["kept"] == 3
+    assert out["modes"] == ["newest", "capture", "capture"]
 
 
 # ---- the stand-in ------------------------------------------------------------------------------------------------

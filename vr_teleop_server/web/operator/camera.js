@@ -8,22 +8,23 @@
 // Capture poses (issue 36). Each frame comes with the robot's head pose when it was taken: on the JPEG road from
 // /vr_teleop/camera/capture_pose (matched by header stamp), on WebRTC from the "capture_poses" data channel (matched
 // by RTP timestamp). CameraFeed.placementPose() gives main.js the pose to hang the panel by: the shown frame's
-// capture pose, so a still object in the room stays still while the robot's head catches up; without one (not
-// known yet, or lost) the previous frame's for up to CAPTURE_HOLD_MS, else the newest joint state (today's
-// placement). The URL's #placement=newest (or `camera.placement = "newest"`) keeps today's placement throughout.
+// capture pose, so a still object in the room stays still while the robot's head catches up; without one (its
+// message lost, or not come yet) the pose of the nearest frame taken within NEAREST_S of it, else the newest joint
+// state (today's placement). The URL's #placement=newest (or `camera.placement = "newest"`) keeps today's
+// placement throughout.
 
 import * as names from "../names.js";
 import * as THREE from "three";
 import {stampSeconds} from "../rosbridge.js";
 import {IceErrors, MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn,
-        mediaRoute, negotiate, onVideoFrames, webRtcMissing} from "../webrtc.js";
+        mediaRoute, negotiate, onVideoFrames, rtpDelta, webRtcMissing} from "../webrtc.js";
 
 export const CAMERA_TOPIC = names.CAMERA_TOPIC;
 export const CAPTURE_POSE_TOPIC = names.CAPTURE_POSE_TOPIC;
 export const CAPTURE_POSES_CHANNEL = names.CAPTURE_POSES_CHANNEL;
 const AGES_KEPT = 2000;
 const POSES_KEPT = 240;        // capture poses kept by frame key (8 s at 30 fps)
-const CAPTURE_HOLD_MS = 500;   // a frame without its pose is placed by the previous frame's this long at most
+const NEAREST_S = 0.2;         // a frame without its pose is placed by the nearest frame's taken this close to it
 const TRACE_KEPT = 20000;
 
 /** "capture" (the default: the panel by each frame's capture pose) or "newest" (by the newest joint state): the page
@@ -32,9 +33,11 @@ export function placementMode(hash = globalThis.location?.hash ?? "") {
   return new URLSearchParams(hash.replace(/^#/, "")).get("placement") === "newest" ? "newest" : "capture";
 }
 
-/** Capture poses by frame key (a header stamp in seconds, or an RTP timestamp), the newest POSES_KEPT. */
+/** Capture poses by frame key (a header stamp in seconds, or an RTP timestamp), the newest POSES_KEPT; `seconds(a,
+ * b)` is how far apart two keys were taken. */
 export class CapturePoses {
-  constructor(keep = POSES_KEPT) {
+  constructor(seconds = (a, b) => Math.abs(a - b), keep = POSES_KEPT) {
+    this.seconds = seconds;
     this.keep = keep;
     this.poses = new Map();
     this.received = 0;
@@ -54,7 +57,21 @@ export class CapturePoses {
   get(key) {
     return key === null || key === undefined ? undefined : this.poses.get(key);
   }
+
+  /** The pose of the frame taken nearest to `key`'s, if within `within` seconds of it (else undefined). */
+  nearest(key, within = NEAREST_S) {
+    if (key === null || key === undefined) return undefined;
+    let best, gap = within;
+    for (const [k, pose] of this.poses) {
+      const d = this.seconds(k, key);
+      if (d <= gap) { gap = d; best = pose; }
+    }
+    return best;
+  }
 }
+
+/** How far apart two WebRTC frames were sent, from their RTP timestamps (90 kHz, across a wrap). */
+const rtpSeconds = (a, b) => Math.abs(rtpDelta(a, b)) / 90000;
 
 export class JpegCameraSource {
   /** Newest frame only: the server sends at most one frame at a time (queue_length 1), and while a frame is being
@@ -282,9 +299,8 @@ export class CameraFeed {
     this.generation = 0;       // counts rosbridge connections: a negotiation of an older one is dropped
     this.unlocked = false;
     this.placement = placementMode();  // "capture" or "newest" (placementPose)
-    this.rtpPoses = new CapturePoses();  // WebRTC frames' capture poses by RTP timestamp
-    this.held = null;          // {pose, at}: the newest capture pose used, for a frame whose own is not known
-    this.placed = null;        // what placementPose gave last: {key, yaw, pitch, by: "capture" | "held" | "newest"}
+    this.rtpPoses = new CapturePoses(rtpSeconds);  // WebRTC frames' capture poses by RTP timestamp
+    this.placed = null;        // what placementPose gave last: {key, yaw, pitch, by: "capture" | "nearest" | "newest"}
     this.trace = null;         // an array to fill with every placement (the bench sets it)
     this.forced = mode === "jpeg" ? "#camera=jpeg" : webRtcMissing();
     for (const type of ["pointerdown", "keydown"]) window.addEventListener(type, () => this.unmute(), true);
@@ -372,26 +388,21 @@ export class CameraFeed {
     return this.source?.shownPose?.().pose ?? null;
   }
 
-  /** The head pose ({yaw, pitch}, degrees) to hang the panel by: the shown frame's capture pose, else the previous
-   * frame's (CAPTURE_HOLD_MS at most), else `newest` (the newest joint state's); with placement "newest", always
-   * `newest`. */
+  /** The head pose ({yaw, pitch}, degrees) to hang the panel by: the shown frame's capture pose, else the nearest
+   * frame's (NEAREST_S), else `newest` (the newest joint state's); with placement "newest", always `newest`. */
   placementPose(newest) {
-    const now = performance.now();
-    const {key = null, pose = null} = this.source?.shownPose?.() ?? {};
+    const source = this.source;
+    const {key = null, pose = null} = source?.shownPose?.() ?? {};
     let by = "newest", use = newest;
     if (this.placement === "capture") {
-      if (pose) {
-        this.held = {pose, at: now};
-        by = "capture";
-        use = pose;
-      } else if (this.held && now - this.held.at <= CAPTURE_HOLD_MS) {
-        by = "held";
-        use = this.held.pose;
-      }
+      const near = pose ? null : source?.poses?.nearest(key);
+      if (pose) { by = "capture"; use = pose; }
+      else if (near) { by = "nearest"; use = near; }
     }
     this.placed = {key, yaw: use.yaw, pitch: use.pitch, by};
     if (this.trace) {
-      this.trace.push({t: now, key, yaw: use.yaw, pitch: use.pitch, by, mode: this.placement, path: this.path});
+      this.trace.push({t: performance.now(), key, yaw: use.yaw, pitch: use.pitch, by, mode: this.placement,
+                       path: this.path});
       if (this.trace.length > TRACE_KEPT) this.trace.splice(0, this.trace.length - TRACE_KEPT);
     }
     return use;
