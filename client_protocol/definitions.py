@@ -235,6 +235,15 @@ MESSAGES: dict[str, str] = {
         "float64 watchdog_threshold\nuint32 watchdog_holds\nstring link_quality\nstring link_warning\n"
         "uint32 dc_received\nuint32 dc_refused\nuint32 dc_stale_dropped\nstring dc_last_refusal"
     ),
+    "vr_teleop_msgs/CapturePose": (
+        "# The robot's head when a camera frame was taken, on /vr_teleop/camera/capture_pose just before the frame.\n"
+        "# header: the frame's own (same seq, stamp and frame_id as its sensor_msgs/CompressedImage): match them\n"
+        "# by stamp. head_yaw, head_pitch: HeadYaw and HeadPitch in degrees, as /qt_robot/joints/state has them.\n"
+        "# source: 'render' (the stand-in: exactly the pose drawn; stamp_gap 0) or 'joint_states' (a real robot:\n"
+        "# interpolated between the joint states around the frame's stamp). stamp_gap: seconds from the frame's\n"
+        "# stamp to the nearest joint state used (how good the estimate is).\n"
+        "Header header\nfloat64 head_yaw\nfloat64 head_pitch\nfloat64 stamp_gap\nstring source"
+    ),
     "vr_teleop_msgs/Telemetry": (
         "# Every client's link, on /vr_teleop/telemetry at 2 Hz\nHeader header\nClientTelemetry[] clients"
     ),

@@ -334,6 +334,15 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "The head camera as JPEG, rendered only while someone subscribes.", "30 Hz (serve --camera-fps)",
              {"header": {"seq": 1, "stamp": {"secs": 1700000000, "nsecs": 0},
                          "frame_id": names.CAMERA_FRAME_ID}, "format": "jpeg", "data": "/9j/4AAQSkZJRg=="}),
+    Endpoint(names.CAPTURE_POSE_TOPIC, "vr_teleop_msgs/CapturePose", "subscribe",
+             "Each camera frame's head pose when it was taken (HeadYaw, HeadPitch in degrees), published just before "
+             "the frame on " + names.CAMERA_TOPIC + " while someone watches it; its header is the frame's own: "
+             "match the two by header stamp. Show a frame where the robot looked when it took it (the operator "
+             "page places its camera panel so). A client that ignores it loses nothing. WebRTC frames get theirs on "
+             "the '" + names.CAPTURE_POSES_CHANNEL + "' data channel, keyed by RTP timestamp.",
+             "with each camera frame",
+             {"header": {"seq": 1, "stamp": {"secs": 1700000000, "nsecs": 0}, "frame_id": names.CAMERA_FRAME_ID},
+              "head_yaw": 12.5, "head_pitch": -3.0, "stamp_gap": 0.0, "source": "render"}),
 )
 
 

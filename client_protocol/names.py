@@ -21,6 +21,9 @@ PART_COMMAND_TOPICS = MappingProxyType({"head": HEAD_COMMAND_TOPIC, "right_arm":
 COMMAND_TOPIC_PARTS = MappingProxyType({topic: part for part, topic in PART_COMMAND_TOPICS.items()})
 CAMERA_TOPIC = "/camera/color/image_raw/compressed"
 CAMERA_FRAME_ID = "camera_color_optical_frame"
+# Each camera frame's head pose when it was taken (vr_teleop_msgs/CapturePose; its header is the frame's own):
+# published with every frame of CAMERA_TOPIC, just before it, while someone watches that topic.
+CAPTURE_POSE_TOPIC = "/vr_teleop/camera/capture_pose"
 MOTOR_STATES_TOPIC = "/qt_robot/motors/states"  # the real robot's, read by the ros backend
 # The real robot's microphone as LuxAI's qt_respeaker_app publishes it (audio_common_msgs/AudioData, mono S16LE at
 # 16 kHz: channel 0 is the ReSpeaker's processed, beamformed channel), read by the ros backend for the WebRTC audio.
@@ -135,6 +138,9 @@ MEDIA_ICE_SERVERS_SERVICE = "/vr_teleop/media/ice_servers"
 TELEMETRY_TOPIC = "/vr_teleop/telemetry"
 # The data channel the operator's poses and Joy take beside the media (label; ordered false, maxRetransmits 0)
 POSES_CHANNEL = "poses"
+# The data channel each WebRTC video frame's capture pose comes on, keyed by the frame's RTP timestamp (label; the
+# client opens it before the offer, ordered false, maxRetransmits 0; the server only sends on it)
+CAPTURE_POSES_CHANNEL = "capture_poses"
 
 # ---- supervised autonomy (vr_teleop_server/features/autonomy) ----
 AUTONOMY_LEVEL_SERVICE = "/vr_teleop/autonomy/level"

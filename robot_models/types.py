@@ -16,6 +16,21 @@ class MotorMode(enum.IntEnum):
 
 
 @dataclass(frozen=True)
+class CapturePose:
+    """The robot's head (HeadYaw, HeadPitch, degrees) at the moment a camera frame was taken.
+
+    `source` "render": the stand-in's, exactly the pose its render used (gap_s 0). "joint_states": a real robot's,
+    interpolated between the joint states around the frame's stamp (robot/head_history.py); gap_s is how far (s)
+    the frame's stamp lies from the nearest joint state used, so a consumer can tell a close estimate from a stale
+    one."""
+
+    yaw: float
+    pitch: float
+    gap_s: float = 0.0
+    source: str = "render"
+
+
+@dataclass(frozen=True)
 class CameraFrame:
     """One frame from the head camera; whoever holds frames keeps only the newest.
 
@@ -34,3 +49,4 @@ class CameraFrame:
     render_ms: float | None = None
     encode_ms: float | None = None
     ring: Any = field(default=None, repr=False, compare=False)
+    pose: CapturePose | None = None  # the head's pose when it was taken (None: not known)

@@ -21,7 +21,7 @@ from concurrent.futures import Future
 import mujoco
 import numpy as np
 
-from robot_models.types import CameraFrame
+from robot_models.types import CameraFrame, CapturePose
 from simclock import Clock
 from worker_process.frame_ring import FrameRing
 
@@ -257,7 +257,9 @@ class Camera:
             log.error("a camera frame failed: %s", exc)
             return
         self._seq = seq
-        frame = CameraFrame(jpeg, width, height, seq, t_mono, t_wall, sim_time, render_ms, encode_ms, ring=self.ring)
+        pose = CapturePose(*self.physics.head_pose(state[0]))  # exactly the pose drawn
+        frame = CameraFrame(jpeg, width, height, seq, t_mono, t_wall, sim_time, render_ms, encode_ms, ring=self.ring,
+                            pose=pose)
         with self.frame_cond:
             self.frame = frame
             self.frame_cond.notify_all()

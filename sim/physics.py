@@ -79,6 +79,8 @@ class Physics:
         self._act = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in self.names])
         if (self._act < 0).any() or (np.array(jids) < 0).any():
             raise ValueError("the scene's model lacks a joint or actuator named as in the robot description")
+        # The head's joints (HeadYaw, HeadPitch) in qpos: a camera frame carries the pose its render used.
+        self._head_qadr = tuple(int(self._qadr[self.names.index(n)]) for n in robot.part_joints("head"))
         self._lower = np.array([j.lower for j in robot.joints])
         self._upper = np.array([j.upper for j in robot.joints])
         # plain floats and a name index for set_targets, called for every teleop command (numpy costs more there)
@@ -206,6 +208,11 @@ class Physics:
         """Copies of qpos and qvel, and the simulated time: what a picture of the scene needs."""
         with self.lock:
             return self.data.qpos.copy(), self.data.qvel.copy(), float(self.data.time)
+
+    def head_pose(self, qpos: np.ndarray) -> tuple[float, float]:
+        """(HeadYaw, HeadPitch) in degrees in a copy of qpos (scene_state's): the pose a picture of it shows."""
+        yaw, pitch = self._head_qadr
+        return math.degrees(float(qpos[yaw])), math.degrees(float(qpos[pitch]))
 
     def stats(self) -> PhysicsStats:
         with self.lock:

@@ -560,3 +560,33 @@ def test_a_tls_broker_with_a_login(servers, tmp_path, monkeypatch):
             hub.stop()
         broker.stop()
 
+
+
+def test_camera_frames_carry_the_head_pose_from_the_joint_states(zmq_robot):
+    """Issue 36 on a v3 robot: each camera frame carries the head's pose from the joint states around it (by
+    arrival: the SDK's frames carry no stamp of the robot's), with the gap to the nearest, on
+    /vr_teleop/camera/capture_pose under the frame's own header; during a turn the poses lie between its start and
+    its end, in order."""
+    hub, server, ros = zmq_robot
+    command = roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray")
+    command.publish(roslibpy.Message({"data": [-30.0, 0.0]}))
+    assert wait_for(lambda: abs(hub.positions["HeadYaw"] + 30.0) < 0.2, 15), hub.positions
+    poses = Watch(ros, names.CAPTURE_POSE_TOPIC, "vr_teleop_msgs/CapturePose")
+    camera = Watch(ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage")
+    try:
+        assert wait_for(lambda: poses.any(lambda m: abs(m["head_yaw"] + 30.0) < 0.2), 15), poses.latest
+        start = len(poses.messages)
+        command.publish(roslibpy.Message({"data": [30.0, 0.0]}))
+        assert wait_for(lambda: poses.any(lambda m: abs(m["head_yaw"] - 30.0) < 0.2), 15), poses.latest
+        with poses.lock:
+            turn = list(poses.messages[start:])
+        stamps = [m["header"]["stamp"] for m in turn]
+        assert wait_for(lambda: camera.any(lambda m: m["header"]["stamp"] == stamps[-1]), 15)
+    finally:
+        poses.close()
+        camera.close()
+        command.publish(roslibpy.Message({"data": [0.0, 0.0]}))
+    yaws = [m["head_yaw"] for m in turn]
+    assert all(m["source"] == "joint_states" and 0.0 <= m["stamp_gap"] < 1.0 for m in turn), turn  # 1 s: lost
+    assert all(-30.2 <= y <= 30.2 for y in yaws) and all(b >= a - 0.01 for a, b in zip(yaws, yaws[1:])), yaws
+    assert any(-29.0 < y < 29.0 for y in yaws), f"no frame during the turn: {yaws}"

@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import json
 import threading
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -266,3 +267,51 @@ def test_supervised_attention_turns_the_head_to_the_respeakers_voice_within_its_
         robot.publish(names.RESPEAKER_SPEAKING_TOPIC, {"data": False}, latch=True)
         set_level(ros, "supervised")  # the module's level, as the server started
         attention.close()
+
+
+def test_camera_frames_carry_the_head_pose_interpolated_at_their_stamp(server: RunningServer, robot: Ros1QTrobot,
+                                                                      ros: roslibpy.Ros):
+    """Issue 36: a frame stamped between two stamped joint states carries the head interpolated between them (the
+    robot's own stamps, not arrival times), with the gap to the nearest, on /vr_teleop/camera/capture_pose beside
+    the frame, under the frame's own header; a frame past the newest carries the newest."""
+    import cv2
+
+    t0 = float(int(time.time()) - 100)  # the robot's clock: any, the frames and joint states share it
+    joints = sorted(robot.positions)
+
+    def joint_state(at: float, yaw: float, pitch: float) -> dict:
+        positions = {**robot.positions, "HeadYaw": yaw, "HeadPitch": pitch}
+        return {"header": {"seq": 0, "stamp": {"secs": int(at), "nsecs": round(at % 1 * 1e9)}, "frame_id": ""},
+                "name": joints, "position": [positions[n] for n in joints], "velocity": [0.0] * len(joints),
+                "effort": [0.0] * len(joints)}
+
+    jpeg = base64.b64encode(cv2.imencode(".jpg", np.zeros((48, 64, 3), np.uint8))[1].tobytes()).decode()
+
+    def frame(at: float) -> dict:
+        return {"header": {"seq": 7, "stamp": {"secs": int(at), "nsecs": round(at % 1 * 1e9)},
+                           "frame_id": "camera_color_optical_frame"}, "format": "jpeg", "data": jpeg}
+
+    poses = Watch(ros, names.CAPTURE_POSE_TOPIC, "vr_teleop_msgs/CapturePose")
+    camera = Watch(ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage")
+    try:
+        robot.publish(names.JOINT_STATE_TOPIC, joint_state(t0, 10.0, 0.0))
+        robot.publish(names.JOINT_STATE_TOPIC, joint_state(t0 + 0.1, 20.0, -4.0))
+
+        def published(at: float) -> bool:
+            robot.publish(names.CAMERA_TOPIC, frame(at))  # again until the backend reads the camera
+            return wait_for(lambda: poses.messages, 0.5)
+
+        assert wait_for(lambda: published(t0 + 0.025), WAIT)
+        pose = poses.messages[-1]
+        assert pose["source"] == "joint_states"
+        assert (pose["head_yaw"], pose["head_pitch"]) == (pytest.approx(12.5, abs=1e-3), pytest.approx(-1.0, abs=1e-3))
+        assert pose["stamp_gap"] == pytest.approx(0.025, abs=1e-5)
+        assert wait_for(lambda: camera.any(lambda m: m["header"]["stamp"] == pose["header"]["stamp"]), WAIT)
+        seen = len(poses.messages)
+        robot.publish(names.CAMERA_TOPIC, frame(t0 + 0.4))
+        assert wait_for(lambda: len(poses.messages) > seen and poses.messages[-1]["stamp_gap"] > 0.29, WAIT)
+        late = poses.messages[-1]
+        assert (late["head_yaw"], late["head_pitch"], late["stamp_gap"]) == (20.0, -4.0, pytest.approx(0.3, abs=1e-5))
+    finally:
+        poses.close()
+        camera.close()

@@ -109,6 +109,14 @@ def test_a_clean_recording_has_its_summary_and_keeps_camera_frames_at_the_reduce
     times = [m.time_ns / 1e9 for m in kept]
     assert len(kept) >= 2 and len(kept) < received, (received, len(kept))
     assert all(b - a >= 0.5 - 0.1 for a, b in zip(times, times[1:])), np.diff(times)
+    # Issue 36: the frames' capture poses are on the bus, so recorded like any topic, every one (not at the camera's
+    # reduced rate): each kept frame's pose is there, under its header.
+    poses = {json.dumps(m.data["header"]["stamp"], sort_keys=True): m.data for m in read_recording(path)
+             if m.topic == "/vr_teleop/camera/capture_pose"}
+    assert schemas["vr_teleop_msgs/CapturePose"] == "jsonschema" and len(poses) > len(kept)
+    for frame in kept:
+        pose = poses[json.dumps(frame.data["header"]["stamp"], sort_keys=True)]
+        assert pose["source"] == "render" and pose["header"]["seq"] == frame.data["header"]["seq"]
 
 
 def test_synthesised_sessions_move_like_people(tmp_path):

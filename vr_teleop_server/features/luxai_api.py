@@ -62,6 +62,7 @@ class LuxaiApi:
         bus.declare_topic(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", persistent=True)
         camera = bus.declare_topic(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", persistent=True, queue_bound=1)
         camera.on_subscriber_count = self._on_camera_watchers
+        bus.declare_topic(names.CAPTURE_POSE_TOPIC, "vr_teleop_msgs/CapturePose", persistent=True, queue_bound=4)
         declare_event_topic(bus)  # gesture recording starts and stops (the operator's HUD shows it)
 
         for name, handler in ((names.EMOTION_SHOW_SERVICE, self._on_emotion_topic),
@@ -164,10 +165,13 @@ class LuxaiApi:
                 if self._camera_task is not asyncio.current_task():
                     break  # cancelled: Python 3.11's wait_for can swallow a cancel that meets a frame's arrival
                 secs = int(frame.stamp_wall)
-                self.bus.publish(names.CAMERA_TOPIC, {
-                    "header": {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
-                               "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
-                    "format": "jpeg", "data": frame.jpeg})
+                header = {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
+                          "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}}
+                if frame.pose is not None:  # first: a client has the pose when the frame comes
+                    self.bus.publish(names.CAPTURE_POSE_TOPIC, {
+                        "header": header, "head_yaw": frame.pose.yaw, "head_pitch": frame.pose.pitch,
+                        "stamp_gap": frame.pose.gap_s, "source": frame.pose.source})
+                self.bus.publish(names.CAMERA_TOPIC, {"header": header, "format": "jpeg", "data": frame.jpeg})
 
     # ---- face, speech, gestures ---------------------------------------------------------------------------------
     def _show(self, name: str) -> None:

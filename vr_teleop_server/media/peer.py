@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from aiortc import RTCPeerConnection
 
@@ -25,6 +26,7 @@ class Peer:
     audio: RobotAudioTrack | None = None
     voice: OperatorVoice | None = None
     poses: PoseChannel | None = None
+    pose_channel: Any = None  # the "capture_poses" data channel the client opened (media loop; video.py sends)
     closing: bool = False
     # from the newest stats
     bytes_sent: int = 0

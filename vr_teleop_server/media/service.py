@@ -8,6 +8,7 @@ when ICE or DTLS fail (a peer that vanished: aioice's consent checks notice with
 answered inside the response (success false, message naming the problem and the fix).
 
 A "poses" data channel in the offer carries the operator's poses and Joy into the client's own session (poses.py);
+on a "capture_poses" channel the server sends each video frame's capture pose (video.py);
 an offer with one is not refused for a media section without a common codec: that section alone is rejected.
 
 /vr_teleop/media/ice_servers hands a client the ICE servers (STUN, TURN with fresh time-limited credentials,
@@ -210,6 +211,11 @@ class MediaService:
         @pc.on("datachannel")
         def on_datachannel(channel: Any) -> None:
             label = channel.label
+            if label == names.CAPTURE_POSES_CHANNEL:  # the server's to send on (video.py); what comes is ignored
+                peer.pose_channel = channel
+                if peer.video is not None:
+                    peer.video.pose_channel = channel
+                return
             channel.on("message", lambda message: call_on(home, self._channel_message, peer, session, message, label))
 
         @pc.on("connectionstatechange")
@@ -229,6 +235,7 @@ class MediaService:
                 continue
             if transceiver.kind == "video" and self.video is not None and peer.video is None:
                 peer.video = CameraTrack(self.video)
+                peer.video.pose_channel = peer.pose_channel
                 pc.addTrack(peer.video)
                 sending = next(t for t in pc.getTransceivers() if t.sender.track is peer.video)
                 peer.video.playout_delay = playout_delay.enable(sending, offer)

@@ -27,6 +27,14 @@ last RTP timestamp, so aiortc's version is bounded in pyproject). Stamping the r
 jitter buffer absorb the server's variable render-to-send delay (173 ms a frame against 45 on a loaded machine,
 measured with getStats' jitterBufferDelay). Each frame's render time goes out with the telemetry, keyed by its
 RTP timestamp.
+
+Each frame's capture pose (the head's pose when it was taken) goes out on the peer's "capture_poses" data channel
+when the client opened one, as the frame goes to its sender, keyed by the frame's RTP timestamp: a small JSON text
+message per frame, ahead of the frame's packets. A data channel, not an RTP header extension: the browser hands a
+page no header extension of its own (requestVideoFrameCallback reports the RTP timestamp, nothing else), and
+aiortc's sender writes only the extensions it knows. The channel is unordered without retransmissions (a lost
+pose is not worth a stall; the page keeps the previous one), and a pose is skipped while the channel's buffer
+holds more than CAPTURE_POSE_BUFFER bytes (a congested association gets no backlog of stale poses).
 """
 
 from __future__ import annotations
@@ -34,6 +42,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import fractions
+import json
 import logging
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -45,7 +54,7 @@ from aiortc import MediaStreamTrack, RTCRtpSender
 from aiortc.mediastreams import MediaStreamError
 from aiortc.rtp import RTCP_PSFB_APP, RTCP_PSFB_FIR, RTCP_PSFB_PLI, RtcpPsfbPacket, unpack_remb_fci
 
-from robot_models.types import CameraFrame
+from robot_models.types import CameraFrame, CapturePose
 from simclock import WALL, Clock
 
 from ..robot.interface import Robot
@@ -63,6 +72,7 @@ RESTART_DELAY_S = 1.0  # after the encoder process failed, the pump waits this l
 QUEUE_BOUND = 3  # encoded frames waiting for one sender (100 ms at 30 fps)
 KEYFRAME_INTERVAL_S = 0.5  # keyframes asked for (PLI, joins) are granted at most this often: a PLI storm on a
 # congested link would otherwise make every frame a large keyframe and keep the link congested
+CAPTURE_POSE_BUFFER = 4096  # bytes waiting on the capture-poses channel past which a frame's pose is skipped
 
 
 @dataclass(frozen=True)
@@ -73,6 +83,7 @@ class EncodedFrame:
     render_wall: float  # the camera frame's wall-clock stamp (its render time)
     seq: int
     bitrate: int  # the encoder's target when it encoded this frame
+    pose: CapturePose | None = None  # the head's pose when the frame was taken
 
 
 class VideoHub:
@@ -207,7 +218,7 @@ class VideoHub:
             data, key, bitrate = result
             self.encoded[codec] += 1
             self.encoder_bitrate[codec] = bitrate
-            out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq, bitrate)
+            out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq, bitrate, frame.pose)
         return out
 
     def _close_encoder(self) -> None:
@@ -256,6 +267,8 @@ class CameraTrack(MediaStreamTrack):
         self.rtp_origin: int | None = None
         self.last_pts = -1  # send time of the newest frame, 90 kHz ticks since the hub's epoch
         self.sent: deque[tuple[int, float]] = deque(maxlen=64)  # (pts, render time) of the newest frames sent
+        self.pose_channel: Any = None  # the peer's "capture_poses" data channel, once the client opened one
+        self.poses_sent = 0
 
     def bind(self, codec: str, sender: RTCRtpSender) -> None:
         """Start receiving the hub's frames for `codec`, and listen to the sender's RTCP (PLI, FIR, REMB)."""
@@ -314,6 +327,7 @@ class CameraTrack(MediaStreamTrack):
         packet.pts = self.last_pts
         packet.time_base = VIDEO_TIME_BASE
         self.sent.append((self.last_pts, item.render_wall))
+        self._send_pose(item)
         self.frames_sent += 1
         self.age_sum += max(0.0, now - item.render_wall)
         return packet
@@ -326,6 +340,18 @@ class CameraTrack(MediaStreamTrack):
         stamp = getattr(self.sender, "_RTCRtpSender__rtp_timestamp", None)
         if isinstance(stamp, int) and stamp:
             self.rtp_origin = (stamp - self.last_pts) & 0xFFFFFFFF
+
+    def _send_pose(self, item: EncodedFrame) -> None:
+        """The frame's capture pose on the capture-poses channel, keyed by its RTP timestamp (known from the
+        second frame on), unless the channel is not open or is backed up."""
+        channel, pose, rtp = self.pose_channel, item.pose, self.rtp_timestamp(self.last_pts)
+        if channel is None or pose is None or rtp is None or channel.readyState != "open" \
+                or channel.bufferedAmount > CAPTURE_POSE_BUFFER:
+            return
+        channel.send(json.dumps({"rtp_timestamp": rtp, "seq": item.seq, "head_yaw": round(pose.yaw, 4),
+                                 "head_pitch": round(pose.pitch, 4), "stamp_gap": round(pose.gap_s, 4),
+                                 "source": pose.source, "render_time": item.render_wall}))
+        self.poses_sent += 1
 
     def rtp_timestamp(self, pts: int) -> int | None:
         return None if self.rtp_origin is None else (self.rtp_origin + pts) & 0xFFFFFFFF

@@ -5,7 +5,13 @@ is tested on its own. `RobotLink` is the base both real backends derive from: it
 gates commands, and owns the parts that are the same whatever the wire (voice resampling and chunking, gesture
 streaming, the camera's reference counting, the microphone's listeners, voice activity). A backend only translates:
 `_connect`/`_disconnect`, `_send_targets`, `_send_voice`, `_start_camera`/`_stop_camera`,
-`_start_microphone`/`_stop_microphone`, and feeds `_transport`, `_heartbeat`, `_put_jpeg`, `_heard`, `_heard_voice`.
+`_start_microphone`/`_stop_microphone`, and feeds `_transport`, `_joints_heard` (the heartbeat), `_put_jpeg`, `_heard`,
+`_heard_voice`.
+
+Capture poses: every joint state's head goes into a short history (head_history.py), and each camera frame carries
+the head's pose interpolated at the frame's stamp. Stamps are the robot's own (a message's header stamp, wall
+clock) when both the frame and the joint states carry one, else the server's arrival times (both clocks are never
+mixed: the robot's clock need not agree with the server's).
 
 Lost and back, one rule for every real robot:
 - The heartbeat is the robot's joint state stream (a QTrobot publishes it all the time, whether ROS 1's
@@ -44,6 +50,7 @@ import numpy as np
 from client_protocol.errors import Refusal
 from robot_models import RobotModel
 
+from .head_history import HeadHistory
 from .interface import (
     CameraFrame,
     ClampReport,
@@ -175,6 +182,8 @@ class RobotLink(Robot):
         self._watcher: threading.Thread | None = None
         self._frames = FrameMailbox()
         self._frame_seq = 0  # only the thread that puts frames counts
+        self._head_arrived = HeadHistory()  # the head by the joint states' arrival (server wall clock)
+        self._head_stamped = HeadHistory()  # ... by their own stamps (the robot's clock), when they carry one
         self._camera_count = 0
         self._microphone_listeners: list[Callable[[bytes, int, int], None]] = []
         self._speaker_format = (0, 0)
@@ -282,6 +291,16 @@ class RobotLink(Robot):
         """Any thread: a joint state arrived."""
         self._link.heartbeat(time.monotonic())
 
+    def _joints_heard(self, positions: Mapping[str, float], stamp: float | None = None) -> None:
+        """Any thread: a joint state arrived (the heartbeat); its head (degrees) is kept for the camera's frames, at
+        `stamp` (its own, the robot's wall clock; None or 0: it has none) and at its arrival."""
+        yaw, pitch = (positions.get(n) for n in self._model.part_joints("head"))
+        if yaw is not None and pitch is not None:
+            self._head_arrived.add(time.time(), float(yaw), float(pitch))
+            if stamp:
+                self._head_stamped.add(stamp, float(yaw), float(pitch))
+        self._heartbeat()
+
     def _watch(self) -> None:
         while not self._closed.wait(WATCH_PERIOD_S):
             decision = self._link.tick(time.monotonic())
@@ -369,10 +388,17 @@ class RobotLink(Robot):
         if self._camera_count == 0:
             self._stop_camera()
 
-    def _put_jpeg(self, jpeg: bytes, width: int, height: int) -> None:
-        """The camera's thread: a new frame for the waiters."""
+    def _put_jpeg(self, jpeg: bytes, width: int, height: int, stamp: float | None = None,
+                  arrived: tuple[float, float] | None = None) -> None:
+        """The camera's thread: a new frame for the waiters, with the head's pose when it was taken. `stamp`: the
+        frame's own (the robot's wall clock; None or 0: it has none); `arrived`: (monotonic, wall) when it came,
+        if earlier than now (before a conversion)."""
+        mono, wall = arrived or (time.monotonic(), time.time())
+        pose = self._head_stamped.at(stamp) if stamp and len(self._head_stamped) else None
+        if pose is None:
+            pose = self._head_arrived.at(wall)
         self._frame_seq += 1
-        self._frames.put(CameraFrame(jpeg, width, height, self._frame_seq, time.monotonic(), time.time()))
+        self._frames.put(CameraFrame(jpeg, width, height, self._frame_seq, mono, wall, pose=pose))
 
     def latest_frame(self) -> CameraFrame | None:
         return self._frames.newest

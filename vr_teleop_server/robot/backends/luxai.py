@@ -337,7 +337,7 @@ class LuxaiRobot(RobotLink):
         with self._lock:
             self._state = state
             self._readings.update(readings)
-        self._heartbeat()
+        self._joints_heard(state.as_dict())  # by arrival: the SDK's frames carry no stamp of the robot's
 
     def joint_state(self) -> JointState:
         with self._lock:
@@ -535,6 +535,7 @@ class LuxaiRobot(RobotLink):
                     continue
                 if frame is None or not frame.data or not frame.width or not frame.height:
                     continue
+                arrived = (time.monotonic(), time.time())
                 channels = frame.channels or 3
                 pixels = np.frombuffer(frame.data, np.uint8)
                 if pixels.size != frame.width * frame.height * channels:
@@ -546,7 +547,7 @@ class LuxaiRobot(RobotLink):
                     image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
                 ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
                 if ok:
-                    self._put_jpeg(jpeg.tobytes(), frame.width, frame.height)
+                    self._put_jpeg(jpeg.tobytes(), frame.width, frame.height, arrived=arrived)
         finally:
             with contextlib.suppress(Exception):
                 reader.close()

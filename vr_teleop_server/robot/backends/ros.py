@@ -73,6 +73,17 @@ def respeaker_to_base(array_deg: float, head_yaw_deg: float) -> float:
     return wrap_deg(head_yaw_deg - (array_deg - RESPEAKER_FRONT_DEG))
 
 
+def _stamp(msg: dict[str, Any]) -> float | None:
+    """A message's header stamp in seconds (ROS 1's secs/nsecs or ROS 2's sec/nanosec), None when it has none (0)."""
+    stamp = (msg.get("header") or {}).get("stamp") or {}
+    try:
+        seconds = float(stamp.get("secs", stamp.get("sec", 0)) or 0) + \
+            float(stamp.get("nsecs", stamp.get("nanosec", 0)) or 0) / 1e9
+    except (TypeError, ValueError, AttributeError):
+        return None
+    return seconds or None
+
+
 def _jpeg_size(data: bytes) -> tuple[int, int]:
     """(width, height) from a JPEG's start-of-frame marker, without decoding the image."""
     i = 2
@@ -185,7 +196,7 @@ class RosRobot(RobotLink):
                            tuple(float(efforts.get(n, 0.0)) for n in names), time.monotonic(), time.time())
         with self._lock:
             self._state = state
-        self._heartbeat()
+        self._joints_heard(positions, _stamp(msg))
 
     def joint_state(self) -> JointState:
         with self._lock:
@@ -309,8 +320,9 @@ class RosRobot(RobotLink):
 
     def _on_camera(self, msg: dict[str, Any]) -> None:
         data = msg.get("data", "")
+        arrived = (time.monotonic(), time.time())
         jpeg = base64.b64decode(data) if isinstance(data, str) else bytes(data)
-        self._put_jpeg(jpeg, *_jpeg_size(jpeg))
+        self._put_jpeg(jpeg, *_jpeg_size(jpeg), stamp=_stamp(msg), arrived=arrived)
 
     # ---- microphone ---------------------------------------------------------------------------------------------
     def _start_microphone(self) -> None:

@@ -4,15 +4,74 @@
 // JpegCameraSource, the JPEG topic over rosbridge. CameraFeed (what main.js holds) negotiates WebRTC on every
 // rosbridge connection and falls back to the JPEG topic when that is refused, impossible or fails later, saying so.
 // Signalling, the clock and the RTP -> render time mapping are ../webrtc.js, shared with the dashboard.
+//
+// Capture poses (issue 36). Each frame comes with the robot's head pose when it was taken: on the JPEG road from
+// /vr_teleop/camera/capture_pose (matched by header stamp), on WebRTC from the "capture_poses" data channel (matched
+// by RTP timestamp). CameraFeed.placementPose() gives main.js the pose to hang the panel by: the shown frame's
+// capture pose, so a still object in the room stays still while the robot's head catches up; without one (its
+// message lost, or not come yet) the pose of the nearest frame taken within NEAREST_S of it, else the newest joint
+// state (today's placement). The URL's #placement=newest (or `camera.placement = "newest"`) keeps today's
+// placement throughout.
 
 import * as names from "../names.js";
 import * as THREE from "three";
 import {stampSeconds} from "../rosbridge.js";
 import {IceErrors, MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn,
-        mediaRoute, negotiate, onVideoFrames, webRtcMissing} from "../webrtc.js";
+        mediaRoute, negotiate, onVideoFrames, rtpDelta, webRtcMissing} from "../webrtc.js";
 
 export const CAMERA_TOPIC = names.CAMERA_TOPIC;
+export const CAPTURE_POSE_TOPIC = names.CAPTURE_POSE_TOPIC;
+export const CAPTURE_POSES_CHANNEL = names.CAPTURE_POSES_CHANNEL;
 const AGES_KEPT = 2000;
+const POSES_KEPT = 240;        // capture poses kept by frame key (8 s at 30 fps)
+const NEAREST_S = 0.2;         // a frame without its pose is placed by the nearest frame's taken this close to it
+const TRACE_KEPT = 20000;
+
+/** "capture" (the default: the panel by each frame's capture pose) or "newest" (by the newest joint state): the page
+ * URL's #placement=... (joined with & to the rest of the hash). */
+export function placementMode(hash = globalThis.location?.hash ?? "") {
+  return new URLSearchParams(hash.replace(/^#/, "")).get("placement") === "newest" ? "newest" : "capture";
+}
+
+/** Capture poses by frame key (a header stamp in seconds, or an RTP timestamp), the newest POSES_KEPT; `seconds(a,
+ * b)` is how far apart two keys were taken. */
+export class CapturePoses {
+  constructor(seconds = (a, b) => Math.abs(a - b), keep = POSES_KEPT) {
+    this.seconds = seconds;
+    this.keep = keep;
+    this.poses = new Map();
+    this.received = 0;
+  }
+
+  /** A vr_teleop_msgs/CapturePose (or the channel's message): degrees, as the joint states have them. */
+  add(key, msg) {
+    if (key === null || key === undefined || !Number.isFinite(msg.head_yaw) || !Number.isFinite(msg.head_pitch)) {
+      return;
+    }
+    this.received += 1;
+    this.poses.set(key, {yaw: msg.head_yaw, pitch: msg.head_pitch, gap: msg.stamp_gap ?? 0,
+                         source: msg.source ?? ""});
+    while (this.poses.size > this.keep) this.poses.delete(this.poses.keys().next().value);
+  }
+
+  get(key) {
+    return key === null || key === undefined ? undefined : this.poses.get(key);
+  }
+
+  /** The pose of the frame taken nearest to `key`'s, if within `within` seconds of it (else undefined). */
+  nearest(key, within = NEAREST_S) {
+    if (key === null || key === undefined) return undefined;
+    let best, gap = within;
+    for (const [k, pose] of this.poses) {
+      const d = this.seconds(k, key);
+      if (d <= gap) { gap = d; best = pose; }
+    }
+    return best;
+  }
+}
+
+/** How far apart two WebRTC frames were sent, from their RTP timestamps (90 kHz, across a wrap). */
+const rtpSeconds = (a, b) => Math.abs(rtpDelta(a, b)) / 90000;
 
 export class JpegCameraSource {
   /** Newest frame only: the server sends at most one frame at a time (queue_length 1), and while a frame is being
@@ -39,8 +98,18 @@ export class JpegCameraSource {
     this.worker = new Worker(new URL("./camera_worker.js", import.meta.url));
     this.worker.onmessage = (event) => this.decoded(event.data);
     this.worker.onerror = (event) => this.fail(`the camera decoder failed: ${event.message}`);
+    this.poses = new CapturePoses();
+    // Before the camera: the server publishes each frame's pose just before the frame.
+    ros.subscribe(CAPTURE_POSE_TOPIC, "vr_teleop_msgs/CapturePose",
+      (msg) => this.poses.add(stampSeconds(msg.header?.stamp), msg), {throttle_rate: 0, queue_length: 4});
     ros.subscribe(CAMERA_TOPIC, "sensor_msgs/CompressedImage", (msg) => this.frame(msg),
       {throttle_rate: 0, queue_length: 1});
+  }
+
+  /** The key and capture pose of the frame the next render shows (the one uploading, else the one shown). */
+  shownPose() {
+    const key = this.uploading ?? this.shownStamp;
+    return {key, pose: this.poses.get(key)};
   }
 
   frame(msg) {
@@ -116,9 +185,10 @@ export class VideoCameraSource {
   /** WebRTC video: the <video> element decodes (the browser's media pipeline, off the main thread) and presents
    * the newest frame; the VideoTexture uploads it when the video presents one (requestVideoFrameCallback), so a
    * late frame is never queued behind another: newest only, by nature. */
-  constructor(renderTimes, clock) {
+  constructor(renderTimes, clock, poses) {
     this.renderTimes = renderTimes;
     this.clock = clock;
+    this.poses = poses;  // CapturePoses by RTP timestamp, from the capture-poses data channel
     const video = this.video = document.createElement("video");
     video.muted = true;  // until a user gesture (the autoplay rule): then the robot's audio plays from here
     video.playsInline = true;
@@ -167,6 +237,13 @@ export class VideoCameraSource {
       this.ages.push(at - rendered);
       if (this.ages.length > AGES_KEPT) this.ages.splice(0, this.ages.length - AGES_KEPT);
     });
+  }
+
+  /** The key (RTP timestamp) and capture pose of the frame the next render shows: the one the video presents
+   * (the VideoTexture uploads it at that render). */
+  shownPose() {
+    const key = this.latestRtp ?? this.shownRtp;
+    return {key, pose: this.poses.get(key)};
   }
 
   /** Seconds between the shown frame's render time (by its RTP timestamp, from the telemetry) and now, on the
@@ -221,6 +298,10 @@ export class CameraFeed {
     this.audioViaWebRtc = false;
     this.generation = 0;       // counts rosbridge connections: a negotiation of an older one is dropped
     this.unlocked = false;
+    this.placement = placementMode();  // "capture" or "newest" (placementPose)
+    this.rtpPoses = new CapturePoses(rtpSeconds);  // WebRTC frames' capture poses by RTP timestamp
+    this.placed = null;        // what placementPose gave last: {key, yaw, pitch, by: "capture" | "nearest" | "newest"}
+    this.trace = null;         // an array to fill with every placement (the bench sets it)
     this.forced = mode === "jpeg" ? "#camera=jpeg" : webRtcMissing();
     for (const type of ["pointerdown", "keydown"]) window.addEventListener(type, () => this.unmute(), true);
   }
@@ -263,6 +344,8 @@ export class CameraFeed {
     const stream = new MediaStream();
     pc.addEventListener("track", (event) => stream.addTrack(event.track));
     try {
+      const posesChannel = pc.createDataChannel(CAPTURE_POSES_CHANNEL, {ordered: false, maxRetransmits: 0});
+      posesChannel.onmessage = (event) => this.capturePoseMessage(event.data);
       this.prepare?.(pc);
       const sends = await negotiate(this.ros, pc);
       if (this.pc !== pc || generation !== this.generation) { pc.close(); return; }  // a newer connection's turn
@@ -272,7 +355,7 @@ export class CameraFeed {
       }
       if (!sends.video) throw new MediaError("the server sends no video (it has no camera)");
       if (!this.renderTimes) this.renderTimes = new RenderTimes(this.ros);
-      if (!this.video) this.video = new VideoCameraSource(this.renderTimes, this.clock);
+      if (!this.video) this.video = new VideoCameraSource(this.renderTimes, this.clock, this.rtpPoses);
       this.video.attach(stream);
       if (this.unlocked) this.unmute();
       this.path = "WebRTC";
@@ -292,6 +375,37 @@ export class CameraFeed {
       const because = relay && (why === "failed" || iceErrors.errors.length) ? `; ${relay}` : "";
       this.useJpeg(`camera: WebRTC ${why} (${err.message}${because}); showing the JPEG topic`);
     }
+  }
+
+  capturePoseMessage(data) {
+    let msg;
+    try { msg = JSON.parse(data); } catch { return; }
+    if (Number.isInteger(msg?.rtp_timestamp)) this.rtpPoses.add(msg.rtp_timestamp, msg);
+  }
+
+  /** The capture pose of the frame the next render shows, or null when not known. */
+  capturePose() {
+    return this.source?.shownPose?.().pose ?? null;
+  }
+
+  /** The head pose ({yaw, pitch}, degrees) to hang the panel by: the shown frame's capture pose, else the nearest
+   * frame's (NEAREST_S), else `newest` (the newest joint state's); with placement "newest", always `newest`. */
+  placementPose(newest) {
+    const source = this.source;
+    const {key = null, pose = null} = source?.shownPose?.() ?? {};
+    let by = "newest", use = newest;
+    if (this.placement === "capture") {
+      const near = pose ? null : source?.poses?.nearest(key);
+      if (pose) { by = "capture"; use = pose; }
+      else if (near) { by = "nearest"; use = near; }
+    }
+    this.placed = {key, yaw: use.yaw, pitch: use.pitch, by};
+    if (this.trace) {
+      this.trace.push({t: performance.now(), key, yaw: use.yaw, pitch: use.pitch, by, mode: this.placement,
+                       path: this.path});
+      if (this.trace.length > TRACE_KEPT) this.trace.splice(0, this.trace.length - TRACE_KEPT);
+    }
+    return use;
   }
 
   stateChanged(pc, generation) {

@@ -555,9 +555,10 @@ function flatFrame() {
 
 function placePanels() {
   const {zero, robotHead, head} = state;
+  const look = cameraSource.placementPose(robotHead);  // where the shown frame was taken (camera.js)
   panelAnchor.position.copy(head.position);
-  panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(robotHead.pitch),
-                           zero.yaw + THREE.MathUtils.degToRad(robotHead.yaw), 0, "YXZ");
+  panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(look.pitch),
+                           zero.yaw + THREE.MathUtils.degToRad(look.yaw), 0, "YXZ");
   panel.material.map = cameraSource.texture;  // the source changes: placeholder, WebRTC video or JPEG
   panel.scale.y = 1 / cameraSource.aspect;
   headLocked.position.copy(head.position);
@@ -668,7 +669,8 @@ function updateHud(force = false) {
 
 function drawAutonomy() {
   const drawn = autonomy.draw(proposalCanvas, attentionCanvas, {
-    xr: !!state.xr, head: state.robotHead, hfovDeg: CAMERA_HFOV_DEG, image: cameraSource.size});
+    xr: !!state.xr, head: cameraSource.capturePose() ?? state.robotHead, hfovDeg: CAMERA_HFOV_DEG,
+    image: cameraSource.size});  // where the shown picture was taken
   if (drawn.card) proposalTexture.needsUpdate = true;
   if (drawn.overlay) attentionTexture.needsUpdate = true;
   proposalMesh.visible = !!drawn.proposal && !!state.xr;  // the flat view has the page's own card
@@ -844,3 +846,4 @@ window.operator = {
   hands: handActions, comfort,
   readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
 };
+window.operator.panel = panelAnchor;  // the camera panel's anchor: its rotation is where the panel hangs
