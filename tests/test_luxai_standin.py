@@ -172,7 +172,7 @@ def test_motors_home_and_control_mode_services(ros, sim_server):
         assert wait_subscribed(sim_server, "/vr_teleop/clamps")
         command(ros, "/qt_robot/head_position/command", [30.0, 0.0])
         # Braked: the command is reported ignored, not applied (nor kept for later).
-        assert wait_for(lambda: any(set(c["ignored"]) == {"HeadYaw", "HeadPitch"} for c in clamps))
+        assert wait_for(lambda: any(set(c["ignored"]) == {"HeadYaw", "HeadPitch"} for c in clamps), REACH_S)
         time.sleep(1.0)
         assert abs(watcher.get("HeadYaw")) < 1.5
     finally:  # the module's later tests share the stand-in: never leave its head braked
