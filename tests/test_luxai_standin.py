@@ -164,10 +164,10 @@ def test_motors_home_and_control_mode_services(ros, sim_server):
     command(ros, "/qt_robot/head_position/command", [30.0, 0.0])
     assert wait_for(lambda: abs(watcher.get("HeadYaw") - 30) < 1.5, REACH_S)
     home = roslibpy.Service(ros, "/qt_robot/motors/home", "qt_motors_controller/home")
-    assert home.call(roslibpy.ServiceRequest({"parts": ["head"]}), timeout=5) == {"status": True}
+    assert home.call(roslibpy.ServiceRequest({"parts": ["head"]}), timeout=REACH_S) == {"status": True}
     assert wait_for(lambda: abs(watcher.get("HeadYaw")) < 1.5, REACH_S)
     mode = roslibpy.Service(ros, "/qt_robot/motors/setControlMode", "qt_motors_controller/set_control_mode")
-    assert mode.call(roslibpy.ServiceRequest({"parts": ["head"], "mode": 2}), timeout=5) == {"status": True}
+    assert mode.call(roslibpy.ServiceRequest({"parts": ["head"], "mode": 2}), timeout=REACH_S) == {"status": True}
     try:
         assert wait_subscribed(sim_server, "/vr_teleop/clamps")
         command(ros, "/qt_robot/head_position/command", [30.0, 0.0])
@@ -176,7 +176,7 @@ def test_motors_home_and_control_mode_services(ros, sim_server):
         time.sleep(1.0)
         assert abs(watcher.get("HeadYaw")) < 1.5
     finally:  # the module's later tests share the stand-in: never leave its head braked
-        assert mode.call(roslibpy.ServiceRequest({"parts": ["head"], "mode": 0}), timeout=5) == {"status": True}
+        assert mode.call(roslibpy.ServiceRequest({"parts": ["head"], "mode": 0}), timeout=REACH_S) == {"status": True}
     clamp_topic.unsubscribe()
     watcher.topic.unsubscribe()
 
