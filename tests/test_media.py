@@ -571,6 +571,14 @@ def test_the_dashboard_shows_webrtc_video(browser, media_server: RunningServer) 
         page.wait_for_function("window.dashboard.camera.ages.length >= 5", timeout=20_000)
         ages = page.evaluate("window.dashboard.camera.ages")
         assert all(-0.05 < a < 5 for a in ages), ages
+        # Issue 36: Debian's Chromium decodes H.264 in software: VP8, named beside the age.
+        assert page.evaluate("window.dashboard.camera.codec") == "VP8"
+        page.wait_for_function("document.getElementById('camera-age').textContent.endsWith('(WebRTC, VP8)')",
+                               timeout=20_000)
+        # The bench's like-for-like ages: a frame is decoded before it is handed to the compositor.
+        decoded, painted = page.evaluate("[window.dashboard.camera.decodedAges, window.dashboard.camera.paintedAges]")
+        assert len(decoded) >= 5 and len(decoded) == len(painted), (decoded, painted)
+        assert all(-0.05 < d <= p + 0.001 for d, p in zip(decoded, painted)), list(zip(decoded, painted))
         assert errors == []
     finally:
         page.close()

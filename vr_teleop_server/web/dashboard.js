@@ -43,13 +43,20 @@ ros.onstatus = (msg) => {
 // Frame age: JPEG frames carry their render time in the header stamp; WebRTC frames find theirs by RTP timestamp
 // (requestVideoFrameCallback) in the telemetry's mapping. Signalling, the clock and the mapping: webrtc.js, shared
 // with the operator page.
-const camera = {path: "", pc: null, jpeg: false, ages: [], mode: cameraMode(), codec: "", codecChoice: null};
+const camera = {path: "", pc: null, jpeg: false, ages: [], mode: cameraMode(), codec: "", codecChoice: null,
+                // like for like, for bench/media.py: each frame's age when decoded (WebRTC: the last packet's
+                // receipt plus the decoder's processing, from requestVideoFrameCallback; JPEG: img.decode()) and
+                // when handed to the compositor (WebRTC: presentationTime; JPEG: the next animation frame)
+                decodedAges: [], paintedAges: []};
 Object.assign(window.dashboard, {camera, videoFrames: 0});
 const clock = new ServerClock(ros);
 let renderTimes = null;
+function keep(list, age) {
+  list.push(age);
+  if (list.length > 600) list.shift();
+}
 function showAge(age) {
-  camera.ages.push(age);
-  if (camera.ages.length > 600) camera.ages.shift();
+  keep(camera.ages, age);
   const road = camera.path === "WebRTC" && camera.codec ? `WebRTC, ${CODEC_NAMES[camera.codec] ?? camera.codec}`
     : camera.path;
   $("camera-age").textContent = `frame age ${Math.max(0, age).toFixed(3)} s (${road})`;
@@ -69,7 +76,11 @@ function useJpeg(reason) {
     img.src = `data:image/jpeg;base64,${msg.data}`;
     const s = msg.header.stamp;
     const rendered = (s.secs ?? s.sec) + (s.nsecs ?? s.nanosec) / 1e9;
-    img.decode().then(() => showAge(clock.now() - rendered), () => {});
+    img.decode().then(() => {
+      showAge(clock.now() - rendered);
+      keep(camera.decodedAges, clock.now() - rendered);
+      requestAnimationFrame(() => keep(camera.paintedAges, clock.now() - rendered));
+    }, () => {});
     window.dashboard.frames += 1;
   }, {throttle_rate: 0, queue_length: 1});
 }
@@ -81,7 +92,13 @@ function onVideoFrame(now, meta) {
   renderTimes.saw(meta.rtpTimestamp);
   // presentationTime: the frame handed to the compositor (as the JPEG path's decode, before the next vsync)
   const shown = (performance.timeOrigin + (meta.presentationTime ?? now)) / 1000 + clock.offset;
-  renderTimes.whenKnown(meta.rtpTimestamp, (rendered) => showAge(shown - rendered));
+  const decoded = meta.receiveTime === undefined || meta.processingDuration === undefined ? null
+    : (performance.timeOrigin + meta.receiveTime) / 1000 + meta.processingDuration + clock.offset;
+  renderTimes.whenKnown(meta.rtpTimestamp, (rendered) => {
+    showAge(shown - rendered);
+    keep(camera.paintedAges, shown - rendered);
+    if (decoded !== null) keep(camera.decodedAges, decoded - rendered);
+  });
 }
 async function useWebRtc() {
   const ice = await fetchIceServers(ros);  // fresh TURN credentials for every peer connection
