@@ -392,7 +392,7 @@ def floor_rows(rounds: int, bitrate: int = 4_000_000) -> list[Row]:
             decode_ms = per_frame(lambda d: decoder.decode(av.Packet(d)), packets)
             kbytes = float(np.mean([len(p) for p in packets])) / 1000
             name = {"H264": "H.264", "VP8": "VP8"}[codec]
-            rows.append(Row(f"floor {size} {name}: I420 {i420:.1f} + enc {encode_ms:.1f} + RTP {pack_ms:.1f} + dec "
+            rows.append(Row(f"floor {size} {name}: I420 {i420:.1f} + enc {encode_ms:.1f} + RTP {pack_ms:.2f} + dec "
                             f"{decode_ms:.1f}", i420 + encode_ms + pack_ms + decode_ms, jpeg,
                             "JPEG enc + base64 + dec", "ms"))
             print(f"  floor {size} {name}: {kbytes:.1f} kB a frame at {bitrate / 1e6:g} Mbit/s", file=sys.stderr)
