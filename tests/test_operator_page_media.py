@@ -23,15 +23,19 @@ from test_operator_page import iwer  # noqa: F401  (the fixture)
 pytestmark = pytest.mark.timeout(300)
 
 # Chromium offers only codecs the server cannot send (VP9, AV1): the server rejects the video section, for real
-# (the offer's poses data channel and audio are answered: the connection stays up for them).
+# (the offer's poses data channel and audio are answered: the connection stays up for them). Its receiver says it
+# has no others, so the page's own codec order (webrtc.js codecOrder, issue 36) has no others to put first.
 NO_COMMON_CODEC = """(() => {
+  const caps = RTCRtpReceiver.getCapabilities.bind(RTCRtpReceiver);
+  const only = (c) => /VP9|AV1/i.test(c.mimeType);
+  RTCRtpReceiver.getCapabilities = (kind) => {
+    const all = caps(kind);
+    return kind === "video" && all ? {...all, codecs: all.codecs.filter(only)} : all;
+  };
   const add = RTCPeerConnection.prototype.addTransceiver;
   RTCPeerConnection.prototype.addTransceiver = function (kind, init) {
     const t = add.call(this, kind, init);
-    if (kind === "video") {
-      t.setCodecPreferences(RTCRtpReceiver.getCapabilities("video").codecs
-        .filter((c) => /VP9|AV1/i.test(c.mimeType)));
-    }
+    if (kind === "video") t.setCodecPreferences(caps("video").codecs.filter(only));
     return t;
   };
 })();"""
