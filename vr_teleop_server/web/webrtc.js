@@ -400,15 +400,3 @@ export function firstVideoCodec(sdp = "") {
   }
   return "";
 }
-
-/** The codec the browser is decoding the camera in now, from getStats ("" before the first packets). */
-export async function videoCodecInUse(pc) {
-  const stats = await pc.getStats();
-  let codec = "";
-  stats.forEach((s) => {
-    if (s.type === "inbound-rtp" && s.kind === "video" && s.codecId) {
-      codec = codecName(stats.get(s.codecId)?.mimeType ?? "");
-    }
-  });
-  return codec;
-}
