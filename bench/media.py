@@ -3,7 +3,9 @@
 Figures:
 - glass to glass: the stand-in's render time (frame stamp) to the frame shown in Chromium: the dashboard's camera
   panel, WebRTC (requestVideoFrameCallback's expected display time, render time from the telemetry's RTP mapping)
-  against the JPEG topic (the image decoded), p50/p95, at 640x480 and 1280x720;
+  against the JPEG topic (the image decoded), p50/p95, at 640x480 and 1280x720, with the codec --codec names
+  (default H.264: what the page asks for on a Quest); beside it, where a WebRTC frame's time goes (the page's
+  getStats: jitter buffer, assembly, decode) and the server's render to send for both paths;
 - bandwidth per path at 30 fps (WebRTC: the server's bytes sent to one peer; JSON: bytes on the WebSocket);
 - server CPU per delivered frame per path (the CPU time of the server process and its video encoder process
   over frames delivered; a second row adds the stand-in's render process, which since issue 29 makes the JPEG only
@@ -21,7 +23,7 @@ Figures:
 
 Servers run as subprocesses (`vr-teleop serve --backend sim`), as in bench/suite.py.
 
-    MUJOCO_GL=egl PYTHONPATH=. python bench/media.py [--seconds S] [--rounds N] [--only NAME...]
+    MUJOCO_GL=egl PYTHONPATH=. python bench/media.py [--seconds S] [--rounds N] [--only NAME...] [--codec h264|vp8]
     quick look at the control stream: --only control --seconds 5 --rounds 1
 """
 
@@ -30,6 +32,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import fractions
 import json
 import os
 import shutil
@@ -51,6 +54,7 @@ from suite import Row, serve, stop  # noqa: E402
 from vr_teleop_server.core.scheduling import SHORT_SLICE_S, short_slice, slice_of  # noqa: E402
 
 CAMERA = "/camera/color/image_raw/compressed"
+VIDEO_TIME_BASE = fractions.Fraction(1, 90000)
 
 
 def pct(values: list[float], q: float) -> float:
@@ -58,7 +62,39 @@ def pct(values: list[float], q: float) -> float:
 
 
 # ---- glass to glass in Chromium --------------------------------------------------------------------------------
-def glass_rows(size: str, seconds: float) -> list[Row]:
+# Where a WebRTC frame's time goes, from the page's getStats (inbound-rtp video, means per frame): the jitter
+# buffer (first packet received to the frame leaving it for the decoder), the assembly (first to last packet of a
+# frame), the decode, and reception to decoded in all; and the server's render to send (telemetry's
+# camera_frame_age, the mean over each 0.5 s; for the JPEG topic, render to the frame written to the WebSocket).
+STATS = """async () => {
+  const stats = await window.dashboard.camera.pc.getStats();
+  let out = null;
+  stats.forEach((s) => {
+    if (s.type !== "inbound-rtp" || s.kind !== "video") return;
+    const per = (total, n) => (n ? 1000 * total / n : NaN);
+    out = {codec: stats.get(s.codecId)?.mimeType ?? "", decoder: s.decoderImplementation ?? "",
+           jitter_buffer: per(s.jitterBufferDelay, s.jitterBufferEmittedCount),
+           assembly: per(s.totalAssemblyTime, s.framesAssembledFromMultiplePackets),
+           decode: per(s.totalDecodeTime, s.framesDecoded),
+           processing: per(s.totalProcessingDelay, s.framesDecoded),
+           decoded: s.framesDecoded, dropped: s.framesDropped ?? 0};
+  });
+  return out;
+}"""
+TELEMETRY = """() => {
+  window.benchAges = {webrtc: [], json: [], targets: []};
+  window.dashboard.ros.subscribe("/vr_teleop/telemetry", "vr_teleop_msgs/Telemetry", (msg) => {
+    for (const c of msg.clients || []) {
+      if (c.camera_frame_age >= 0) window.benchAges[c.webrtc ? "webrtc" : "json"].push(c.camera_frame_age);
+      if (c.webrtc && c.rtc_target_bitrate > 0) window.benchAges.targets.push(c.rtc_target_bitrate);
+    }
+  });
+}"""
+
+
+def glass_rows(size: str, seconds: float, codec: str = "h264") -> list[Row]:
+    """Both paths side by side in one Chromium, the WebRTC page asking for `codec` (#codec=..., as a Quest's page
+    asks for H.264: webrtc.js chooseVideoCodec), with where a WebRTC frame's time goes beside."""
     from playwright.sync_api import sync_playwright
 
     server = serve("--backend", "sim", "--camera-size", size, "--bystander-interval", "0")
@@ -70,25 +106,60 @@ def glass_rows(size: str, seconds: float) -> list[Row]:
             pages = {}
             for mode in ("webrtc", "jpeg"):  # side by side: both watch at once, under the same load
                 pages[mode] = page = browser.new_page()
-                page.goto(f"http://127.0.0.1:{port}/#camera={mode}")
+                page.goto(f"http://127.0.0.1:{port}/#camera={mode}&codec={codec}")
             for page in pages.values():
                 page.wait_for_function("window.dashboard.camera.ages.length >= 10", timeout=60_000)
+            pages["webrtc"].evaluate(TELEMETRY)
+            before = pages["webrtc"].evaluate(STATS)
             for page in pages.values():
-                page.evaluate("window.dashboard.camera.ages.length = 0")
+                page.evaluate("['ages', 'decodedAges', 'paintedAges'].forEach((k) => window.dashboard.camera[k].length = 0)")
             time.sleep(seconds)
+            after = pages["webrtc"].evaluate(STATS)
+            server_ages = pages["webrtc"].evaluate("window.benchAges")
             for mode, page in pages.items():
-                ages = page.evaluate("window.dashboard.camera.ages")
-                results[mode] = ([1000 * a for a in ages], page.evaluate("window.dashboard.camera.path"))
+                ages = page.evaluate("[window.dashboard.camera.ages, window.dashboard.camera.decodedAges, "
+                                     "window.dashboard.camera.paintedAges]")
+                results[mode] = ([[1000 * a for a in kind] for kind in ages],
+                                 page.evaluate("window.dashboard.camera.path"),
+                                 page.evaluate("window.dashboard.camera.codec"))
                 page.close()
             browser.close()
     finally:
         stop(server)
-    (rtc, rtc_path), (jpg, _) = results["webrtc"], results["jpeg"]
+    ((rtc, rtc_decoded, rtc_painted), rtc_path, got), ((jpg, jpg_decoded, jpg_painted), _, _) = \
+        results["webrtc"], results["jpeg"]
     assert rtc_path == "WebRTC", f"the dashboard fell back to {rtc_path}"
-    return [Row(f"glass to glass {size}, WebRTC: p50", pct(rtc, 50), pct(jpg, 50), "JPEG topic p50", "ms"),
-            Row(f"glass to glass {size}, WebRTC: p95", pct(rtc, 95), pct(jpg, 95), "JPEG topic p95", "ms"),
-            Row(f"frames shown in {seconds:g} s {size}, WebRTC", len(rtc), len(jpg), "JPEG topic", "frames",
-                "higher")]
+    want = {"h264": "H264", "vp8": "VP8"}[codec]
+    assert got == want and after["codec"].lower() == f"video/{want.lower()}", (got, after)
+    name = {"H264": "H.264", "VP8": "VP8"}[want]
+    rows = [Row(f"glass to glass {size}, WebRTC {name}: p50", pct(rtc, 50), pct(jpg, 50), "JPEG topic p50", "ms"),
+            Row(f"glass to glass {size}, WebRTC {name}: p95", pct(rtc, 95), pct(jpg, 95), "JPEG topic p95", "ms"),
+            Row(f"frames shown in {seconds:g} s {size}, WebRTC {name}", len(rtc), len(jpg), "JPEG topic", "frames",
+                "higher"),
+            # like for like: both paths at the same point (see STATS and the dashboard's decodedAges)
+            Row(f"  render to decoded {size}, WebRTC {name}: p50", pct(rtc_decoded, 50), pct(jpg_decoded, 50),
+                "JPEG topic p50", "ms"),
+            Row(f"  render to decoded {size}, WebRTC {name}: p95", pct(rtc_decoded, 95), pct(jpg_decoded, 95),
+                "JPEG topic p95", "ms"),
+            Row(f"  render to compositor {size}, WebRTC {name}: p50", pct(rtc_painted, 50), pct(jpg_painted, 50),
+                "JPEG topic p50", "ms"),
+            Row(f"  render to compositor {size}, WebRTC {name}: p95", pct(rtc_painted, 95), pct(jpg_painted, 95),
+                "JPEG topic p95", "ms")]
+    d = {k: after[k] for k in ("decoded", "dropped")}
+    d = {k: d[k] - before[k] for k in d}
+    print(f"  {size} {name}: decoder {after['decoder'] or '?'}; page per frame (whole run): jitter buffer "
+          f"{after['jitter_buffer']:.1f} ms, assembly {after['assembly']:.1f} ms, decode {after['decode']:.1f} ms, "
+          f"reception to decoded {after['processing']:.1f} ms; {d['decoded']} decoded, {d['dropped']} dropped in "
+          f"{seconds:g} s", file=sys.stderr)
+    targets = server_ages.pop("targets")
+    if targets:  # the encoder is rebuilt (a keyframe) when its target moves by more than 15%
+        print(f"  encoder target {min(targets) / 1e6:.2f} to {max(targets) / 1e6:.2f} Mbit/s during the run",
+              file=sys.stderr)
+    sent = {k: [1000 * a for a in v] for k, v in server_ages.items()}
+    mean = {k: float(np.mean(v)) if v else float("nan") for k, v in sent.items()}
+    rows.append(Row(f"server render to send {size}, WebRTC {name} (mean)", mean["webrtc"], mean["json"],
+                    "JPEG topic", "ms"))
+    return rows
 
 
 # ---- bandwidth and server CPU per delivered frame -----------------------------------------------------------------
@@ -245,6 +316,87 @@ def encoder_rows(rounds: int) -> list[Row]:
     jpeg_ms = 1000 * (time.thread_time() - t0) / len(frames)
     return rows + [Row("1280x720 frame into the encoder: ring RGB to I420", ring_ms, jpeg_ms,
                        "JPEG made, decoded, to I420 (before)", "ms")]
+
+
+# ---- the floor: each path's unavoidable work per frame ---------------------------------------------------------
+def floor_rows(rounds: int, bitrate: int = 4_000_000) -> list[Row]:
+    """What a perfect pipeline would still spend on a frame, in this process, one thread, on the stand-in's camera
+    frames while the head moves: WebRTC's RGB to I420, encode (media/encoder_process.py's settings), RTP
+    packetisation (aiortc's) and decode (FFmpeg, as Chromium's software decoders; a Quest decodes H.264 in
+    hardware); the JPEG topic's encode (the render process's quality), base64 (rosbridge's JSON) and decode.
+    Everything else on glass to glass (the hops between processes and threads, waiting for a core, the jitter
+    buffer, the browser's compositing) is what an implementation adds above this floor. `bitrate`: the encoders'
+    target (the peers' estimate reaches the 4 Mbit/s cap on loopback within seconds)."""
+    import base64
+
+    import av
+    import cv2
+    from aiortc.codecs.h264 import H264Encoder
+    from aiortc.codecs.vpx import Vp8Encoder
+
+    from sim import StandIn
+    from vr_teleop_server.media.encoder_process import encoder_options, open_encoder
+
+    sizes = {"640x480": (640, 480), "1280x720": (1280, 720)}
+    standin = StandIn(camera_width=1280, camera_height=720)
+    try:
+        frames = {size: [] for size in sizes}
+        for k in range(30):
+            standin.set_targets({"HeadYaw": -30 + 2 * k, "HeadPitch": -5 + k % 7})
+            time.sleep(0.1)
+            for size, (w, h) in sizes.items():
+                frames[size].append(standin.snapshot(width=w, height=h))
+    finally:
+        standin.close()
+
+    def per_frame(fn, items) -> float:
+        t0 = time.thread_time()
+        for _ in range(rounds):
+            for item in items:
+                fn(item)
+        return 1000 * (time.thread_time() - t0) / (rounds * len(items))
+
+    rows = []
+    for size, (w, h) in sizes.items():
+        rgb = frames[size]
+        i420 = per_frame(lambda f: cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420), rgb)
+        yuv = [cv2.cvtColor(f, cv2.COLOR_RGB2YUV_I420) for f in rgb]
+        jpegs = [cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])[1]
+                 for f in rgb]
+        jpeg = (per_frame(lambda f: cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR),
+                                                 [cv2.IMWRITE_JPEG_QUALITY, 80]), rgb)
+                + per_frame(lambda j: base64.b64decode(base64.b64encode(j.tobytes())), jpegs)
+                + per_frame(lambda j: cv2.imdecode(j, cv2.IMREAD_COLOR), jpegs))
+        for codec, packer, decoder_name in (("H264", H264Encoder, "h264"), ("VP8", Vp8Encoder, "vp8")):
+            ctx = open_encoder(av, codec, w, h, bitrate, 30.0, encoder_options(codec, bitrate))
+            packets, encode_ms = [], 0.0
+            for _ in range(rounds):
+                for i, y in enumerate(yuv):
+                    image = av.VideoFrame.from_ndarray(y, format="yuv420p")
+                    image.pts = len(packets)
+                    t0 = time.thread_time()
+                    out = ctx.encode(image)
+                    encode_ms += 1000 * (time.thread_time() - t0)
+                    packets.append(b"".join(bytes(p) for p in out))
+            encode_ms /= len(packets)
+            pack = packer()
+
+            def packetize(data: bytes, pack=pack) -> None:
+                packet = av.Packet(data)
+                packet.pts, packet.time_base = 0, VIDEO_TIME_BASE
+                pack.pack(packet)
+
+            pack_ms = per_frame(packetize, packets)
+            decoder = av.CodecContext.create(decoder_name, "r")
+            decoder.thread_count = 1
+            decode_ms = per_frame(lambda d: decoder.decode(av.Packet(d)), packets)
+            kbytes = float(np.mean([len(p) for p in packets])) / 1000
+            name = {"H264": "H.264", "VP8": "VP8"}[codec]
+            rows.append(Row(f"floor {size} {name}: I420 {i420:.1f} + enc {encode_ms:.1f} + RTP {pack_ms:.2f} + dec "
+                            f"{decode_ms:.1f}", i420 + encode_ms + pack_ms + decode_ms, jpeg,
+                            "JPEG enc + base64 + dec", "ms"))
+            print(f"  floor {size} {name}: {kbytes:.1f} kB a frame at {bitrate / 1e6:g} Mbit/s", file=sys.stderr)
+    return rows
 
 
 # ---- viewers in another process ---------------------------------------------------------------------------------
@@ -499,7 +651,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rounds", type=int, default=2, help="alternating rounds of the control rows")
     parser.add_argument("--only", nargs="+", choices=["glass", "bandwidth", "viewers", "congested", "speech",
-                                                       "control", "encoder"])
+                                                       "control", "encoder", "floor"])
+    parser.add_argument("--codec", choices=["h264", "vp8"], default="h264",
+                        help="the codec the glass rows' WebRTC page asks for (default: H.264, what the page asks "
+                             "for on a Quest, whose browser decodes H.264 in hardware)")
     parser.add_argument("--viewers", type=int, help=argparse.SUPPRESS)  # the viewer subprocess
     parser.add_argument("--url", help=argparse.SUPPRESS)
     parser.add_argument("--json-topic", action="store_true", help=argparse.SUPPRESS)
@@ -509,10 +664,11 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(asyncio.run(run)))
         return 0
     s = args.seconds
-    parts = {"glass": lambda: glass_rows("640x480", s) + glass_rows("1280x720", s),
+    parts = {"glass": lambda: glass_rows("640x480", s, args.codec) + glass_rows("1280x720", s, args.codec),
              "bandwidth": lambda: bandwidth_rows(s), "viewers": lambda: viewer_rows(s),
              "congested": lambda: congested_rows(s), "speech": lambda: speech_rows(5),
-             "control": lambda: control_rows(s, args.rounds), "encoder": lambda: encoder_rows(args.rounds)}
+             "control": lambda: control_rows(s, args.rounds), "encoder": lambda: encoder_rows(args.rounds),
+             "floor": lambda: floor_rows(args.rounds)}
     print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     print(f"| {'figure':<56} | {'value':>10} | {'baseline':>10} | {'ratio':>7} | {'unit':<8} | baseline is")
     for name in args.only or parts:

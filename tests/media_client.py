@@ -258,7 +258,7 @@ class MediaPeer:
     opens the poses data channel (unordered, no retransmissions) before the offer, as the operator page does."""
 
     def __init__(self, video: bool = True, audio: bool = True, mic: MediaStreamTrack | None = None,
-                 video_codec: str | None = None, poses: bool = False,
+                 video_codec: str | tuple[str, ...] | None = None, poses: bool = False,
                  ice_servers: list[RTCIceServer] | None = None, compact: bool = False) -> None:
         self.pc = RTCPeerConnection(RTCConfiguration(iceServers=ice_servers or []))
         self.poses: PoseSender | None = None
@@ -270,15 +270,17 @@ class MediaPeer:
         self.video_count = 0
         self.first_rtp: int | None = None
         self.video_bytes = 0  # RTP received on the video transceiver
+        self.video_payload_types: set[int] = set()  # of the RTP packets received on it (rtx too)
         self.light = False  # True: count video frames without decoding them (a viewer on another machine)
         self.video_arrivals: list[tuple[float, int]] = []  # light: (wall time, RTP timestamp) of each frame's end
         self._tasks: list[asyncio.Task[None]] = []
         if video:
             transceiver = self.pc.addTransceiver("video", direction="recvonly")
-            if video_codec:
+            if video_codec:  # one codec, or several in the order asked (the server sends the first it shares)
                 from aiortc.rtcrtpsender import RTCRtpSender
-                caps = [c for c in RTCRtpSender.getCapabilities("video").codecs
-                        if c.mimeType.lower() in (f"video/{video_codec.lower()}", "video/rtx")]
+                order = [video_codec] if isinstance(video_codec, str) else list(video_codec)
+                codecs = RTCRtpSender.getCapabilities("video").codecs
+                caps = [c for name in [*order, "rtx"] for c in codecs if c.mimeType.lower() == f"video/{name.lower()}"]
                 transceiver.setCodecPreferences(caps)
         if audio:
             if mic is not None:
@@ -331,6 +333,7 @@ class MediaPeer:
                 if self.first_rtp is None:
                     self.first_rtp = packet.timestamp
                 self.video_bytes += len(packet.payload) + 12  # with the RTP header
+                self.video_payload_types.add(packet.payload_type)
                 if self.light:  # count frames by their last packet; no jitter buffer, no decoding
                     self.video_count += packet.marker
                     if packet.marker:

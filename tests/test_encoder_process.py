@@ -122,3 +122,29 @@ def test_frames_from_the_ring_are_encoded_without_a_jpeg_and_a_lapped_one_is_los
         writer.close()
         ring.close()
     assert process.process.poll() is not None  # exited: its hold on the ring went with it
+
+
+@pytest.mark.parametrize("codec", ["H264", "VP8"])
+def test_the_encoders_hold_no_frame_back_and_make_no_b_frames(codec: str) -> None:
+    """Issue 36: the encoders stay in their zero-latency settings (encoder_options: x264's ultrafast preset with
+    tune zerolatency, libvpx realtime with lag-in-frames 0): each frame in comes out at once, before the next is
+    given (no lookahead, no frame threads), in presentation order (no B-frames: a decoder reorders nothing), and
+    the H.264 is constrained baseline, the profile the page asks for (profile-level-id 42e01f)."""
+    from vr_teleop_server.media.encoder_process import encoder_options, open_encoder
+
+    context = open_encoder(av, codec, 640, 480, BITRATE, 30.0, encoder_options(codec, BITRATE))
+    decoder = av.CodecContext.create({"VP8": "vp8", "H264": "h264"}[codec], "r")
+    types = []
+    for i in range(12):
+        image = av.VideoFrame.from_ndarray(cv2.cvtColor(cv2.imdecode(np.frombuffer(jpeg(8 * i), np.uint8),
+                                                                     cv2.IMREAD_COLOR), cv2.COLOR_BGR2YUV_I420),
+                                           format="yuv420p")
+        image.pts = i
+        packets = context.encode(image)
+        assert [p.pts for p in packets] == [i], f"{codec}: frame {i} in gave packets {[p.pts for p in packets]}"
+        decoded = [f for p in packets for f in decoder.decode(p)]
+        assert [f.pts for f in decoded] == [i], f"{codec}: the decoder held frame {i} back (reordering)"
+        types += [av.video.frame.PictureType(f.pict_type).name for f in decoded]
+    assert types[0] == "I" and set(types[1:]) <= {"P", "I"} and "B" not in types, types
+    if codec == "H264":
+        assert decoder.profile == "Constrained Baseline", decoder.profile

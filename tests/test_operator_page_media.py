@@ -23,16 +23,33 @@ from test_operator_page import iwer  # noqa: F401  (the fixture)
 pytestmark = pytest.mark.timeout(300)
 
 # Chromium offers only codecs the server cannot send (VP9, AV1): the server rejects the video section, for real
-# (the offer's poses data channel and audio are answered: the connection stays up for them).
+# (the offer's poses data channel and audio are answered: the connection stays up for them). Its receiver says it
+# has no others, so the page's own codec order (webrtc.js codecOrder, issue 36) has no others to put first.
 NO_COMMON_CODEC = """(() => {
+  const caps = RTCRtpReceiver.getCapabilities.bind(RTCRtpReceiver);
+  const only = (c) => /VP9|AV1/i.test(c.mimeType);
+  RTCRtpReceiver.getCapabilities = (kind) => {
+    const all = caps(kind);
+    return kind === "video" && all ? {...all, codecs: all.codecs.filter(only)} : all;
+  };
   const add = RTCPeerConnection.prototype.addTransceiver;
   RTCPeerConnection.prototype.addTransceiver = function (kind, init) {
     const t = add.call(this, kind, init);
-    if (kind === "video") {
-      t.setCodecPreferences(RTCRtpReceiver.getCapabilities("video").codecs
-        .filter((c) => /VP9|AV1/i.test(c.mimeType)));
-    }
+    if (kind === "video") t.setCodecPreferences(caps("video").codecs.filter(only));
     return t;
+  };
+})();"""
+
+
+# The Quest browser's answer for its H.264 WebRTC decoder (hardware: powerEfficient), in place of Chromium's own
+# (Debian's decodes H.264 in software: powerEfficient false); every other question gets the browser's own answer.
+QUEST_H264_DECODER = """(() => {
+  const own = navigator.mediaCapabilities.decodingInfo.bind(navigator.mediaCapabilities);
+  navigator.mediaCapabilities.decodingInfo = async (config) => {
+    if (config?.type === "webrtc" && /^video\\/h264/i.test(config.video?.contentType ?? "")) {
+      return {supported: true, smooth: true, powerEfficient: true};
+    }
+    return own(config);
   };
 })();"""
 
@@ -109,7 +126,7 @@ def test_the_panel_shows_webrtc_video_that_follows_the_head(browser, iwer, media
         screenshot(page, "operator_vr_webrtc_turned.png")
 
         # The frame's age, from its RTP timestamp and the telemetry's render times, on the HUD and in the figures.
-        page.wait_for_function("/camera frame \\d+ ms old \\(WebRTC\\)/.test("
+        page.wait_for_function("/camera frame \\d+ ms old \\(WebRTC, (VP8|H\\.264)\\)/.test("
                                "(document.getElementById('hud-numbers')?.textContent ?? ''))", timeout=SLOW)
         page.wait_for_function("window.operator.camera.ages.length >= 10", timeout=SLOW)
         ages = page.evaluate("window.operator.camera.ages")
@@ -158,6 +175,49 @@ def test_camera_jpeg_in_the_url_or_no_webrtc_means_the_jpeg_topic(browser, iwer,
         assert page.errors == []
     finally:
         close_page(page)
+
+
+@pytest.mark.parametrize("decoder, option, expected", [
+    ("quest", "", "H264"),   # the browser says its H.264 decoder is hardware: H.264 first
+    ("own", "", "VP8"),      # Chromium's software H.264: VP8
+    ("own", "h264", "H264"),  # the address forces H.264
+], ids=["hardware-h264", "software-h264", "forced-h264"])
+def test_the_page_asks_for_h264_where_it_decodes_it_in_hardware_and_says_which_codec(browser, media_server, decoder,
+                                                                                     option, expected):
+    """Issue 36: the codec the page asks for first is the one the server sends, Chromium decodes (frames shown,
+    getStats' inbound codec) and the HUD names. Debian's Chromium has an H.264 decoder for WebRTC (FFmpeg's); were
+    it built without one (no H.264 in RTCRtpReceiver.getCapabilities), H.264 cannot be had and the page must land on
+    VP8 and say why: that is then what is checked."""
+    page = open_page(browser, media_server, camera="webrtc" + (f"&codec={option}" if option else ""),
+                     init_scripts=(QUEST_H264_DECODER,) if decoder == "quest" else ())
+    try:
+        has_h264 = page.evaluate("RTCRtpReceiver.getCapabilities('video').codecs"
+                                 ".some((c) => c.mimeType.toLowerCase() === 'video/h264')")
+        want = expected if has_h264 or option else "VP8"
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.camera.uploaded >= 3",
+                               timeout=SLOW)
+        camera = page.evaluate("({codec: window.operator.camera.codec, choice: window.operator.camera.codecChoice})")
+        assert camera["codec"] == want, camera
+        if not has_h264 and not option:
+            assert camera["choice"]["why"] == "this browser's WebRTC has no H.264", camera
+        owner = media_server.call(lambda: next(iter(media_server.server.media.peers)))
+        assert media_server.call(lambda: media_server.server.media.peers[owner].video.codec) == want
+        in_use = page.evaluate("""async () => {
+          const stats = await window.operator.camera.pc.getStats();
+          let codec = "";
+          stats.forEach((s) => {
+            if (s.type === "inbound-rtp" && s.kind === "video") codec = stats.get(s.codecId)?.mimeType ?? "";
+          });
+          return codec;
+        }""")
+        assert in_use.lower() == f"video/{want.lower()}", in_use  # what the browser decodes
+        name = {"H264": "H.264", "VP8": "VP8"}[want]
+        page.wait_for_function(f"(document.getElementById('hud-numbers')?.textContent ?? '')"
+                               f".includes('(WebRTC, {name})')", timeout=SLOW)
+        assert page.errors == []
+    finally:
+        close_page(page)
+    assert wait_for(lambda: peers(media_server) == 0, 10)
 
 
 def test_a_peer_connection_that_fails_later_falls_back_to_the_jpeg_topic(browser, iwer, media_server):  # noqa: F811
@@ -340,6 +400,72 @@ console.log(JSON.stringify(out));
     assert out["theirs"] is None  # another peer's frames are not ours
     assert abs(out["estimate"] - (100.0 + 1 / 30)) < 1e-9
     assert out["modes"] == ["jpeg", "webrtc", "webrtc"]
+
+
+def test_codec_choice_and_offer_order_under_node(tmp_path):
+    """webrtc.js's codec choice (issue 36), run by Node with the browser's answers given: the address's codec=...
+    first, then mediaCapabilities' powerEfficient, then the Quest browser's user agent; the codec order for
+    setCodecPreferences, the offer text reordered for browsers without it, and the answer's codec read back."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    module = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web" / "webrtc.js"
+    script = tmp_path / "codec.mjs"
+    script.write_text(f"""
+import {{chooseVideoCodec, codecOption, codecOrder, preferVideoCodec, firstVideoCodec}} from {json.dumps(str(module))};
+const caps = {{codecs: [{{mimeType: "video/VP8"}}, {{mimeType: "video/rtx"}},
+  {{mimeType: "video/H264", sdpFmtpLine: "level-asymmetry-allowed=1;packetization-mode=0;profile-level-id=42001f"}},
+  {{mimeType: "video/H264", sdpFmtpLine: "level-asymmetry-allowed=1;packetization-mode=1;profile-level-id=4d001f"}},
+  {{mimeType: "video/H264", sdpFmtpLine: "level-asymmetry-allowed=1;packetization-mode=1;profile-level-id=42e01f"}},
+  {{mimeType: "video/AV1"}}]}};
+const vp8Only = {{codecs: [{{mimeType: "video/VP8"}}]}};
+const decoder = (powerEfficient) => ({{decodingInfo: async (c) => ({{supported: true, smooth: true,
+  powerEfficient: powerEfficient && c.type === "webrtc" && /h264/.test(c.video.contentType)}})}});
+const noWebrtcQueries = {{decodingInfo: async () => {{ throw new TypeError("type webrtc"); }}}};
+const quest = "Mozilla/5.0 (X11; Linux x86_64; Quest 3) AppleWebKit/537.36 (KHTML, like Gecko) OculusBrowser/37.0 " +
+  "SamsungBrowser/4.0 Chrome/128.0 VR Safari/537.36";
+const none = {{codec: "", problem: ""}};
+const pick = async (o) => (await chooseVideoCodec({{option: none, capabilities: caps, userAgent: "", ...o}})).codec;
+const out = {{}};
+out.hardware = await pick({{mediaCapabilities: decoder(true)}});
+out.software = await pick({{mediaCapabilities: decoder(false)}});
+out.questNoApi = await pick({{mediaCapabilities: undefined, userAgent: quest}});
+out.questRefused = await pick({{mediaCapabilities: noWebrtcQueries, userAgent: quest}});
+out.otherNoApi = await pick({{mediaCapabilities: undefined}});
+out.noH264 = await pick({{mediaCapabilities: decoder(true), capabilities: vp8Only}});
+out.forcedVp8 = await pick({{mediaCapabilities: decoder(true), option: codecOption("#token=x&codec=vp8")}});
+out.forcedH264 = await pick({{mediaCapabilities: decoder(false), option: codecOption("", "?codec=H264")}});
+out.options = [codecOption("#codec=av1"), codecOption("#camera=webrtc"), codecOption("#codec=h264", "?codec=vp8")];
+out.order = codecOrder(caps.codecs, "H264").map((c) => c.mimeType + " " + (c.sdpFmtpLine ?? ""));
+out.vp8Order = codecOrder(caps.codecs, "VP8").map((c) => c.mimeType);
+const offer = ["v=0", "m=audio 9 UDP/TLS/RTP/SAVPF 111", "a=rtpmap:111 opus/48000/2",
+  "m=video 9 UDP/TLS/RTP/SAVPF 96 97 102 103 45", "a=rtpmap:96 VP8/90000", "a=rtpmap:97 rtx/90000",
+  "a=rtpmap:102 H264/90000", "a=rtpmap:103 rtx/90000", "a=rtpmap:45 AV1/90000", ""].join("\\r\\n");
+const h264First = preferVideoCodec(offer, "H264");
+out.mline = h264First.split("\\r\\n")[3];
+out.same = preferVideoCodec(offer, "VP8") === offer && preferVideoCodec(offer, "") === offer;
+out.first = [firstVideoCodec(offer), firstVideoCodec(h264First), firstVideoCodec("m=audio 9 RTP 111"),
+             firstVideoCodec(offer.replace("m=video 9", "m=video 0"))];
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert (out["hardware"], out["software"]) == ("H264", "VP8")
+    assert (out["questNoApi"], out["questRefused"], out["otherNoApi"]) == ("H264", "H264", "VP8")
+    assert out["noH264"] == "VP8"  # no H.264 in this browser's WebRTC, whatever its decoder says
+    assert (out["forcedVp8"], out["forcedH264"]) == ("VP8", "H264")  # the address wins
+    bad, unset, both = out["options"]
+    assert bad["codec"] == "" and "codec=av1" in bad["problem"] and "h264 or vp8" in bad["problem"]
+    assert unset == {"codec": "", "problem": ""} and both["codec"] == "H264"  # the hash before the query
+    # H.264 first, the one the server sends (packetization-mode 1, constrained baseline) before the others
+    assert out["order"][0] == "video/H264 level-asymmetry-allowed=1;packetization-mode=1;profile-level-id=42e01f"
+    assert [o.split()[0] for o in out["order"]] == ["video/H264"] * 3 + ["video/VP8", "video/rtx", "video/AV1"]
+    assert out["vp8Order"] == ["video/VP8", "video/rtx", "video/H264", "video/H264", "video/H264", "video/AV1"]
+    assert out["mline"] == "m=video 9 UDP/TLS/RTP/SAVPF 102 96 97 103 45"
+    assert out["same"]
+    assert out["first"] == ["VP8", "H264", "", ""]
 
 
 def test_a_stalled_pose_channel_hands_the_head_to_rosbridge_under_node(tmp_path):

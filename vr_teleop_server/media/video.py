@@ -182,24 +182,25 @@ class VideoHub:
                             jobs[codec] = (self._take_keyframe(codec), self.bitrate(codec))
                     if not jobs:
                         return
+                    targets = {codec: tuple(self._tracks[codec]) for codec in jobs}
                     try:
-                        encoded = await loop.run_in_executor(self._executor, self._encode, frame, jobs)
+                        await loop.run_in_executor(self._executor, self._encode, frame, jobs, targets)
                     except EncoderProcessError as exc:
                         log.warning("%s; another starts in %g s", exc, RESTART_DELAY_S)
                         self._keyframe.update(jobs)  # a new encoder starts with one anyway; the peers need it
                         await asyncio.sleep(RESTART_DELAY_S)
                         continue
-                    for codec, item in encoded.items():
-                        for track in self._tracks[codec]:
-                            track.deliver(item)  # to its own loop: the packets are made and sent there
         except asyncio.CancelledError:
             raise
         except Exception:
             log.exception("the WebRTC camera pump failed; peers get no more video")
 
-    def _encode(self, frame: CameraFrame, jobs: dict[str, tuple[bool, int]]) -> dict[str, EncodedFrame]:
+    def _encode(self, frame: CameraFrame, jobs: dict[str, tuple[bool, int]],
+                targets: dict[str, tuple[CameraTrack, ...]] | None = None) -> dict[str, EncodedFrame]:
         """Executor thread: the frame through the encoder process (started on first use, or again after it
-        failed); blocks in a socket read, without the GIL, while the process encodes."""
+        failed); blocks in a socket read, without the GIL, while the process encodes. Each encoded frame goes
+        from here straight to its `targets`' loops (the tracks of its codec when the frame was taken), not by
+        way of the server's loop: on a busy loop (JSON camera frames, poses) that hop was a wait of its own."""
         if self._encoder is not None and self._encoder.ring is not frame.ring:
             self._close_encoder()  # another camera (a new stand-in): another ring to map
         if self._encoder is None:
@@ -218,7 +219,9 @@ class VideoHub:
             data, key, bitrate = result
             self.encoded[codec] += 1
             self.encoder_bitrate[codec] = bitrate
-            out[codec] = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq, bitrate, frame.pose)
+            out[codec] = item = EncodedFrame(data, pts, key, frame.stamp_wall, frame.seq, bitrate, frame.pose)
+            for track in (targets or {}).get(codec, ()):
+                track.deliver(item)  # to its own loop: the packets are made and sent there
         return out
 
     def _close_encoder(self) -> None:
@@ -294,7 +297,7 @@ class CameraTrack(MediaStreamTrack):
         self.hub.attach(self, codec)
 
     def deliver(self, item: EncodedFrame) -> None:
-        """From the hub's loop: `offer` on this track's own loop, in delivery order."""
+        """From any thread (the hub's encoding thread): `offer` on this track's own loop, in delivery order."""
         call_on(self.loop, self.offer, item)
 
     def offer(self, item: EncodedFrame) -> None:

@@ -3,8 +3,8 @@
 
 import * as names from "./names.js";
 import {connect} from "./rosbridge.js";
-import {IceErrors, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn, mediaRoute,
-        negotiate, onVideoFrames,
+import {CODEC_NAMES, IceErrors, RenderTimes, ServerClock, cameraMode, chooseVideoCodec, codecOption,
+        createPeerConnection, fetchIceServers, hasTurn, mediaRoute, negotiate, onVideoFrames,
         webRtcMissing} from "./webrtc.js";
 import {AutonomyModel, attentionInImage, attentionText, outcomeText} from "./autonomy.js";
 
@@ -43,14 +43,23 @@ ros.onstatus = (msg) => {
 // Frame age: JPEG frames carry their render time in the header stamp; WebRTC frames find theirs by RTP timestamp
 // (requestVideoFrameCallback) in the telemetry's mapping. Signalling, the clock and the mapping: webrtc.js, shared
 // with the operator page.
-const camera = {path: "", pc: null, jpeg: false, ages: [], mode: cameraMode()};
+const camera = {path: "", pc: null, jpeg: false, ages: [], mode: cameraMode(), codec: "", codecChoice: null,
+                // like for like, for bench/media.py: each frame's age when decoded (WebRTC: the last packet's
+                // receipt plus the decoder's processing, from requestVideoFrameCallback; JPEG: img.decode()) and
+                // when handed to the compositor (WebRTC: presentationTime; JPEG: the next animation frame)
+                decodedAges: [], paintedAges: []};
 Object.assign(window.dashboard, {camera, videoFrames: 0});
 const clock = new ServerClock(ros);
 let renderTimes = null;
+function keep(list, age) {
+  list.push(age);
+  if (list.length > 600) list.shift();
+}
 function showAge(age) {
-  camera.ages.push(age);
-  if (camera.ages.length > 600) camera.ages.shift();
-  $("camera-age").textContent = `frame age ${Math.max(0, age).toFixed(3)} s (${camera.path})`;
+  keep(camera.ages, age);
+  const road = camera.path === "WebRTC" && camera.codec ? `WebRTC, ${CODEC_NAMES[camera.codec] ?? camera.codec}`
+    : camera.path;
+  $("camera-age").textContent = `frame age ${Math.max(0, age).toFixed(3)} s (${road})`;
 }
 setInterval(() => clock.sync().catch(() => {}), 30000);
 function useJpeg(reason) {
@@ -67,7 +76,11 @@ function useJpeg(reason) {
     img.src = `data:image/jpeg;base64,${msg.data}`;
     const s = msg.header.stamp;
     const rendered = (s.secs ?? s.sec) + (s.nsecs ?? s.nanosec) / 1e9;
-    img.decode().then(() => showAge(clock.now() - rendered), () => {});
+    img.decode().then(() => {
+      showAge(clock.now() - rendered);
+      keep(camera.decodedAges, clock.now() - rendered);
+      requestAnimationFrame(() => keep(camera.paintedAges, clock.now() - rendered));
+    }, () => {});
     window.dashboard.frames += 1;
   }, {throttle_rate: 0, queue_length: 1});
 }
@@ -79,18 +92,30 @@ function onVideoFrame(now, meta) {
   renderTimes.saw(meta.rtpTimestamp);
   // presentationTime: the frame handed to the compositor (as the JPEG path's decode, before the next vsync)
   const shown = (performance.timeOrigin + (meta.presentationTime ?? now)) / 1000 + clock.offset;
-  renderTimes.whenKnown(meta.rtpTimestamp, (rendered) => showAge(shown - rendered));
+  const decoded = meta.receiveTime === undefined || meta.processingDuration === undefined ? null
+    : (performance.timeOrigin + meta.receiveTime) / 1000 + meta.processingDuration + clock.offset;
+  renderTimes.whenKnown(meta.rtpTimestamp, (rendered) => {
+    showAge(shown - rendered);
+    keep(camera.paintedAges, shown - rendered);
+    if (decoded !== null) keep(camera.decodedAges, decoded - rendered);
+  });
 }
 async function useWebRtc() {
   const ice = await fetchIceServers(ros);  // fresh TURN credentials for every peer connection
-  const pc = camera.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers});  // audio: click the video to hear it
+  // H.264 first where this browser decodes it in hardware, VP8 otherwise; #codec=h264|vp8 forces one (webrtc.js)
+  const option = codecOption();
+  if (option.problem) logLine($("events"), `camera: ${option.problem}`, "warning");
+  camera.codecChoice ??= await chooseVideoCodec({option});
+  const videoCodec = camera.codecChoice.codec;
+  const pc = camera.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers,  // audio: click
+                                               videoCodec});                            // the video to hear it
   const iceErrors = camera.iceErrors = new IceErrors(pc, (text) => logLine($("events"), `camera: ${text}`, "danger"),
                                                      ice.expires);
   const stream = new MediaStream();
   const video = $("camera-video");
   pc.ontrack = (event) => { stream.addTrack(event.track); video.srcObject = stream; };
   try {
-    await negotiate(ros, pc);
+    camera.codec = (await negotiate(ros, pc, {videoCodec})).videoCodec;
   } catch (err) {
     const relay = iceErrors.summary() || (hasTurn(ice.iceServers) ? "" : "no TURN relay configured on the server");
     throw new Error(relay && !err.refused ? `${err.message}; ${relay}` : err.message);

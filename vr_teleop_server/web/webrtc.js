@@ -41,10 +41,18 @@ export function webRtcMissing() {
   return typeof globalThis.RTCPeerConnection === "function" ? "" : "this browser has no WebRTC (RTCPeerConnection)";
 }
 
-/** A peer connection that receives the camera and/or the robot's audio, not yet offered. */
-export function createPeerConnection({video = true, audio = true, iceServers = []} = {}) {
+/** A peer connection that receives the camera and/or the robot's audio, not yet offered. `videoCodec` ("H264" or
+ * "VP8", from chooseVideoCodec) is put first in the video section's codecs (setCodecPreferences; negotiate() does
+ * the same to the offer's text where a browser lacks it): the server sends the first codec it shares. */
+export function createPeerConnection({video = true, audio = true, iceServers = [], videoCodec = ""} = {}) {
   const pc = new RTCPeerConnection({iceServers});
-  if (video) pc.addTransceiver("video", {direction: "recvonly"});
+  if (video) {
+    const t = pc.addTransceiver("video", {direction: "recvonly"});
+    const caps = globalThis.RTCRtpReceiver?.getCapabilities?.("video")?.codecs;
+    if (videoCodec && caps && typeof t.setCodecPreferences === "function") {
+      t.setCodecPreferences(codecOrder(caps, videoCodec));
+    }
+  }
   if (audio) pc.addTransceiver("audio", {direction: "recvonly"});
   return pc;
 }
@@ -52,9 +60,10 @@ export function createPeerConnection({video = true, audio = true, iceServers = [
 /** Offers pc (after ICE gathering: the server takes no trickled candidates), sets the server's answer and waits
  * until the connection is up. Resolves {video, audio, message}: whether the server sends each (a server without a
  * camera answers the video section inactive) and what it said (why it rejected a section it could not take, e.g.
- * video without a common codec beside a data channel: the rest of the connection is up). Throws MediaError; the
- * caller closes pc. */
-export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000} = {}) {
+ * video without a common codec beside a data channel: the rest of the connection is up), and videoCodec: the codec
+ * the server sends the camera in ("H264", "VP8"; the first of its answer's video section, the server's rule).
+ * Throws MediaError; the caller closes pc. */
+export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000, videoCodec = ""} = {}) {
   await pc.setLocalDescription(await pc.createOffer());
   await new Promise((resolve) => {
     if (pc.iceGatheringState === "complete") return resolve();
@@ -63,7 +72,8 @@ export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000} = 
   });
   let answer;
   try {
-    answer = await ros.call(OFFER_SERVICE, {sdp: pc.localDescription.sdp, type: "offer"});
+    const sdp = preferVideoCodec(pc.localDescription.sdp, videoCodec);  // already so after setCodecPreferences
+    answer = await ros.call(OFFER_SERVICE, {sdp, type: "offer"});
   } catch (err) {  // a client that rejects refusals (success false) marks them `refused`, keeping the server's reason
     if (err.refused) throw new MediaError(err.message, {refused: true});
     throw new MediaError(`${OFFER_SERVICE} failed: ${err.message}`);
@@ -88,7 +98,7 @@ export async function negotiate(ros, pc, {gatherMs = 2000, connectMs = 10000} = 
     pc.addEventListener("connectionstatechange", check);
     check();
   });
-  const sends = {video: false, audio: false, message: answer.message || ""};
+  const sends = {video: false, audio: false, message: answer.message || "", videoCodec: firstVideoCodec(answer.sdp)};
   for (const t of pc.getTransceivers()) {
     const kind = t.receiver.track?.kind;
     if (kind in sends && ["recvonly", "sendrecv"].includes(t.currentDirection)) sends[kind] = true;
@@ -287,4 +297,106 @@ export async function mediaRoute(pc) {
     : remote.candidateType === "relay" ? "the server's TURN relay" : "direct";
   return {route, local: local.candidateType ?? "", remote: remote.candidateType ?? "",
           relayProtocol: local.relayProtocol ?? ""};
+}
+
+// ---- the video codec (issue 36) ------------------------------------------------------------------------------------
+// The server encodes the camera once per codec (VP8 and H.264) and sends each peer the first codec of its offer's
+// video section that it shares (aiortc answers in the offer's order). The page asks for H.264 first where the
+// browser decodes H.264 in hardware (the Quest browser does: less heat and battery, and the decode off the CPU the
+// page renders with), VP8 otherwise (a software decoder: libvpx is lighter than a software H.264 decoder, and VP8 is
+// the codec every WebRTC browser has). `codec=h264` or `codec=vp8` in the page's address (#token=...&codec=h264, or
+// ?codec=h264) forces one, for testing.
+
+export const VIDEO_CODECS = {h264: "H264", vp8: "VP8"};
+export const CODEC_NAMES = {H264: "H.264", VP8: "VP8"};  // for people (the HUD)
+
+/** What the browser is asked about its H.264 decoder: the profile the server encodes (constrained baseline). */
+export const H264_DECODING = {
+  type: "webrtc",
+  video: {contentType: "video/h264; profile-level-id=42e01f; packetization-mode=1", width: 1280, height: 720,
+          bitrate: 2000000, framerate: 30},
+};
+
+/** {codec, problem}: the codec the address forces ("H264", "VP8", or "" for none) and, for a value that is neither,
+ * why it is ignored. */
+export function codecOption(hash = globalThis.location?.hash ?? "", search = globalThis.location?.search ?? "") {
+  const value = new URLSearchParams(hash.replace(/^#/, "")).get("codec") ?? new URLSearchParams(search).get("codec");
+  if (!value) return {codec: "", problem: ""};
+  const codec = VIDEO_CODECS[value.toLowerCase()] ?? "";
+  return {codec, problem: codec ? "" : `codec=${value} in the address is not h264 or vp8: ignored, the page chooses`};
+}
+
+/** Which codec to ask for first: {codec: "H264" | "VP8", why}. In order: the address's codec=...; VP8 when this
+ * browser's WebRTC has no H.264; H.264 when navigator.mediaCapabilities.decodingInfo says its H.264 WebRTC decoder
+ * is powerEfficient (hardware), else VP8; without that API (or when it refuses type "webrtc"), H.264 in the Quest
+ * browser (its user agent says "OculusBrowser"), VP8 elsewhere. The defaults are the browser's own objects. */
+export async function chooseVideoCodec({option = codecOption(),
+                                        capabilities = globalThis.RTCRtpReceiver?.getCapabilities?.("video"),
+                                        mediaCapabilities = globalThis.navigator?.mediaCapabilities,
+                                        userAgent = globalThis.navigator?.userAgent ?? ""} = {}) {
+  if (option.codec) return {codec: option.codec, why: `codec=${option.codec.toLowerCase()} in the address`};
+  const h264 = !capabilities || capabilities.codecs.some((c) => /^video\/h264$/i.test(c.mimeType));
+  if (!h264) return {codec: "VP8", why: "this browser's WebRTC has no H.264"};
+  if (typeof mediaCapabilities?.decodingInfo === "function") {
+    try {
+      const info = await mediaCapabilities.decodingInfo(H264_DECODING);
+      return info.supported && info.powerEfficient ? {codec: "H264", why: "hardware H.264 decoder"}
+        : {codec: "VP8", why: "no hardware H.264 decoder"};
+    } catch (err) { /* no "webrtc" queries here: the user-agent rule */ }
+  }
+  return /OculusBrowser/.test(userAgent) ? {codec: "H264", why: "the Quest browser (user agent)"}
+    : {codec: "VP8", why: "no decoder information (not the Quest browser)"};
+}
+
+function codecName(mimeType) {
+  return (mimeType.split("/")[1] ?? "").toUpperCase();
+}
+
+/** RTCRtpReceiver.getCapabilities("video").codecs with `codec`'s entries first, the rest in their order; for H.264
+ * those the server can send first (packetization-mode 1, constrained baseline or baseline profile). */
+export function codecOrder(codecs, codec) {
+  const rank = (c) => {
+    if (codecName(c.mimeType) !== codec) return 2;
+    if (codec !== "H264") return 0;
+    const fmtp = c.sdpFmtpLine ?? "";
+    return /packetization-mode=1/.test(fmtp) && /profile-level-id=42(e0|00)/i.test(fmtp) ? 0 : 1;
+  };
+  return [...codecs].sort((a, b) => rank(a) - rank(b));  // stable: the rest keep their order
+}
+
+/** The offer's text with `codec`'s payload types first on its video m= line (the rest in their order); unchanged
+ * when it already leads or is absent. For browsers without setCodecPreferences: the server answers in this order. */
+export function preferVideoCodec(sdp, codec) {
+  if (!codec) return sdp;
+  const lines = sdp.split("\r\n");
+  const at = lines.findIndex((l) => l.startsWith("m=video "));
+  if (at < 0) return sdp;
+  let end = lines.findIndex((l, i) => i > at && l.startsWith("m="));
+  if (end < 0) end = lines.length;
+  const names = new Map();
+  for (const l of lines.slice(at, end)) {
+    const m = /^a=rtpmap:(\d+) ([^/]+)\//.exec(l);
+    if (m) names.set(m[1], m[2].toUpperCase());
+  }
+  const parts = lines[at].split(" ");
+  const types = parts.slice(3);
+  const ours = types.filter((t) => names.get(t) === codec);
+  if (!ours.length || names.get(types[0]) === codec) return sdp;
+  lines[at] = [...parts.slice(0, 3), ...ours, ...types.filter((t) => names.get(t) !== codec)].join(" ");
+  return lines.join("\r\n");
+}
+
+/** The codec of the first payload type of an SDP's first video section ("H264", "VP8"), "" without one. */
+export function firstVideoCodec(sdp = "") {
+  const lines = sdp.split(/\r?\n/);
+  const at = lines.findIndex((l) => l.startsWith("m=video "));
+  if (at < 0) return "";
+  const [, , , first] = lines[at].split(" ");
+  if (!first || lines[at].split(" ")[1] === "0") return "";
+  for (const l of lines.slice(at + 1)) {
+    if (l.startsWith("m=")) break;
+    const m = /^a=rtpmap:(\d+) ([^/]+)\//.exec(l);
+    if (m && m[1] === first) return m[2].toUpperCase();
+  }
+  return "";
 }

@@ -16,8 +16,9 @@
 import * as names from "../names.js";
 import * as THREE from "three";
 import {stampSeconds} from "../rosbridge.js";
-import {IceErrors, MediaError, RenderTimes, ServerClock, cameraMode, createPeerConnection, fetchIceServers, hasTurn,
-        mediaRoute, negotiate, onVideoFrames, rtpDelta, webRtcMissing} from "../webrtc.js";
+import {CODEC_NAMES, IceErrors, MediaError, RenderTimes, ServerClock, cameraMode, chooseVideoCodec, codecOption,
+        createPeerConnection, fetchIceServers, hasTurn, mediaRoute, negotiate, onVideoFrames, rtpDelta,
+        webRtcMissing} from "../webrtc.js";
 
 export const CAMERA_TOPIC = names.CAMERA_TOPIC;
 export const CAPTURE_POSE_TOPIC = names.CAPTURE_POSE_TOPIC;
@@ -274,9 +275,12 @@ export class CameraFeed {
    *  - onMessage(text, level): what to say on the HUD (the fallback and its reason);
    *  - onAudio(on): the robot's audio arrives over WebRTC (on) or not: the topic's chunks must not play as well;
    *  - prepare(pc): called before each offer, to add to the same peer connection (e.g. a data channel);
-   *  - mode: "webrtc" or "jpeg" (the URL's #camera=jpeg). */
+   *  - mode: "webrtc" or "jpeg" (the URL's #camera=jpeg);
+   *  - codec: the video codec the address forces ({codec, problem}: webrtc.js codecOption, #codec=h264|vp8); by
+   *    default the page asks for H.264 first where the browser decodes it in hardware, VP8 otherwise
+   *    (chooseVideoCodec, once a page). */
   constructor(ros, {onMessage = () => {}, onAudio = () => {}, prepare = null, placeholder = null,
-                    mode = cameraMode()} = {}) {
+                    mode = cameraMode(), codec = codecOption()} = {}) {
     this.ros = ros;
     this.onMessage = onMessage;
     this.onAudio = onAudio;
@@ -294,6 +298,9 @@ export class CameraFeed {
     this.pc = null;
     this.path = "";            // "WebRTC", "JPEG", or "" while negotiating
     this.route = "";           // how the WebRTC media travel: "direct", "TURN relay (udp)"... (mediaRoute)
+    this.codecOption = codec;
+    this.codecChoice = null;   // {codec, why}: what the page asks for first (chooseVideoCodec)
+    this.codec = "";           // what the server sends the video in: "H264", "VP8" ("" off WebRTC)
     this.iceErrors = null;     // the TURN relays' refusals on the newest peer connection (IceErrors)
     this.audioViaWebRtc = false;
     this.generation = 0;       // counts rosbridge connections: a negotiation of an older one is dropped
@@ -314,6 +321,11 @@ export class CameraFeed {
     const s = this.source;
     if (s === this.video && s && s.received === 0) return this.placeholder;  // no frame decoded yet
     return s ? s.texture : this.placeholder;
+  }
+
+  /** The road the shown frames take, for the HUD: "WebRTC, H.264", "WebRTC, VP8", "JPEG" ("" while negotiating). */
+  get road() {
+    return this.path === "WebRTC" && this.codec ? `WebRTC, ${CODEC_NAMES[this.codec] ?? this.codec}` : this.path;
   }
 
   get aspect() { return this.source?.aspect ?? 4 / 3; }
@@ -337,8 +349,13 @@ export class CameraFeed {
   async startWebRtc(generation) {
     this.closePeer();
     const ice = await fetchIceServers(this.ros);  // fresh TURN credentials for every peer connection
+    if (!this.codecChoice) {
+      this.codecChoice = await chooseVideoCodec({option: this.codecOption});
+      if (this.codecOption.problem) this.onMessage(`camera: ${this.codecOption.problem}`, "warning");
+    }
     if (generation !== this.generation) return;
-    const pc = this.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers});
+    const videoCodec = this.codecChoice.codec;
+    const pc = this.pc = createPeerConnection({video: true, audio: true, iceServers: ice.iceServers, videoCodec});
     const iceErrors = this.iceErrors = new IceErrors(pc, (text) => this.onMessage(`camera: ${text}`, "error"),
                                                    ice.expires);
     const stream = new MediaStream();
@@ -347,7 +364,7 @@ export class CameraFeed {
       const posesChannel = pc.createDataChannel(CAPTURE_POSES_CHANNEL, {ordered: false, maxRetransmits: 0});
       posesChannel.onmessage = (event) => this.capturePoseMessage(event.data);
       this.prepare?.(pc);
-      const sends = await negotiate(this.ros, pc);
+      const sends = await negotiate(this.ros, pc, {videoCodec});
       if (this.pc !== pc || generation !== this.generation) { pc.close(); return; }  // a newer connection's turn
       if (!sends.video && sends.message) {  // the video section alone was rejected: the rest (prepare's) stays up
         this.useJpeg(`camera: WebRTC refused (${sends.message}); showing the JPEG topic`, {keepPeer: true});
@@ -358,12 +375,15 @@ export class CameraFeed {
       if (!this.video) this.video = new VideoCameraSource(this.renderTimes, this.clock, this.rtpPoses);
       this.video.attach(stream);
       if (this.unlocked) this.unmute();
+      this.codec = sends.videoCodec;
       this.path = "WebRTC";
       this.setAudio(sends.audio);
       pc.addEventListener("connectionstatechange", () => this.stateChanged(pc, generation));
       this.route = (await mediaRoute(pc).catch(() => ({route: ""}))).route;
+      const asked = this.codec && this.codec !== videoCodec ? ` (${CODEC_NAMES[videoCodec]} asked: ` +
+        `${this.codecChoice.why}; the server sends ${CODEC_NAMES[this.codec] ?? this.codec})` : "";
       this.onMessage(`camera: WebRTC video${sends.audio ? " and the robot's audio" : ""}` +
-                     (this.route ? `, ${this.route}` : ""), "ok");
+                     (this.route ? `, ${this.route}` : "") + asked, this.codec && asked ? "warning" : "ok");
     } catch (err) {
       if (this.pc === pc) this.closePeer();
       else pc.close();
@@ -422,6 +442,7 @@ export class CameraFeed {
     this.setAudio(false);
     this.video?.dispose();
     this.video = null;
+    this.codec = "";
     this.path = "JPEG";
     if (!this.jpeg) {
       this.jpeg = new JpegCameraSource(this.ros, {onError: (text) => this.onMessage(text, "error"),

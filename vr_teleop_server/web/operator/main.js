@@ -631,7 +631,7 @@ function hudLines() {
   const rtt = state.rtt === null ? "–" : `${state.rtt.toFixed(0)} ms`;
   const age = cameraSource.frameAge();
   const route = cameraSource.path === "WebRTC" && cameraSource.route ? ` via ${cameraSource.route}` : "";
-  const path = cameraSource.path ? ` (${cameraSource.path})${route}` : "";
+  const path = cameraSource.path ? ` (${cameraSource.road})${route}` : "";
   const ageText = (age === null ? "no frames yet" : `${Math.max(0, age * 1000).toFixed(0)} ms old`) + path;
   const talking = audio.status ? ` · ${audio.status}` : "";
   lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
