@@ -4,8 +4,9 @@ the client namespace, an observer beside the server. Shared by tests/test_netem.
 - `serve(net)`: `python -m vr_teleop_server.cli serve --backend sim --insecure` bound to the server namespace's
   address (open access: the replay client has no token support; --insecure lets an open server bind a
   non-loopback address, and nothing but our own client namespace can reach it).
-- `Observer`: a rosbridge client inside the server namespace (no impairment between it and the server), recording
-  every head command and teleop event with its receive time: the server's own view of what the robot was told.
+- `Observer`: the package's rosbridge client inside the server namespace (no impairment between it and the
+  server), recording every head command and teleop event with its receive time: the server's own view of what the
+  robot was told.
 - `replay_in(net, steps, url)`: `vr-teleop replay`'s client, run inside the client namespace.
 """
 
@@ -119,61 +120,60 @@ class Observer:
 
 
 async def _observe(url: str, poses: bool) -> None:
-    """Prints "ready", then one JSON line per head command, event, head pose or telemetry report's video frames
-    ([RTP timestamp, render time] pairs): [kind, receive time, value]."""
-    from websockets.asyncio.client import connect
+    """Prints "ready" once the server has the subscriptions, then one JSON line per head command, event, head pose
+    or telemetry report's video frames ([RTP timestamp, render time] pairs): [kind, receive time, value]. The
+    receive time is taken as the package's client hands the message over, as it reads the frame."""
+    from vr_teleop_server.client import connect
 
     loop = asyncio.get_running_loop()
     stdin_closed = loop.run_in_executor(None, sys.stdin.read)
     out = sys.stdout
-    async with connect(url, max_size=None, compression=None) as ws:
-        await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
-        await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
-        await ws.send(json.dumps({"op": "subscribe", "topic": TELEMETRY, "queue_length": 1_000}))
+
+    def write(line: list[Any]) -> None:
+        print(json.dumps(line), file=out)
+
+    def head(msg: dict[str, Any]) -> None:
+        write(["head", time.monotonic(), list(msg["data"])])
+
+    def pose(msg: dict[str, Any]) -> None:
+        now, stamp = time.monotonic(), msg["header"]["stamp"]
+        write(["pose", now, stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9])
+
+    def telemetry(msg: dict[str, Any]) -> None:
+        now, clients = time.monotonic(), msg["clients"]
+        write(["frames", now, [[rtp, render] for c in clients
+                               for rtp, render in zip(c["frame_rtp_timestamps"], c["frame_render_times"])]])
+        counts = {k: sum(c.get(k, 0) for c in clients) for k in ("dc_received", "dc_refused", "dc_stale_dropped")}
+        if counts["dc_received"]:
+            write(["channel", now, counts])
+
+    def event(msg: dict[str, Any]) -> None:
+        if msg.get("source") != "teleop":
+            return
+        now, event = time.monotonic(), dict(msg)
+        try:
+            event["detail"] = json.loads(event.get("detail") or "{}")
+        except ValueError:
+            pass
+        write(["event", now, event])
+
+    async with await connect(url, id_prefix="observer") as client:
+        await client.subscribe(HEAD_COMMAND, callback=head, queue_length=100_000)
+        await client.subscribe(EVENTS, callback=event, queue_length=10_000)
+        await client.subscribe(TELEMETRY, callback=telemetry, queue_length=1_000)
         if poses:
-            await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
-        await asyncio.sleep(0.2)
+            await client.subscribe(HEAD_POSE, callback=pose, queue_length=100_000)
+        await client.sync()  # the server has the subscriptions
         print(json.dumps("ready"), file=out, flush=True)
-        while not stdin_closed.done():
-            try:
-                frame = await asyncio.wait_for(ws.recv(), 0.2)
-            except asyncio.TimeoutError:
-                continue
-            now = time.monotonic()
-            msg = json.loads(frame)
-            if msg.get("op") != "publish":
-                continue
-            if msg["topic"] == HEAD_COMMAND:
-                line = ["head", now, list(msg["msg"]["data"])]
-            elif msg["topic"] == HEAD_POSE:
-                stamp = msg["msg"]["header"]["stamp"]
-                line = ["pose", now, stamp.get("secs", stamp.get("sec", 0))
-                        + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9]
-            elif msg["topic"] == TELEMETRY:
-                clients = msg["msg"]["clients"]
-                line = ["frames", now, [[rtp, render] for c in clients
-                                        for rtp, render in zip(c["frame_rtp_timestamps"], c["frame_render_times"])]]
-                counts = {k: sum(c.get(k, 0) for c in clients) for k in ("dc_received", "dc_refused",
-                                                                           "dc_stale_dropped")}
-                if counts["dc_received"]:
-                    print(json.dumps(["channel", now, counts]), file=out)
-            elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
-                event = dict(msg["msg"])
-                try:
-                    event["detail"] = json.loads(event.get("detail") or "{}")
-                except ValueError:
-                    pass
-                line = ["event", now, event]
-            else:
-                continue
-            print(json.dumps(line), file=out)
-        out.flush()
+        await asyncio.wait([stdin_closed, asyncio.ensure_future(client.wait_closed())],
+                           return_when=asyncio.FIRST_COMPLETED)
+    out.flush()
 
 
 def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0,
               road: PoseRoad | None = None) -> tuple[Collected, float]:
     """The replay client inside the client namespace: every pose and call goes through the impaired link. With a
-    road (media_client.ChannelRoad), the operator's streams take the poses data channel once it holds control;
+    road (testbed/media_client.py's ChannelRoad), the operator's streams take the poses data channel once it holds control;
     the road's peer connection is made inside the namespace too (its sockets are the thread's)."""
     return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False,
                                                                road=road)))
