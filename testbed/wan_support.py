@@ -26,10 +26,14 @@ from typing import Any
 
 import numpy as np
 
+from client_protocol import names
 from netem import Emulator
 from vr_teleop_server.tools.replay import Collected, PoseRoad, Step, expected_commands, run_replay
 
 PORT = 9090  # the namespace is ours alone: a fixed port is free
+# The observer's start: a Python process importing numpy, pydantic and the replay tool, which on a 2-core machine
+# loaded many times over took 40 s; it says "ready" once subscribed, or exits.
+READY_TIMEOUT_S = 120.0
 HEAD_COMMAND = "/qt_robot/head_position/command"
 HEAD_POSE = "/vr/head/pose"
 EVENTS = "/vr_teleop/events"
@@ -87,7 +91,7 @@ class Observer:
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
         self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
                                stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + READY_TIMEOUT_S
         while time.monotonic() < deadline:
             self._out.seek(0)
             if self._out.readline().strip() == '"ready"':
@@ -126,11 +130,20 @@ async def _observe(url: str, poses: bool) -> None:
     from vr_teleop_server.client import connect
 
     loop = asyncio.get_running_loop()
-    stdin_closed = loop.run_in_executor(None, sys.stdin.read)
+    closed = threading.Event()  # set from the thread that reads stdin, seen at once by the callbacks
+
+    def read_stdin() -> None:
+        sys.stdin.read()
+        closed.set()
+
+    stdin_closed = loop.run_in_executor(None, read_stdin)
     out = sys.stdout
 
     def write(line: list[Any]) -> None:
-        print(json.dumps(line), file=out)
+        # After stop() nothing more is written: the client may still be reading a backlog (a loaded machine), which
+        # it then drains without the work, so that the loop comes round to closing.
+        if not closed.is_set():
+            print(json.dumps(line), file=out)
 
     def head(msg: dict[str, Any]) -> None:
         write(["head", time.monotonic(), list(msg["data"])])
@@ -163,7 +176,9 @@ async def _observe(url: str, poses: bool) -> None:
         await client.subscribe(TELEMETRY, callback=telemetry, queue_length=1_000)
         if poses:
             await client.subscribe(HEAD_POSE, callback=pose, queue_length=100_000)
-        await client.sync()  # the server has the subscriptions
+        # The server has the subscriptions once it answers a later call (it handles a client's frames in order);
+        # the answer's values are not read, which spares this process the message types' registry.
+        await (await client.request(names.ROSAPI_GET_TIME_SERVICE))
         print(json.dumps("ready"), file=out, flush=True)
         await asyncio.wait([stdin_closed, asyncio.ensure_future(client.wait_closed())],
                            return_when=asyncio.FIRST_COMPLETED)
