@@ -9,12 +9,16 @@ Targets:
   the face handling, measured in its thread; face detection itself is the perception feature's, and the camera
   render the stand-in's, and neither is counted here).
 
+The server runs in this process (testbed/server.py: its loop in a thread of its own, so the feature can be timed);
+the supervisor and the operator are one client of it, the package's (vr_teleop_server.client).
+
     MUJOCO_GL=egl PYTHONPATH=. python bench/autonomy.py [--seconds S] [--seed N]
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
 import random
@@ -22,15 +26,16 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "tests"))
-
-import roslibpy  # noqa: E402
-from support import Headset, RunningServer, call, engage, wait_for  # noqa: E402
+sys.path.insert(0, str(ROOT))
 
 from client_protocol import names  # noqa: E402
+from client_protocol.pose_frame import UNITY_FRAME  # noqa: E402
 from sim.pupils import PUPILS  # noqa: E402
+from testbed.server import RunningServer, until  # noqa: E402
+from vr_teleop_server.client import Client, connect  # noqa: E402
 from vr_teleop_server.features.autonomy import AUTONOMY_NODE  # noqa: E402
 from vr_teleop_server.settings import ServerSettings  # noqa: E402
 from vr_teleop_server.study.metrics.autonomy import autonomy_metrics  # noqa: E402
@@ -62,6 +67,63 @@ def cpu_meter(autonomy) -> dict[str, float]:
     return spent
 
 
+HEAD_POSE = {"header": {"frame_id": UNITY_FRAME},
+             "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+
+
+async def stream_head(client: Client, stop: asyncio.Event) -> None:
+    """The operator's headset: a still head pose at 90 Hz until `stop`."""
+    loop = asyncio.get_running_loop()
+    await client.advertise(names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped")
+    next_at = loop.time()
+    while not stop.is_set():
+        await client.publish(names.HEAD_POSE_TOPIC, HEAD_POSE)
+        next_at += 1 / 90
+        await asyncio.sleep(max(0.0, next_at - loop.time()))
+
+
+async def drive(server: RunningServer, args: argparse.Namespace, spent: dict[str, float],
+                commands: list[tuple[float, str]]) -> dict[str, Any]:
+    """Pupils speak for `args.seconds` with a supervisor connected (proposals are made), then the operator engages
+    and releases: the figures read from the server meanwhile."""
+    autonomy = server.server.autonomy
+    quiet = lambda: server.call(lambda: not server.server.bystanders.speaking)  # noqa: E731
+
+    async with await connect(server.url, id_prefix="bench") as client:
+        async def speak(who: str, text: str) -> None:
+            await client.call(names.SIM_BYSTANDERS_SPEAK_SERVICE, {"who": who, "text": text})
+
+        rng = random.Random(args.seed)
+        wall0, cpu_wall0 = time.monotonic(), spent["cpu_s"]
+        faces_seen = []
+        end = time.monotonic() + args.seconds
+        while time.monotonic() < end:
+            await asyncio.sleep(rng.uniform(1.5, 4.0))  # silence between speakers
+            faces_seen.append(server.call(lambda: sum(time.monotonic() - t.last_seen < 1.5
+                                                      for t in autonomy.tracks.values())))
+            await speak(rng.choice(PUPILS).name, rng.choice(SENTENCES))
+            await until(quiet, 30)
+        out: dict[str, Any] = {"attention_until": time.time(),  # the recording's clock is the server's wall clock
+                               "cpu_share": (spent["cpu_s"] - cpu_wall0) / (time.monotonic() - wall0),
+                               "ticks_per_s": spent["ticks"] / (time.monotonic() - wall0), "faces_seen": faces_seen}
+        # engage and release
+        stop = asyncio.Event()
+        headset = asyncio.create_task(stream_head(client, stop))
+        await speak("child_left", "Look at me, robot, I am over here and I keep on talking to you.")
+        await client.call(names.ENGAGE_SERVICE, {"data": True})  # after the headset's first poses, on this connection
+        answered = time.monotonic()
+        await asyncio.sleep(2.0)
+        out["after_engage"] = sum(1 for t, s in commands if s == AUTONOMY_NODE and t > answered)
+        await client.call(names.ENGAGE_SERVICE, {"data": False})
+        released = time.monotonic()
+        stop.set()
+        await headset
+        await speak("child_right", "And now look at me, over here, on the other side of the room.")
+        out["back"] = await until(lambda: any(s == AUTONOMY_NODE and t > released for t, s in list(commands)), 30)
+        await until(quiet, 30)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="how long the pupils talk (default 60)")
@@ -78,42 +140,12 @@ def main() -> int:
     commands: list[tuple[float, str]] = []
     server.call(lambda: server.server.bus.taps.append(
         lambda p: p.topic == names.HEAD_COMMAND_TOPIC and commands.append((time.monotonic(), p.sender))))
-    ros = roslibpy.Ros(host="127.0.0.1", port=server.port)  # a supervisor connected: proposals are made
-    ros.run(timeout=10)
-    rng = random.Random(args.seed)
-    wall0, cpu_wall0 = time.monotonic(), spent["cpu_s"]
-    faces_seen = []
     try:
-        end = time.monotonic() + args.seconds
-        while time.monotonic() < end:
-            time.sleep(rng.uniform(1.5, 4.0))  # silence between speakers
-            faces_seen.append(server.call(lambda: sum(time.monotonic() - t.last_seen < 1.5
-                                                      for t in autonomy.tracks.values())))
-            who = rng.choice(PUPILS).name
-            call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak",
-                 {"who": who, "text": rng.choice(SENTENCES)})
-            wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), 30)
-        attention_until = time.time()  # the recording's clock is the server's wall clock
-        cpu_share = (spent["cpu_s"] - cpu_wall0) / (time.monotonic() - wall0)
-        ticks_per_s = spent["ticks"] / (time.monotonic() - wall0)
-        # engage and release
-        headset = Headset(ros).start()
-        call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak",
-             {"who": "child_left", "text": "Look at me, robot, I am over here and I keep on talking to you."})
-        engage(ros)
-        answered = time.monotonic()
-        time.sleep(2.0)
-        after_engage = sum(1 for t, s in commands if s == AUTONOMY_NODE and t > answered)
-        call(ros, names.ENGAGE_SERVICE, "std_srvs/SetBool", {"data": False})
-        released = time.monotonic()
-        headset.stop()
-        call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak",
-             {"who": "child_right", "text": "And now look at me, over here, on the other side of the room."})
-        back = wait_for(lambda: any(s == AUTONOMY_NODE and t > released for t, s in list(commands)), 30)
-        wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), 30)
+        out = asyncio.run(drive(server, args, spent, commands))
     finally:
-        ros.close()
         server.stop()
+    attention_until, cpu_share, ticks_per_s = out["attention_until"], out["cpu_share"], out["ticks_per_s"]
+    faces_seen, after_engage, back = out["faces_seen"], out["after_engage"], out["back"]
     m = autonomy_metrics(record, until=attention_until)
     from vr_teleop_server.recording.format import read_recording
 

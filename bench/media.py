@@ -21,7 +21,10 @@ Figures:
   share of a core the server's loop thread uses meanwhile, with 5 viewers against none (the peers' own work runs
   on the media loop's thread since issue 29, so the loop's share should hardly move; less noisy than a p99).
 
-Servers run as subprocesses (`vr-teleop serve --backend sim`), as in bench/suite.py.
+Servers run as subprocesses (`vr-teleop serve --backend sim`), as in bench/suite.py. Control traffic (offers, head
+commands, speech, telemetry) goes through the package's client (testbed/media_client.py's Rosbridge over
+vr_teleop_server.client); the JSON camera path subscribes by hand and reads the raw frames, since their bytes on
+the WebSocket are the figure; the pose round trip is bench/roundtrip.py's raw-wire measure.
 
     MUJOCO_GL=egl PYTHONPATH=. python bench/media.py [--seconds S] [--rounds N] [--only NAME...] [--codec h264|vp8]
     quick look at the control stream: --only control --seconds 5 --rounds 1
@@ -46,11 +49,12 @@ import psutil
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path[:0] = [str(HERE), str(ROOT / "tests")]
+sys.path[:0] = [str(HERE), str(ROOT)]
 
 import roundtrip  # noqa: E402
-from media_client import LinkShaper, MediaPeer, Rosbridge  # noqa: E402
-from suite import Row, serve, stop  # noqa: E402
+from suite import Row  # noqa: E402
+from testbed.media_client import LinkShaper, MediaPeer, Rosbridge  # noqa: E402
+from testbed.processes import serve, stop  # noqa: E402
 from vr_teleop_server.core.scheduling import SHORT_SLICE_S, short_slice, slice_of  # noqa: E402
 
 CAMERA = "/camera/color/image_raw/compressed"
@@ -460,7 +464,7 @@ def viewer_rows(seconds: float) -> list[Row]:
 # ---- a 1 Mbit/s bottleneck ----------------------------------------------------------------------------------------
 def congested_rows(seconds: float) -> list[Row]:
     """In-process server (the shaper wraps its peer's transport), head sweeping so that the picture keeps changing."""
-    from support import RunningServer
+    from testbed.server import RunningServer
     from vr_teleop_server.settings import ServerSettings
 
     server = RunningServer(ServerSettings(port=0, backend="sim", bystander_interval=0))

@@ -1,4 +1,4 @@
-"""The QTrobot v3 backend (`--backend luxai`) against the fake v3 hub of the tests (tests/luxai_hub.py), in one process.
+"""The QTrobot v3 backend (`--backend luxai`) against the fake v3 hub of the tests (testbed/luxai_hub.py), in one process.
 
 Figures, over `--rounds` alternating rounds (the machine's load drifts):
 - the cost of one joint command on the caller's thread (the event loop): LuxaiRobot.set_joint_targets (clamp, the
@@ -20,10 +20,10 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from luxai_hub import FakeQtrobotV3, free_port  # noqa: E402
-
+from testbed.luxai_hub import FakeQtrobotV3  # noqa: E402
+from testbed.processes import free_port  # noqa: E402
 from vr_teleop_server.robot.backends.luxai import LuxaiRobot  # noqa: E402
 from vr_teleop_server.robot.interface import clamp_command  # noqa: E402
 

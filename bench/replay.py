@@ -17,19 +17,18 @@ import argparse
 import asyncio
 import math
 import os
-import socket
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from vr_teleop_server.cli.replay import speed as parse_speed
-from vr_teleop_server.tools.replay import load_steps, report, run_replay, run_simulated
-from vr_teleop_server.tools.synth import build, write
-
 ROOT = Path(__file__).resolve().parent.parent
-EXE = str(Path(sys.executable).with_name("vr-teleop"))
+sys.path.insert(0, str(ROOT))
+
+from testbed.processes import serve, stop  # noqa: E402
+from testbed.sessions import classroom_steps  # noqa: E402
+from vr_teleop_server.cli.replay import speed as parse_speed  # noqa: E402
+from vr_teleop_server.tools.replay import report, run_replay, run_simulated  # noqa: E402
+
 BASE_S = 20.0
 
 
@@ -37,12 +36,6 @@ def cpu_seconds() -> float:
     """CPU seconds of this process and its ended children (the stand-in's render process)."""
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def replay(steps, url: str, speed: float) -> dict:
@@ -73,22 +66,12 @@ def main() -> int:
     parser.add_argument("--speed", type=parse_speed, nargs="+", default=[5.0, 10.0, 20.0], metavar="S|max")
     parser.add_argument("--camera", action="store_true", help="render the camera at --speed max too")
     args = parser.parse_args()
+    steps = classroom_steps(60.0 if args.quick else None)
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "classroom.mcap"
-        write(build("classroom", seed=0), path)
-        steps, _ = load_steps(path)
-        if args.quick:
-            steps = [s for s in steps if s.t < 60.0]
-        port = free_port()
-        server = subprocess.Popen([EXE, "serve", "--backend", "sim", "--port", str(port), "--gesture-dir",
-                                   str(Path(tmp) / "gestures"), "--audio-dir", str(Path(tmp) / "audio"),
-                                   "--log-level", "warning"], cwd=ROOT,
-                                  stdout=subprocess.PIPE, text=True, env={**os.environ, "MUJOCO_GL": "egl"})
+        server = serve("--backend", "sim", "--gesture-dir", str(Path(tmp) / "gestures"), "--audio-dir",
+                       str(Path(tmp) / "audio"), log_level="warning")
         try:
-            if "listening" not in server.stdout.readline():
-                print("bench/replay.py: the server did not start", file=sys.stderr)
-                return 1
-            url = f"ws://127.0.0.1:{port}"
+            url = server.url
             base = replay([s for s in steps if s.t < BASE_S], url, 1.0)
             print(line(f"first {BASE_S:g} s at x1", base))
             for speed in args.speed:
@@ -110,8 +93,7 @@ def main() -> int:
                     print(f"{'':<22} latency vs. real time: p50 x{r['latency_ms']['p50'] / base['latency_ms']['p50']:.2f}, "
                           f"p99 x{r['latency_ms']['p99'] / base['latency_ms']['p99']:.2f}")
         finally:
-            server.terminate()
-            server.wait(10)
+            stop(server)
     return 0
 
 

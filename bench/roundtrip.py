@@ -2,7 +2,9 @@
 
 One client publishes geometry_msgs/PoseStamped; a second, subscribed, receives it. Reported for each server:
 latency p50/p99/max at 90 Hz, and sustained msgs/s when flooding with a bounded number in flight. Both servers
-run as separate processes, so the clients (this process) do not share a core's GIL with them.
+run as separate processes, so the clients (this process) do not share a core's GIL with them. The clients write
+rosbridge frames by hand on purpose: the same bytes go to the server and to the relay, which knows no rosbridge,
+and the figure is the raw wire's.
 """
 
 from __future__ import annotations
@@ -12,9 +14,6 @@ import asyncio
 import json
 import os
 import platform
-import signal
-import socket
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -24,13 +23,11 @@ import websockets
 from websockets.asyncio.client import connect
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from testbed.processes import free_port, start, stop  # noqa: E402
+
 TOPIC = "/vr/head/pose"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def pose(seq: int) -> str:
@@ -46,16 +43,11 @@ class Server:
         cmd = ([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(self.port), "--log-level", "warning",
                 "--backend", "none"]
                if kind == "ours" else [sys.executable, str(ROOT / "bench" / "relay.py"), "--port", str(self.port)])
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT)
-        self.proc.stdout.readline()  # "listening on ..."
+        self.proc = start(cmd)
         self.url = f"ws://127.0.0.1:{self.port}"
 
     def stop(self) -> None:
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            self.proc.wait(5)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
+        stop(self.proc, 5)
 
 
 async def setup(url: str, ours: bool):

@@ -15,6 +15,10 @@ Servers run as their own processes (`vr-teleop serve`, bench/relay.py); the clie
   minute, in-process so that tasks, bus subscriptions and descriptors can be counted: after against before;
 - replay: the synthesised 5-minute classroom session replayed at x10 against the session's own length / 10
   (`--quick`: its first 60 s).
+
+The clients here write rosbridge frames by hand on purpose: the figures are the raw wire's (the same bytes sent to
+our server and to the bare relay, which knows no rosbridge), a stalled reader's socket, and the churn visitor's
+worst case (testbed/churn.py). The replay row drives the server with the package's client (tools/replay.py).
 """
 
 from __future__ import annotations
@@ -25,7 +29,6 @@ import json
 import os
 import platform
 import random
-import subprocess
 import sys
 import tempfile
 import time
@@ -38,10 +41,11 @@ from websockets.asyncio.client import connect
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path[:0] = [str(HERE), str(ROOT / "tests")]
+sys.path[:0] = [str(HERE), str(ROOT)]
 
 import roundtrip
 import teleop
+from testbed.processes import free_port, serve, start, stop
 
 CAMERA = "/camera/color/image_raw/compressed"
 
@@ -56,26 +60,6 @@ class Row:
         ratio = f"{self.value / self.baseline:6.2f}x" if self.baseline else "     -"
         base = f"{self.baseline:10.2f}" if self.baseline is not None else "         -"
         return f"| {self.figure:<56} | {self.value:10.2f} | {base} | {ratio} | {self.unit:<8} | {self.base_name}"
-
-
-def serve(*args: str) -> subprocess.Popen:
-    port = roundtrip.free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port),
-                             "--log-level", "error", *args], stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                            env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
-    if "listening" not in proc.stdout.readline():
-        proc.kill()
-        raise RuntimeError(f"serve {' '.join(args)} did not start")
-    proc.url = f"ws://127.0.0.1:{port}"  # type: ignore[attr-defined]
-    return proc
-
-
-def stop(proc: subprocess.Popen) -> None:
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
 
 
 # ---- publish to subscribe -------------------------------------------------------------------------------------
@@ -151,10 +135,8 @@ async def pubsub_rows(duration: float, window: int, rounds: int = 3) -> list[Row
 # ---- explicit control over the wire ---------------------------------------------------------------------------
 def teleop_rows(duration: float) -> list[Row]:
     ours = serve("--backend", "sim")
-    echo_port = roundtrip.free_port()
-    echo = subprocess.Popen([sys.executable, str(HERE / "relay.py"), "--echo", "--port", str(echo_port)],
-                            stdout=subprocess.PIPE, text=True)
-    echo.stdout.readline()
+    echo_port = free_port()
+    echo = start([sys.executable, str(HERE / "relay.py"), "--echo", "--port", str(echo_port)])
     try:
         lat, base = asyncio.run(teleop.wire_latency(ours.url, f"ws://127.0.0.1:{echo_port}", duration))
     finally:
@@ -263,9 +245,8 @@ def soak_rows(duration: float) -> list[Row]:
 
 # ---- churn ------------------------------------------------------------------------------------------------------
 def churn_rows(seconds: float) -> list[Row]:
-    from support import RunningServer
-    from test_faults import _owner_counts, _visitor
-
+    from testbed.churn import owner_counts, visitor
+    from testbed.server import RunningServer
     from vr_teleop_server.settings import ServerSettings
 
     server = RunningServer(ServerSettings(port=0, backend="none"))
@@ -274,19 +255,19 @@ def churn_rows(seconds: float) -> list[Row]:
     async def visits(duration: float) -> dict[str, int]:
         stats = {"visits": 0, "aborted": 0}
         end = time.monotonic() + duration
-        await asyncio.gather(*(_visitor(server.url, n, end, random.Random(n), stats) for n in range(20)))
+        await asyncio.gather(*(visitor(server.url, n, end, random.Random(n), stats) for n in range(20)))
         return stats
 
     try:
         asyncio.run(visits(1.0))
         time.sleep(2.0)
-        before = server.call(lambda: _owner_counts(app))
+        before = server.call(lambda: owner_counts(app))
         stats = asyncio.run(visits(seconds))
         deadline = time.monotonic() + 20
-        while time.monotonic() < deadline and server.call(lambda: _owner_counts(app))["sessions"]:
+        while time.monotonic() < deadline and server.call(lambda: owner_counts(app))["sessions"]:
             time.sleep(0.1)
         time.sleep(1.0)
-        after = server.call(lambda: _owner_counts(app))
+        after = server.call(lambda: owner_counts(app))
     finally:
         server.stop()
     rows = [Row(f"churn {seconds:g} s, 20 clients: visits", stats["visits"], None, "-", "visits", "higher")]
@@ -298,15 +279,11 @@ def churn_rows(seconds: float) -> list[Row]:
 
 # ---- replay -----------------------------------------------------------------------------------------------------
 def replay_rows(quick: bool, speed: float = 10.0) -> list[Row]:
-    from vr_teleop_server.tools.replay import load_steps, report, run_replay
-    from vr_teleop_server.tools.synth import build, write
+    from testbed.sessions import classroom_steps
+    from vr_teleop_server.tools.replay import report, run_replay
 
+    steps = classroom_steps(60.0 if quick else None)
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "classroom.mcap"
-        write(build("classroom", seed=0), path)
-        steps, _ = load_steps(path)
-        if quick:
-            steps = [s for s in steps if s.t < 60.0]
         server = serve("--backend", "sim", "--gesture-dir", str(Path(tmp) / "g"), "--audio-dir", str(Path(tmp) / "a"))
         try:
             got, elapsed = asyncio.run(run_replay(steps, server.url, speed, camera=True, progress=False))

@@ -18,7 +18,9 @@ time over the frames' span of operator time).
 Over the wire (milliseconds). `vr-teleop serve --backend sim` runs as its own process; one client engages, then
 publishes head poses at 90 Hz and times each until the head command it causes arrives on
 /qt_robot/head_position/command. The baseline is a bare websockets echo server (bench/relay.py --echo) sent the
-same pose in the same tick: the ratio is what parsing, validation, mapping and re-publishing add.
+same pose in the same tick: the ratio is what parsing, validation, mapping and re-publishing add. The poses are
+rosbridge frames written once and sent as they are to both (the raw wire is what is measured); the engage answer is
+read by the package client's refusal rule (vr_teleop_server.client.outcome).
 `--quick` runs 2,000 mapping frames and 5 s over the wire instead of 20,000 and 20 s.
 """
 
@@ -30,7 +32,6 @@ import gc
 import io
 import json
 import math
-import socket
 import subprocess
 import sys
 import tarfile
@@ -42,11 +43,16 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from robot_models import load_qtrobot
-from vr_teleop_server.teleop import TeleopMapper
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from client_protocol.names import ENGAGE_SERVICE  # noqa: E402
+from robot_models import load_qtrobot  # noqa: E402
+from testbed.processes import free_port, serve, start, stop  # noqa: E402
+from vr_teleop_server.client import outcome  # noqa: E402
+from vr_teleop_server.teleop import TeleopMapper  # noqa: E402
 
 RATE = 90.0
-ROOT = Path(__file__).resolve().parent.parent
 # The last commit whose vr_teleop_server/teleop/ is the step before issue 28 (its parent of 5dbce16 made the plain-
 # float step): the baseline this bench divides by, never to be fixed or sped up.
 BASELINE_COMMIT = "377e5c021e157f2de2abd326406038672b53b691"
@@ -193,29 +199,6 @@ def cpu_per_operator(reference: type, frames: int) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def start(cmd: list[str]) -> subprocess.Popen:
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    line = proc.stdout.readline()  # "... listening on ..."
-    if "listening" not in line:
-        proc.kill()
-        raise RuntimeError(f"{cmd[2:4]} did not start: {line!r}")
-    return proc
-
-
-def stop(proc: subprocess.Popen) -> None:
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-
-
 def head_frame(seq: int) -> str:
     t = seq / RATE
     q = Rotation.from_rotvec([0, math.radians(40 * math.sin(2 * math.pi * 0.25 * t)), 0]).as_quat().tolist()
@@ -228,13 +211,11 @@ async def engage_over_wire(ws: Any) -> None:
     for seq in range(20):  # fresh head poses, then engage
         await ws.send(head_frame(seq))
         await asyncio.sleep(1 / RATE)
-    await ws.send(json.dumps({"op": "call_service", "id": "engage", "service": "/vr_teleop/control/engage",
-                              "args": {"data": True}}))
+    await ws.send(json.dumps({"op": "call_service", "id": "engage", "service": ENGAGE_SERVICE, "args": {"data": True}}))
     while True:
         reply = json.loads(await asyncio.wait_for(ws.recv(), 10))
         if reply.get("id") == "engage":
-            if not reply.get("result"):
-                raise RuntimeError(f"engage failed: {reply}")
+            outcome(reply, ENGAGE_SERVICE)  # the package client's refusal rule: raises unless engaged
             return
 
 
@@ -273,13 +254,11 @@ async def wire_latency(ours_url: str, echo_url: str, duration: float) -> tuple[n
 
 
 def wire(duration: float) -> None:
-    ours_port, echo_port = free_port(), free_port()
-    ours = start([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(ours_port), "--backend",
-                  "sim", "--log-level", "error"])
+    ours = serve("--backend", "sim")
+    echo_port = free_port()
     echo = start([sys.executable, str(ROOT / "bench" / "relay.py"), "--echo", "--port", str(echo_port)])
     try:
-        lat, base = asyncio.run(wire_latency(f"ws://127.0.0.1:{ours_port}", f"ws://127.0.0.1:{echo_port}",
-                                             duration))
+        lat, base = asyncio.run(wire_latency(ours.url, f"ws://127.0.0.1:{echo_port}", duration))
     finally:
         stop(ours)
         stop(echo)

@@ -51,15 +51,15 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT)]
 
 from client_protocol.names import ENGAGE_SERVICE  # noqa: E402
 from netem import EDGES, Emulator, available, cleanup_leftovers, edges_available, load_profiles  # noqa: E402
+from testbed.media_client import ChannelRoad  # noqa: E402
+from testbed.sessions import classroom_steps  # noqa: E402
+from testbed.wan_support import Observer, intent_errors, pose_latencies, replay_in, serve  # noqa: E402
 from vr_teleop_server.core.certs import make_certificate  # noqa: E402
-from vr_teleop_server.tools.replay import load_steps, report  # noqa: E402
-from vr_teleop_server.tools.synth import build, write  # noqa: E402
-from media_client import ChannelRoad  # noqa: E402
-from wan_support import Observer, intent_errors, pose_latencies, replay_in, serve  # noqa: E402
+from vr_teleop_server.tools.replay import report  # noqa: E402
 
 
 VIAS = ("direct", "turn-udp", "turn-tls")
@@ -236,12 +236,7 @@ def main() -> int:
         print(f"bench/wan.py: {why}", file=sys.stderr)
         return 2
     cleanup_leftovers()
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "classroom.mcap"
-        write(build("classroom", seed=0), path)
-        steps, _ = load_steps(path)
-    if args.quick:
-        steps = [s for s in steps if s.t < 60.0]
+    steps = classroom_steps(60.0 if args.quick else None)
     rows = []
     for via in args.via:
         for name in args.profiles:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -28,17 +27,12 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT)]
 
 from netem import load_profiles  # noqa: E402
-from vr_teleop_server.tools.replay import load_steps  # noqa: E402
-from vr_teleop_server.tools.synth import build, write  # noqa: E402
+from testbed.sessions import classroom_steps  # noqa: E402
 
 
 def head_angles(seconds: float) -> tuple[np.ndarray, np.ndarray]:
     """Send times and (yaw, pitch) in degrees of the session's head poses."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "classroom.mcap"
-        write(build("classroom", seed=0), path)
-        steps, _ = load_steps(path)
-    head = [s for s in steps if s.kind == "publish" and s.topic == "/vr/head/pose" and s.t < seconds]
+    head = [s for s in classroom_steps(seconds) if s.kind == "publish" and s.topic == "/vr/head/pose"]
     t = np.array([s.t for s in head])
     q = np.array([[s.payload["pose"]["orientation"][k] for k in "xyzw"] for s in head])
     angles = np.degrees(np.unwrap(Rotation.from_quat(q).as_euler("YXZ")[:, :2], axis=0))  # Unity: yaw about y

@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT)]
 
 from netem import Emulator, available, cleanup_leftovers, load_profiles  # noqa: E402
-from test_operator_page import operator_in_namespace  # noqa: E402
-from wan_support import Observer, serve  # noqa: E402
+from testbed.pages import operator_in_namespace  # noqa: E402
+from testbed.wan_support import Observer, serve  # noqa: E402
 
 SWEEP = """(() => { const t0 = performance.now(); setInterval(() => {
   const a = 0.6 * Math.sin((performance.now() - t0) / 1000 * 2 * Math.PI * 0.25);

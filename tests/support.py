@@ -1,8 +1,8 @@
-"""Test helpers: a real server on a free port (in its own thread and event loop) and a raw WebSocket client."""
+"""Test helpers: servers from one factory (the server in its own thread is testbed/server.py's, shared with the
+benches), a raw WebSocket client, and a fake headset and topic watchers over roslibpy."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import threading
 import re
@@ -15,7 +15,7 @@ import roslibpy
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from vr_teleop_server.app import TeleopServer
+from testbed.server import RunningServer, wait_for
 from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.teleop import TeleopSettings
 
@@ -26,87 +26,6 @@ def patient_teleop() -> TeleopSettings:
     stopped (then the server rightly holds the robot, which an offline mapping of the session cannot know). The
     timeouts themselves are tested with their defaults (test_faults.py, test_explicit_control.py)."""
     return TeleopSettings(watchdog_timeout_s=2.0, controller_timeout_s=2.0)
-
-
-def wait_for(predicate: Callable[[], Any], timeout: float = 5.0) -> bool:
-    """Polls `predicate` until it is true or `timeout` seconds pass."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
-
-
-START_TIMEOUT_S = 90
-
-
-class RunningServer:
-    """A TeleopServer served from a background thread, so that blocking clients (roslibpy, sync websockets)
-    can talk to it from the test's thread."""
-
-    def __init__(self, settings: ServerSettings) -> None:
-        if "autonomy" not in settings.model_fields_set:
-            # Tests run teleoperated unless they ask for autonomy: its attention would keep the stand-in's camera
-            # rendering for face detection and move the head in every test (tests/test_autonomy*.py ask).
-            settings = settings.model_copy(update={"autonomy": "teleoperated"})
-        self.settings = settings
-        self.loop = asyncio.new_event_loop()
-        self.server: TeleopServer | None = None
-        started = threading.Event()
-        self._error: BaseException | None = None
-
-        def run() -> None:
-            asyncio.set_event_loop(self.loop)
-            try:
-                self.server = TeleopServer(settings)
-                self.loop.run_until_complete(self.server.start())
-            except BaseException as exc:  # surface start-up failures in the test
-                self._error = exc
-                started.set()
-                return
-            started.set()
-            self.loop.run_forever()
-
-        self.thread = threading.Thread(target=run, name="test-server", daemon=True)
-        self.thread.start()
-        # The server's own start-up bounds its waits (the stand-in's render process: RenderProcess.START_TIMEOUT_S,
-        # 60 s on a loaded machine) and fails with the reason: past those plus slack it hung.
-        if not started.wait(START_TIMEOUT_S):
-            raise RuntimeError(f"server did not start within {START_TIMEOUT_S} s")
-        if self._error is not None:
-            raise self._error
-
-    @property
-    def url(self) -> str:
-        assert self.server is not None
-        return self.server.url
-
-    @property
-    def port(self) -> int:
-        assert self.server is not None
-        return self.server.transport.port
-
-    def call(self, fn: Callable[[], Any]) -> Any:
-        """Runs `fn` on the server's loop (to inspect its state safely) and returns its result."""
-        async def wrapper() -> Any:
-            return fn()
-        return asyncio.run_coroutine_threadsafe(wrapper(), self.loop).result(10)
-
-    def stop(self) -> None:
-        """Stops the server (once: a test may stop it to read its recording before the fixture does)."""
-        if not self.thread.is_alive():
-            return
-        if self.server is not None:
-            asyncio.run_coroutine_threadsafe(self.server.stop(), self.loop).result(30)  # a loaded 2-core machine
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(10)
-
-    def __enter__(self) -> RunningServer:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        self.stop()
 
 
 class ServerFactory:

@@ -3,6 +3,9 @@
 The table below is the architecture (README, "Architecture"): layers from low to high; a module may import from
 its own layer or a lower one, and a package with an entry in MAY_IMPORT only from the packages listed there (and
 itself). A module in no package of the table fails too, so that a new package is placed on purpose.
+
+The benches (bench/) and the shared fakes and harnesses (testbed/) import nothing from tests/: what both need
+lives in testbed/, the top layer, which nothing of the server's may import.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("features, study", (f"{SERVER}.features", f"{SERVER}.study")),
     ("app", (f"{SERVER}.app", f"{SERVER}.settings")),
     ("tools, cli", (f"{SERVER}.tools", f"{SERVER}.cli")),
+    ("testbed", ("testbed",)),  # fakes and harnesses of the tests and the benches: above everything they drive
 )
 LEAVES = LAYERS[0][1]
 # Narrower rules than the layer order: whom these packages may import at all (besides themselves).
@@ -45,7 +49,7 @@ MAY_IMPORT: dict[str, tuple[str, ...]] = {
     f"{SERVER}.client": ("client_protocol",),
     f"{SERVER}.media": LEAVES + (f"{SERVER}.core", f"{SERVER}.robot"),  # never features or the app
 }
-PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", "simclock", SERVER)
+PACKAGES = ("client_protocol", "robot_models", "menus", "sim", "netem", "worker_process", "simclock", SERVER, "testbed")
 
 
 @dataclass(frozen=True)
@@ -139,6 +143,30 @@ def violations(imports: list[Import], modules: Iterable[str]) -> list[str]:
     return problems
 
 
+def imports_from_tests(files: Iterable[Path], tests: Path) -> list[str]:
+    """Where `files` reach into `tests` (a directory of modules imported by their bare names, pytest's way): an
+    import of one of its modules, or a sys.path entry naming it."""
+    test_modules = {p.stem for p in tests.glob("*.py")}
+    problems = []
+    for path in files:
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                names = [node.module or ""]
+            else:
+                names = []
+            reached = [n for n in names if n.split(".")[0] in test_modules or n.split(".")[0] == tests.name]
+            if reached:
+                problems.append((path.name, node.lineno, f"imports {', '.join(reached)} from {tests.name}/"))
+            elif (isinstance(node, ast.Call) and "sys.path" in ast.unparse(node.func)
+                  or isinstance(node, ast.Assign) and "sys.path" in ast.unparse(node.targets[0])) \
+                    and repr(tests.name) in ast.unparse(node).replace('"', "'"):
+                problems.append((path.name, node.lineno, f"puts {tests.name}/ on sys.path"))
+    return [f"{name}:{line} {what}" for name, line, what in sorted(problems)]
+
+
 def cycles(imports: list[Import]) -> list[list[str]]:
     """The strongly connected components with more than one module (Tarjan), each as a sorted list."""
     graph: dict[str, set[str]] = {}
@@ -209,6 +237,14 @@ def test_no_import_cycles(graph):
     assert not found, "\n".join(describe_cycle(c, imports) for c in found)
 
 
+def test_benches_and_the_testbed_import_nothing_from_tests():
+    files = sorted((ROOT / "bench").glob("*.py")) + sorted((ROOT / "testbed").glob("*.py"))
+    assert any(f.name == "suite.py" for f in files) and any(f.name == "server.py" for f in files)
+    problems = imports_from_tests(files, ROOT / "tests")
+    assert not problems, "bench/ and testbed/ must not reach into tests/ (move what both need to testbed/):\n  " \
+        + "\n  ".join(problems)
+
+
 def test_the_checks_catch_a_bad_tree(tmp_path):
     """The rules fail on what they forbid: a core module reaching a feature, and two modules importing each other."""
     server = tmp_path / SERVER
@@ -227,3 +263,13 @@ def test_the_checks_catch_a_bad_tree(tmp_path):
     found = cycles(imports)
     assert found == [[f"{SERVER}.core.bus", f"{SERVER}.features.speech"]]
     assert "bus.py:1" in describe_cycle(found[0], imports)
+    tests, bench = tmp_path / "tests", tmp_path / "bench"
+    tests.mkdir()
+    bench.mkdir()
+    (tests / "support.py").write_text("")
+    (bench / "one.py").write_text('import sys\nsys.path.insert(0, str(ROOT / "tests"))\nfrom support import x\n')
+    (bench / "two.py").write_text('import sys\nsys.path[:0] = [str(HERE), str(ROOT / "tests")]\n'
+                                  "from testbed.server import wait_for\n")
+    problems = imports_from_tests(sorted(bench.glob("*.py")), tests)
+    assert problems == ["one.py:2 puts tests/ on sys.path", "one.py:3 imports support from tests/",
+                        "two.py:2 puts tests/ on sys.path"], problems

@@ -1,10 +1,9 @@
 """The QTrobot v3 backend (`--backend luxai`) for real: LuxAI's SDK in the server under test talks to a fake v3
-service hub built from luxai-magpie's own server classes and the SDK's interface definition (tests/luxai_hub.py),
+service hub built from luxai-magpie's own server classes and the SDK's interface definition (testbed/luxai_hub.py),
 over ZeroMQ, and through a real mosquitto broker. The hub's limits are narrower than the URDF's on HeadYaw."""
 
 from __future__ import annotations
 
-import asyncio
 import getpass
 import json
 import shutil
@@ -17,8 +16,10 @@ import cv2
 import numpy as np
 import pytest
 import roslibpy
-from luxai_hub import NARROW, FakeQtrobotV3, free_port
-from media_client import MediaPeer, Rosbridge, Tone
+from testbed.luxai_hub import NARROW, FakeQtrobotV3
+from testbed.processes import free_port
+from testbed.server import until
+from testbed.media_client import MediaPeer, Rosbridge, Tone
 from operator_voice import VoiceSender, logged, pitch, tone
 from support import (
     Headset,
@@ -307,15 +308,6 @@ def test_the_cameras_color_stream_reaches_the_jpeg_topic(zmq_robot):
 def rms(frame: np.ndarray) -> float:
     mono = frame.reshape(-1, 2)[:, 0] if frame.size == 1920 else frame
     return float(np.sqrt(np.mean(mono.astype(np.float32) ** 2)))
-
-
-async def until(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        await asyncio.sleep(0.05)
-    return False
 
 
 async def test_voice_in_and_the_microphone_out_through_webrtc(zmq_robot):

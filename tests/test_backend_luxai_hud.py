@@ -3,7 +3,8 @@ operator's HUD. A module of its own: the browser fixture's Playwright must not s
 
 from __future__ import annotations
 
-from luxai_hub import FakeQtrobotV3, free_port
+from testbed.luxai_hub import FakeQtrobotV3
+from testbed.processes import free_port
 from support import wait_subscribed
 from test_backend_luxai import luxai_server
 

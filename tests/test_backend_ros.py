@@ -12,7 +12,8 @@ import time
 import numpy as np
 import pytest
 import roslibpy
-from media_client import MediaPeer, Rosbridge, Tone
+from testbed.media_client import MediaPeer, Rosbridge, Tone
+from testbed.server import until
 from support import (
     Headset,
     RunningServer,
@@ -262,14 +263,4 @@ async def until_message(queue: asyncio.Queue, predicate, timeout: float = 30.0) 
                 return True
         except asyncio.TimeoutError:
             break
-    return False
-
-
-async def until(predicate, timeout: float) -> bool:
-    """wait_for without blocking this loop (the peer lives on it)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        await asyncio.sleep(0.05)
     return False

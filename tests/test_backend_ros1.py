@@ -1,4 +1,4 @@
-"""The ros backend against a robot-side rosbridge with ROS 1's semantics (ros1_rosbridge.py): LuxAI's real types,
+"""The ros backend against a robot-side rosbridge with ROS 1's semantics (testbed/ros1_rosbridge.py): LuxAI's real types,
 a type string required on subscribe, every service call answered from its own thread. Each of issue 26's three
 defects has a test here that fails on the backend as it was (an untyped motor-state subscription, a stop sent
 without waiting before every say, speech settings kept local)."""
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import roslibpy
 from operator_voice import VoiceSender, logged, pitch, tone
-from ros1_rosbridge import Ros1QTrobot
+from testbed.ros1_rosbridge import Ros1QTrobot
 from support import RawClient, RunningServer, Watch, call, refused, wait_for, wait_subscribed
 
 from client_protocol import names

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from robot_models import load_qtrobot
+from testbed.server import until
 from vr_teleop_server.robot.backends.sim import SimRobot
 from vr_teleop_server.robot.interface import Gesture, MotorMode, Robot, Waypoint
 
@@ -27,15 +28,6 @@ def robot():
     r = SimRobot(MODEL)
     yield r
     r.close()
-
-
-async def until(predicate, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        await asyncio.sleep(0.01)
-    return predicate()
 
 
 async def simulated_time_passes(robot: SimRobot, seconds: float) -> None:

@@ -13,7 +13,7 @@ import time
 import pytest
 from aiortc import RTCPeerConnection
 
-from media_client import MediaPeer, Rosbridge
+from testbed.media_client import MediaPeer, Rosbridge
 from support import IDENTITY, RunningServer, pose_msg, unity_yaw_pitch
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in

@@ -25,8 +25,8 @@ import numpy as np
 import psutil
 import pytest
 from support import RawClient, wait_for
+from testbed.churn import drain, owner_counts, visitor
 from websockets.asyncio.client import connect
-from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect as sync_connect
 
 from client_protocol import names
@@ -143,52 +143,6 @@ def test_a_client_that_stops_reading_costs_bounded_memory_and_slows_nobody(serve
     stalled.close()
 
 
-def _owner_counts(app) -> dict[str, int]:
-    bus = app.bus
-    return {"sessions": len(app.sessions),
-            "subscriptions": sum(len(t.subscribers) for t in bus.topics.values()),
-            "publishers": sum(len(t.publishers) for t in bus.topics.values()),
-            "topics": len(bus.topics), "services": len(bus.services), "actions": len(bus.actions),
-            "tasks": len(asyncio.all_tasks()), "fds": len(os.listdir("/proc/self/fd"))}
-
-
-async def _visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict[str, int]) -> None:
-    """Connects, takes up subscriptions, advertisements, a service, pending calls and half a fragment set, then
-    leaves: cleanly or by dropping the TCP connection."""
-    while time.monotonic() < stop:
-        async with connect(url, compression=None, max_size=None, open_timeout=20) as ws:
-            reader = asyncio.create_task(_drain(ws))
-            mine = f"/churn/{n}"
-            frames = [{"op": "subscribe", "id": "s", "topic": "/churn/shared", "type": "std_msgs/String"},
-                      {"op": "subscribe", "id": "s2", "topic": mine, "type": "std_msgs/String",
-                       "throttle_rate": 50, "queue_length": 3},
-                      {"op": "advertise", "topic": "/churn/shared", "type": "std_msgs/String"},
-                      {"op": "advertise_service", "service": f"{mine}/svc", "type": "std_srvs/Trigger"},
-                      {"op": "advertise_action", "action": f"{mine}/act", "type": "fake/Act"},
-                      {"op": "call_service", "id": "t", "service": "/rosapi/get_time"},
-                      # a call to another visitor's service that may never be answered
-                      {"op": "call_service", "id": "x", "service": f"/churn/{(n + 1) % 20}/svc", "timeout": 5},
-                      {"op": "fragment", "id": "half", "data": "{\"op\":", "num": 0, "total": 2}]
-            for frame in frames:
-                await ws.send(json.dumps(frame))
-            for i in range(rng.randrange(1, 20)):
-                await ws.send(json.dumps({"op": "publish", "topic": "/churn/shared", "msg": {"data": str(i)}}))
-            await asyncio.sleep(rng.uniform(0.0, 0.3))
-            if rng.random() < 0.5:
-                ws.transport.abort()  # gone without a closing handshake
-                stats["aborted"] += 1
-            stats["visits"] += 1
-        await reader
-
-
-async def _drain(ws) -> None:
-    try:
-        async for _frame in ws:
-            pass
-    except ConnectionClosed:  # the visitor dropped the connection itself
-        pass
-
-
 def test_clients_coming_and_going_leak_nothing(server):
     app = server.server
 
@@ -196,11 +150,11 @@ def test_clients_coming_and_going_leak_nothing(server):
         stats = {"visits": 0, "aborted": 0}
         rng = random.Random(7)
         stop = time.monotonic() + seconds
-        await asyncio.gather(*(_visitor(server.url, n, stop, random.Random(rng.random()), stats) for n in range(20)))
+        await asyncio.gather(*(visitor(server.url, n, stop, random.Random(rng.random()), stats) for n in range(20)))
         return stats
 
     def settled() -> dict[str, int]:
-        return server.call(lambda: _owner_counts(app))
+        return server.call(lambda: owner_counts(app))
 
     asyncio.run(visits(1.0))  # warm-up: lazily created things (rosapi topics, loop internals) now exist
     assert wait_for(lambda: settled()["sessions"] == 0, 20)
@@ -242,7 +196,7 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
 
     async def operate() -> float:
         ws = await connect(server.url, compression=None, max_size=None)
-        reader = asyncio.create_task(_drain(ws))
+        reader = asyncio.create_task(drain(ws))
         seq = 0
         start = time.monotonic()
         engaged = False

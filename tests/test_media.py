@@ -17,7 +17,7 @@ import psutil
 import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
-from media_client import MediaPeer, Rosbridge, Tone
+from testbed.media_client import MediaPeer, Rosbridge, Tone
 from support import RunningServer
 from test_frame_ring import holds_ring
 

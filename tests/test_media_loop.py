@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from media_client import MediaPeer, Rosbridge
+from testbed.media_client import MediaPeer, Rosbridge
 from test_datachannel import HEAD_POSE, engage_over_websocket, head_pose, release, whoami
 from vr_teleop_server.media.media_loop import THREAD_NAME, MediaLoop
 

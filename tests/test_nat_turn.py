@@ -36,7 +36,7 @@ from pathlib import Path
 import pytest
 
 from netem import EDGES, Edge, Emulator, cleanup_leftovers, edges_available, list_namespaces
-from test_operator_page import operator_in_namespace
+from testbed.pages import operator_in_namespace
 from vr_teleop_server.core.certs import make_authority, make_certificate
 from vr_teleop_server.media.turn import credentials
 

@@ -453,7 +453,7 @@ def _check_no_jump(seen, settings) -> list[float]:
 @needs_netns
 def test_on_continent_the_websocket_path_may_hold_but_resumes_by_itself_without_a_jump(tmp_path) -> None:
     from vr_teleop_server.teleop import TeleopSettings
-    from wan_support import Observer, intent_errors, replay_in, serve
+    from testbed.wan_support import Observer, intent_errors, replay_in, serve
 
     steps = _head_session(tmp_path, 30.0)
     with Emulator("continent") as net:
@@ -488,7 +488,7 @@ def test_on_continent_the_websocket_path_may_hold_but_resumes_by_itself_without_
 @needs_netns
 def test_a_link_down_for_2_s_holds_within_the_ceiling_and_resumes_only_on_fresh_poses(tmp_path) -> None:
     from vr_teleop_server.teleop import TeleopSettings
-    from wan_support import Observer, replay_in, serve
+    from testbed.wan_support import Observer, replay_in, serve
 
     steps = _head_session(tmp_path, 16.0)
     with Emulator("city") as net:
@@ -530,9 +530,9 @@ def test_a_link_down_for_2_s_holds_within_the_ceiling_and_resumes_only_on_fresh_
 
 @needs_netns
 def test_on_continent_poses_over_the_data_channel_never_hold_and_the_robot_follows(tmp_path) -> None:
-    from media_client import ChannelRoad
+    from testbed.media_client import ChannelRoad
     from vr_teleop_server.teleop import TeleopSettings
-    from wan_support import Observer, intent_errors, pose_latencies, replay_in, serve
+    from testbed.wan_support import Observer, intent_errors, pose_latencies, replay_in, serve
 
     steps = _head_session(tmp_path, 30.0)
     road = ChannelRoad()

@@ -10,24 +10,18 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import subprocess
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 from scipy.spatial.transform import Rotation
 
 from support import RawClient, RunningServer, Headset, engage, wait_for
+from testbed.pages import INSTALL_HEADSET, IWER, READY
 
 ROOT = Path(__file__).resolve().parent.parent
-IWER = ROOT / "node_modules" / "iwer" / "build" / "iwer.min.js"
 SCREENSHOTS = ROOT / ".pytest_cache" / "screenshots"
-INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
-                   "window.xrDevice.installRuntime({forceInstall: true});")
 VIEWPORT = {"width": 960, "height": 600}  # SwiftShader renders every pixel on the CPU of a busy machine
 SLOW = 30_000  # ms: generous waits for a page, a stand-in and a renderer sharing two cores with others
 
@@ -37,32 +31,6 @@ def iwer() -> Path:
     if not IWER.is_file():
         pytest.fail(f"{IWER} is missing: `make test` installs it (npm ci), or run `npm ci` in {ROOT}")
     return IWER
-
-
-READY = "window.operator && window.operator.ros.connected && window.operator.state.teleop"
-
-
-@contextmanager
-def operator_in_namespace(playwright, origin: str, camera: str, viewport: dict, timeout_ms: float,
-                          home: Path | None = None) -> Iterator[tuple[object, list[str]]]:
-    """The operator page at `origin` in a Chromium of its own, IWER as its headset, connected and ready, with its
-    errors as they come: for a page driven from an emulator's namespace (test_nat_turn.py, bench/wan_page.py),
-    where the origin is a plain-HTTP address the browser must treat as secure. `home`: the browser's HOME (its NSS
-    database of trusted authorities)."""
-    env = {**os.environ, "HOME": str(home)} if home else None
-    browser = playwright.chromium.launch(executable_path=shutil.which("chromium"), env=env, args=[
-        "--no-sandbox", "--enable-unsafe-swiftshader", f"--unsafely-treat-insecure-origin-as-secure={origin}"])
-    try:
-        page = browser.new_context(viewport=viewport).new_page()
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        page.add_init_script(path=str(IWER))
-        page.add_init_script(script=INSTALL_HEADSET)
-        page.goto(f"{origin}/operator#camera={camera}")
-        page.wait_for_function(READY, timeout=timeout_ms)
-        yield page, errors
-    finally:
-        browser.close()
 
 
 def open_page(browser, server: RunningServer, *, headset: Path | None = None, viewport=VIEWPORT, ready=READY,

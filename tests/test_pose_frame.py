@@ -11,7 +11,7 @@ import pytest
 
 from client_protocol import interface, names, pose_frame
 from client_protocol.registry import TypeRegistry
-from media_client import MediaPeer, Rosbridge
+from testbed.media_client import MediaPeer, Rosbridge
 from test_datachannel import (HEAD_COMMAND, dc_server, engage_over_websocket, my_telemetry, newest,  # noqa: F401
                               head_pose, release, stream, whoami)
 from test_pose_channel import HEAD, JOY, FakeSession, deliver, publish

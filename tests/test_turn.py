@@ -15,7 +15,7 @@ import pytest
 from mcap.reader import make_reader
 
 from client_protocol import names
-from media_client import Rosbridge
+from testbed.media_client import Rosbridge
 from vr_teleop_server.cli import main as cli_main
 from vr_teleop_server.media.turn import IceConfig, check_url, credentials
 

@@ -4,8 +4,9 @@ the client namespace, an observer beside the server. Shared by tests/test_netem.
 - `serve(net)`: `python -m vr_teleop_server.cli serve --backend sim --insecure` bound to the server namespace's
   address (open access: the replay client has no token support; --insecure lets an open server bind a
   non-loopback address, and nothing but our own client namespace can reach it).
-- `Observer`: a rosbridge client inside the server namespace (no impairment between it and the server), recording
-  every head command and teleop event with its receive time: the server's own view of what the robot was told.
+- `Observer`: the package's rosbridge client inside the server namespace (no impairment between it and the
+  server), recording every head command and teleop event with its receive time: the server's own view of what the
+  robot was told.
 - `replay_in(net, steps, url)`: `vr-teleop replay`'s client, run inside the client namespace.
 """
 
@@ -25,10 +26,14 @@ from typing import Any
 
 import numpy as np
 
+from client_protocol import names
 from netem import Emulator
 from vr_teleop_server.tools.replay import Collected, PoseRoad, Step, expected_commands, run_replay
 
 PORT = 9090  # the namespace is ours alone: a fixed port is free
+# The observer's start: a Python process importing numpy, pydantic and the replay tool, which on a 2-core machine
+# loaded many times over took 40 s; it says "ready" once subscribed, or exits.
+READY_TIMEOUT_S = 120.0
 HEAD_COMMAND = "/qt_robot/head_position/command"
 HEAD_POSE = "/vr/head/pose"
 EVENTS = "/vr_teleop/events"
@@ -86,9 +91,7 @@ class Observer:
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
         self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
                                stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
-        # It says "ready" once subscribed, or exits; the deadline is only a backstop (the process imports the
-        # package first: 30 s was not always enough at load 30-40, which failed tests with this error)
-        deadline = time.monotonic() + 100
+        deadline = time.monotonic() + READY_TIMEOUT_S
         while time.monotonic() < deadline:
             self._out.seek(0)
             if self._out.readline().strip() == '"ready"':
@@ -121,61 +124,71 @@ class Observer:
 
 
 async def _observe(url: str, poses: bool) -> None:
-    """Prints "ready", then one JSON line per head command, event, head pose or telemetry report's video frames
-    ([RTP timestamp, render time] pairs): [kind, receive time, value]."""
-    from websockets.asyncio.client import connect
+    """Prints "ready" once the server has the subscriptions, then one JSON line per head command, event, head pose
+    or telemetry report's video frames ([RTP timestamp, render time] pairs): [kind, receive time, value]. The
+    receive time is taken as the package's client hands the message over, as it reads the frame."""
+    from vr_teleop_server.client import connect
 
     loop = asyncio.get_running_loop()
-    stdin_closed = loop.run_in_executor(None, sys.stdin.read)
+    closed = threading.Event()  # set from the thread that reads stdin, seen at once by the callbacks
+
+    def read_stdin() -> None:
+        sys.stdin.read()
+        closed.set()
+
+    stdin_closed = loop.run_in_executor(None, read_stdin)
     out = sys.stdout
-    async with connect(url, max_size=None, compression=None) as ws:
-        await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_COMMAND, "queue_length": 100_000}))
-        await ws.send(json.dumps({"op": "subscribe", "topic": EVENTS, "queue_length": 10_000}))
-        await ws.send(json.dumps({"op": "subscribe", "topic": TELEMETRY, "queue_length": 1_000}))
-        if poses:
-            await ws.send(json.dumps({"op": "subscribe", "topic": HEAD_POSE, "queue_length": 100_000}))
-        await asyncio.sleep(0.2)
-        print(json.dumps("ready"), file=out, flush=True)
-        while not stdin_closed.done():
-            try:
-                frame = await asyncio.wait_for(ws.recv(), 0.2)
-            except asyncio.TimeoutError:
-                continue
-            now = time.monotonic()
-            msg = json.loads(frame)
-            if msg.get("op") != "publish":
-                continue
-            if msg["topic"] == HEAD_COMMAND:
-                line = ["head", now, list(msg["msg"]["data"])]
-            elif msg["topic"] == HEAD_POSE:
-                stamp = msg["msg"]["header"]["stamp"]
-                line = ["pose", now, stamp.get("secs", stamp.get("sec", 0))
-                        + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9]
-            elif msg["topic"] == TELEMETRY:
-                clients = msg["msg"]["clients"]
-                line = ["frames", now, [[rtp, render] for c in clients
-                                        for rtp, render in zip(c["frame_rtp_timestamps"], c["frame_render_times"])]]
-                counts = {k: sum(c.get(k, 0) for c in clients) for k in ("dc_received", "dc_refused",
-                                                                           "dc_stale_dropped")}
-                if counts["dc_received"]:
-                    print(json.dumps(["channel", now, counts]), file=out)
-            elif msg["topic"] == EVENTS and msg["msg"].get("source") == "teleop":
-                event = dict(msg["msg"])
-                try:
-                    event["detail"] = json.loads(event.get("detail") or "{}")
-                except ValueError:
-                    pass
-                line = ["event", now, event]
-            else:
-                continue
+
+    def write(line: list[Any]) -> None:
+        # After stop() nothing more is written: the client may still be reading a backlog (a loaded machine), which
+        # it then drains without the work, so that the loop comes round to closing.
+        if not closed.is_set():
             print(json.dumps(line), file=out)
-        out.flush()
+
+    def head(msg: dict[str, Any]) -> None:
+        write(["head", time.monotonic(), list(msg["data"])])
+
+    def pose(msg: dict[str, Any]) -> None:
+        now, stamp = time.monotonic(), msg["header"]["stamp"]
+        write(["pose", now, stamp.get("secs", stamp.get("sec", 0)) + stamp.get("nsecs", stamp.get("nanosec", 0)) / 1e9])
+
+    def telemetry(msg: dict[str, Any]) -> None:
+        now, clients = time.monotonic(), msg["clients"]
+        write(["frames", now, [[rtp, render] for c in clients
+                               for rtp, render in zip(c["frame_rtp_timestamps"], c["frame_render_times"])]])
+        counts = {k: sum(c.get(k, 0) for c in clients) for k in ("dc_received", "dc_refused", "dc_stale_dropped")}
+        if counts["dc_received"]:
+            write(["channel", now, counts])
+
+    def event(msg: dict[str, Any]) -> None:
+        if msg.get("source") != "teleop":
+            return
+        now, event = time.monotonic(), dict(msg)
+        try:
+            event["detail"] = json.loads(event.get("detail") or "{}")
+        except ValueError:
+            pass
+        write(["event", now, event])
+
+    async with await connect(url, id_prefix="observer") as client:
+        await client.subscribe(HEAD_COMMAND, callback=head, queue_length=100_000)
+        await client.subscribe(EVENTS, callback=event, queue_length=10_000)
+        await client.subscribe(TELEMETRY, callback=telemetry, queue_length=1_000)
+        if poses:
+            await client.subscribe(HEAD_POSE, callback=pose, queue_length=100_000)
+        # The server has the subscriptions once it answers a later call (it handles a client's frames in order);
+        # the answer's values are not read, which spares this process the message types' registry.
+        await (await client.request(names.ROSAPI_GET_TIME_SERVICE))
+        print(json.dumps("ready"), file=out, flush=True)
+        await asyncio.wait([stdin_closed, asyncio.ensure_future(client.wait_closed())],
+                           return_when=asyncio.FIRST_COMPLETED)
+    out.flush()
 
 
 def replay_in(net: Emulator, steps: list[Step], url: str, speed: float = 1.0,
               road: PoseRoad | None = None) -> tuple[Collected, float]:
     """The replay client inside the client namespace: every pose and call goes through the impaired link. With a
-    road (media_client.ChannelRoad), the operator's streams take the poses data channel once it holds control;
+    road (testbed/media_client.py's ChannelRoad), the operator's streams take the poses data channel once it holds control;
     the road's peer connection is made inside the namespace too (its sockets are the thread's)."""
     return net.run_in("client", lambda: asyncio.run(run_replay(steps, url, speed, camera=False, progress=False,
                                                                road=road)))

@@ -12,7 +12,6 @@ robot id (SDK 0.6.9), so that is where the gateway here reads them, as a real on
 from __future__ import annotations
 
 import math
-import socket
 import threading
 import time
 from typing import Any
@@ -31,6 +30,8 @@ from luxai.robot.core.idl.api_plugins import QTROBOT_PLUGINS_APIS
 
 from robot_models import load_qtrobot
 
+from .processes import free_port
+
 CAMERA_NODE_ID = "qtrobot-realsense-driver"
 # The hub's limits: narrower than the URDF's on HeadYaw (-60..60) and RightElbowRoll's velocity, as LuxAI's own
 # motor.list example differs from its URDF.
@@ -40,12 +41,6 @@ STATE_HZ = 30.0
 MIC_CHUNK_S = 0.02
 CAMERA_SIZE = (160, 120)
 CAMERA_HZ = 10.0
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _served_streams() -> dict[str, dict[str, Any]]:

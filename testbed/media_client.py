@@ -1,5 +1,5 @@
-"""A media client for tests and the bench: an asyncio rosbridge connection and an aiortc peer that negotiates
-through /vr_teleop/media/offer, as a headset app would."""
+"""A media client for tests and the benches: the package's rosbridge client seen frame by frame, and an aiortc peer
+that negotiates through /vr_teleop/media/offer, as a headset app would."""
 
 from __future__ import annotations
 
@@ -16,69 +16,80 @@ from aiortc import MediaStreamTrack, RTCConfiguration, RTCIceServer, RTCPeerConn
 from aiortc.mediastreams import MediaStreamError
 
 from client_protocol import pose_frame
-from websockets.asyncio.client import ClientConnection, connect
+from vr_teleop_server.client import Client, connect
 
 
 class Rosbridge:
-    """rosbridge v2 over websockets' asyncio client: calls, subscriptions and publishes."""
+    """The package's rosbridge client (vr_teleop_server.client) with the frame-level view the media tests assert on:
+    `call` answers with the `service_response` frame itself (or the `status` error that answered the call instead),
+    not with its checked values; `subscribe` gives a queue of the topic's messages; `publish` advertises first."""
 
-    def __init__(self, ws: ClientConnection) -> None:
-        self.ws = ws
-        self._ids = itertools.count(1)
-        self._calls: dict[str, asyncio.Future[dict[str, Any]]] = {}
+    def __init__(self, client: Client) -> None:
+        self.client = client
         self.topics: dict[str, asyncio.Queue[dict[str, Any]]] = {}
-        self.statuses: list[dict[str, Any]] = []
-        self._reader = asyncio.ensure_future(self._read())
+        self._ids = itertools.count(1)
+        self._waiting: dict[str, asyncio.Future[dict[str, Any]] | dict[str, Any] | None] = {}  # call id -> its answer
+        client.on_status = self._on_status
 
     @classmethod
     async def open(cls, url: str, token: str | None = None) -> Rosbridge:
-        client = cls(await connect(url, compression=None, max_size=None))
+        bridge = cls(await connect(url))
         if token:
-            await client.send({"op": "auth", "mac": token})
-        return client
+            await bridge.send({"op": "auth", "mac": token})
+        return bridge
+
+    @property
+    def ws(self) -> Any:
+        """The WebSocket underneath (to drop it without a closing handshake)."""
+        return self.client.connection
+
+    @property
+    def statuses(self) -> list[dict[str, Any]]:
+        return self.client.statuses
 
     async def send(self, frame: dict[str, Any]) -> None:
-        await self.ws.send(json.dumps(frame))
+        await self.client.send(frame)
 
-    async def _read(self) -> None:
-        try:
-            async for text in self.ws:
-                msg = json.loads(text)
-                if msg.get("op") == "service_response":
-                    fut = self._calls.pop(msg.get("id"), None)
-                    if fut is not None and not fut.done():
-                        fut.set_result(msg)
-                elif msg.get("op") == "publish":
-                    queue = self.topics.get(msg["topic"])
-                    if queue is not None:
-                        queue.put_nowait(msg["msg"])
-                elif msg.get("op") == "status":
-                    self.statuses.append(msg)
-                    fut = self._calls.pop(msg.get("id"), None)
-                    if fut is not None and not fut.done() and msg.get("level") == "error":
-                        fut.set_result({"op": "status", **msg})
-        except Exception:
-            pass
+    def _on_status(self, msg: dict[str, Any]) -> None:
+        """A status error with a waiting call's id answers that call, if it comes before the service_response."""
+        call_id = str(msg.get("id"))
+        if msg.get("level") != "error" or call_id not in self._waiting:
+            return
+        answer = self._waiting[call_id]
+        if answer is None:  # the call is still being sent
+            self._waiting[call_id] = {"op": "status", **msg}
+        elif isinstance(answer, asyncio.Future) and not answer.done():
+            answer.set_result({"op": "status", **msg})
 
     async def call(self, service: str, args: dict[str, Any], timeout: float = 30.0) -> dict[str, Any]:
-        """The service_response frame (or the status error that answered the call instead)."""
+        """The first answer to the call: its service_response frame, or the status error that came instead."""
         call_id = f"call:{next(self._ids)}"
-        fut = self._calls[call_id] = asyncio.get_running_loop().create_future()
-        await self.send({"op": "call_service", "id": call_id, "service": service, "args": args})
-        return await asyncio.wait_for(fut, timeout)
+        self._waiting[call_id] = None
+        response = None
+        try:
+            response = await self.client.request(service, args, call_id=call_id)
+            early = self._waiting[call_id]
+            if isinstance(early, dict):
+                return early
+            self._waiting[call_id] = response
+            async with asyncio.timeout(timeout):
+                return await response
+        finally:
+            del self._waiting[call_id]
+            if response is not None:
+                response.cancel()
 
     async def subscribe(self, topic: str, type_name: str, **options: Any) -> asyncio.Queue[dict[str, Any]]:
         queue = self.topics[topic] = asyncio.Queue()
-        await self.send({"op": "subscribe", "topic": topic, "type": type_name, **options})
+        await self.client.subscribe(topic, type_name, queue.put_nowait, **options)
         return queue
 
     async def publish(self, topic: str, type_name: str, msg: dict[str, Any]) -> None:
-        await self.send({"op": "advertise", "topic": topic, "type": type_name})
-        await self.send({"op": "publish", "topic": topic, "msg": msg})
+        await self.client.advertise(topic, type_name)
+        await self.client.publish(topic, msg)
 
     async def close(self) -> None:
-        await self.ws.close()
-        self._reader.cancel()
+        await self.client.close()
 
 
 class Tone(MediaStreamTrack):
