@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import roslibpy
-from media_client import MediaPeer, Rosbridge
+from testbed.media_client import MediaPeer, Rosbridge
 from support import RunningServer, Watch, wait_for, wait_subscribed
 
 from client_protocol import names
