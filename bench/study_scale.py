@@ -58,8 +58,12 @@ def main() -> int:
     parser.add_argument("--repeat", type=int, default=2, help="seeds per trial (default 2)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--trial", action="append", help="only these trials (default: all)")
+    parser.add_argument("--lesson-s", type=float, default=None,
+                        help="a classroom study's lesson cut to this many simulated seconds (a quicker measure)")
     args = parser.parse_args()
     study = load_study(args.file)
+    if args.lesson_s is not None:
+        study = study.model_copy(update={"lesson_s": args.lesson_s})
     names = args.trial or list(study.trials)
     jobs = [TrialJob(study, name, seed, f"{name}-seed{seed}.mcap") for name in names
             for seed in range(args.seed, args.seed + args.repeat)]
