@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.network is not None and not math.isinf(args.speed):
         print("vr-teleop study: error: --network runs on the simulated clock only: add --speed max (at real time, "
-              "run the server behind the WAN emulator: docs/guides/network.md)", file=sys.stderr)
+              "run the server behind the WAN emulator: docs/guides/deployment.md)", file=sys.stderr)
         return 2
     names = list(study.trials) if args.all else [args.trial]
     if args.trial is not None and args.trial not in study.trials:

@@ -59,7 +59,7 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
     seed = study.seed if seed is None else seed
     if network is not None and not clock.simulated:
         raise ValueError("--network runs on the simulated clock only (--speed max): at real time, run the server "
-                         "behind the WAN emulator (docs/guides/network.md)")
+                         "behind the WAN emulator (docs/guides/deployment.md)")
     with tempfile.TemporaryDirectory(prefix="vr-teleop-lesson-") as tmp:
         record = record or Path(tmp) / "lesson.mcap"
         settings = ServerSettings(port=0, backend="sim", record=record, record_camera_fps=0.0, autonomy=level,
