@@ -91,6 +91,7 @@ class Teacher:
         self.engaged = False
         self.robot_yaw = 0.0
         self.speaking: dict[str, float] = {}  # who -> onset (her clock)
+        self.heard = 0  # speeches begun so far (the progress lines)
         self.last_proposal_at = -math.inf
         self.refusals: list[str] = []
         self._tasks: set[asyncio.Task[Any]] = set()
@@ -139,6 +140,7 @@ class Teacher:
             who = b["name"]
             if b["speaking"] and who not in self.speaking:
                 self.speaking[who] = self.now()
+                self.heard += 1
                 self._spawn(self._on_onset(who, float(b["yaw"])))
             elif not b["speaking"] and who in self.speaking:
                 del self.speaking[who]

@@ -96,7 +96,7 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
                     while (left := end - clock.monotonic()) > 1e-6:
                         await asyncio.sleep(min(5.0, left))
                         if progress is not None:
-                            progress(clock.monotonic() - started, 0)
+                            progress(clock.monotonic() - started, teacher.heard)
                         if acting.done():
                             acting.result()  # a pupil's failure ends the lesson with its error
                 finally:

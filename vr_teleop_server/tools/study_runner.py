@@ -170,9 +170,11 @@ class TrialDone:
 
 
 def run_job(job: TrialJob) -> TrialDone:
+    what = ("speech", "speeches", "heard") if isinstance(job.study, ClassroomStudy) else ("action", "actions", "done")
+
     def progress(elapsed: float, done: int) -> None:
-        print(f"  {job.trial}: {elapsed:5.1f} s, {done} action{'' if done == 1 else 's'} done", file=sys.stderr,
-              flush=True)
+        print(f"  {job.name}: {elapsed:5.1f} s, {done} {what[0] if done == 1 else what[1]} {what[2]}",
+              file=sys.stderr, flush=True)
 
     with tempfile.TemporaryDirectory(prefix="vr-teleop-trial-") as tmp:
         directory = job.record_dir or Path(tmp)
