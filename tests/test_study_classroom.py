@@ -211,3 +211,18 @@ def test_the_three_levels_in_this_process_and_on_two_workers_give_one_table_in_t
     for m in (tele, sup, auto):
         assert 0.0 <= m["share_attended"] <= 1.0 and m["onset_to_look_mean_s"] is not None
         assert math.isfinite(m["teacher_actions_per_min"])
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+def test_network_profiles_are_a_factor_of_the_conditions(tmp_path):
+    study = short_lesson(tmp_path)
+    proc = vr_teleop("study", "run", str(study), "--condition", "supervised", "--speed", "max", "--seed", "2",
+                     "--network", "lan,continent", "--record-dir", str(tmp_path / "rec"), "--json", "-")
+    assert proc.returncode == 0, proc.stderr
+    runs = json.loads(proc.stdout)
+    assert list(runs) == ["supervised@lan", "supervised@continent"]
+    assert [runs[k]["modules"] for k in runs] == [["supervised", "lan"], ["supervised", "continent"]]
+    assert sorted(p.name for p in (tmp_path / "rec").iterdir()) == ["supervised@continent.mcap", "supervised@lan.mcap"]
+    for m in runs.values():  # the teacher still decides through the profile's delays
+        assert m["speeches"] >= 1 and m["accepted"] + m["rejected"] + m["timed_out"] >= 1
