@@ -226,3 +226,13 @@ def test_network_profiles_are_a_factor_of_the_conditions(tmp_path):
     assert sorted(p.name for p in (tmp_path / "rec").iterdir()) == ["supervised@continent.mcap", "supervised@lan.mcap"]
     for m in runs.values():  # the teacher still decides through the profile's delays
         assert m["speeches"] >= 1 and m["accepted"] + m["rejected"] + m["timed_out"] >= 1
+
+
+def test_a_teacher_action_that_is_no_menu_item_is_refused_when_the_lesson_starts(tmp_path, capsys):
+    doc = yaml.safe_load(EXAMPLE.read_text())
+    doc["teacher"]["actions"] = ["emotion.happy", "emotion.grumpy"]
+    path = tmp_path / "grumpy.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    assert cli_main(["study", "run", str(path), "--condition", "autonomous", "--speed", "max",
+                     "--record-dir", str(tmp_path / "rec")]) == 2
+    assert "teacher.actions: emotion.grumpy is not a menu item id" in capsys.readouterr().err

@@ -145,6 +145,9 @@ def run(args: argparse.Namespace) -> int:
     except WorkersError as exc:
         print(f"vr-teleop study: error: {exc}", file=sys.stderr)
         return 1
+    except ValueError as exc:  # what only the running server can check (a classroom's menu item ids)
+        print(f"vr-teleop study: error: {args.file}: {exc}", file=sys.stderr)
+        return 2
     runs = {name: [done[job.key] for job in jobs if job.name == name] for name in groups}
     reports = [r for name in groups for r in runs[name]]
     shape, stats, summarised = (classroom_table, classroom_stats_table, summarise_classroom) if classroom else \
