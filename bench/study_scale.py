@@ -25,6 +25,8 @@ from distributed import LocalCluster
 
 from vr_teleop_server.study.studyfile import load_study
 from vr_teleop_server.tools.distributed import Workers, run_all
+from vr_teleop_server.study.classroom_file import ClassroomStudy
+from vr_teleop_server.tools.classroom_runner import classroom_table
 from vr_teleop_server.tools.study_runner import TrialDone, TrialJob, run_job, table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -48,12 +50,20 @@ def on_cluster(jobs: list[TrialJob], count: int) -> tuple[dict[str, TrialDone], 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("file", nargs="?", type=Path, default=ROOT / "examples" / "toolbox.yaml")
+    parser.add_argument("file", nargs="?", type=Path, default=ROOT / "examples" / "toolbox.yaml",
+                        help="a study file: a task study (toolbox.yaml, the default) or a classroom one "
+                             "(examples/classroom.yaml: its conditions are the trials)")
+    parser.add_argument("--one-worker-only", action="store_true",
+                        help="only this process's batch: per trial cost and speed (x simulated / wall), no cluster")
     parser.add_argument("--repeat", type=int, default=2, help="seeds per trial (default 2)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--trial", action="append", help="only these trials (default: all)")
+    parser.add_argument("--lesson-s", type=float, default=None,
+                        help="a classroom study's lesson cut to this many simulated seconds (a quicker measure)")
     args = parser.parse_args()
     study = load_study(args.file)
+    if args.lesson_s is not None:
+        study = study.model_copy(update={"lesson_s": args.lesson_s})
     names = args.trial or list(study.trials)
     jobs = [TrialJob(study, name, seed, f"{name}-seed{seed}.mcap") for name in names
             for seed in range(args.seed, args.seed + args.repeat)]
@@ -62,6 +72,14 @@ def main() -> int:
 
     here, here_wall = batch(jobs, Workers())
     print(f"in this process: {here_wall:.1f} s", flush=True)
+    if args.one_worker_only:
+        for job in jobs:
+            d = here[job.key]
+            sim = d.report.live.t1
+            print(f"  {job.key}: {sim:.0f} s simulated in {d.wall_s:.1f} s wall (x{sim / d.wall_s:.2f}), "
+                  f"CPU {d.cpu_s:.1f} s (x{sim / d.cpu_s:.2f} simulated per CPU second)")
+        print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+        return 0
     one, one_wall, one_start = on_cluster(jobs, 1)
     print(f"1 worker: {one_wall:.1f} s", flush=True)
     two, two_wall, two_start = on_cluster(jobs, 2)
@@ -100,7 +118,8 @@ def main() -> int:
 
     equal = metrics(here) == metrics(one) == metrics(two)
     print(f"tables equal metric for metric (this process, 1 worker, 2 workers): {equal}")
-    print(table([two[job.key].report for job in jobs]))
+    shape = classroom_table if isinstance(study, ClassroomStudy) else table
+    print(shape([two[job.key].report for job in jobs]))
     return 0 if equal else 1
 
 

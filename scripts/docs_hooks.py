@@ -333,9 +333,9 @@ def config_menu() -> str:
 
 
 def config_study() -> str:
-    from vr_teleop_server.study.studyfile import Study
+    from vr_teleop_server.study.studyfile import ClassroomStudy, Study
 
-    return model_section("a study file", Study)
+    return model_section("a study file", Study) + model_section("a classroom study file", ClassroomStudy)
 
 
 def config_motivation() -> str:

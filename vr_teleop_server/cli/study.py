@@ -1,5 +1,7 @@
-"""`vr-teleop study run FILE (--trial NAME | --all) [--speed max] [--repeat N --seed S] [--workers K |
---scheduler tcp://HOST:8786] [--shared-dir DIR]`: run study trials on the stand-in and compare their metrics."""
+"""`vr-teleop study run FILE (--trial NAME | --condition NAME | --all) [--speed max] [--repeat N --seed S]
+[--network lan,continent] [--workers K | --scheduler tcp://HOST:8786] [--shared-dir DIR]`: run study trials on the
+stand-in and compare their metrics. A task study (toolbox.yaml) gives fluency metrics; a classroom study
+(`kind: classroom`, classroom.yaml) gives attention and teacher-workload measures per condition (autonomy level)."""
 
 from __future__ import annotations
 
@@ -15,7 +17,11 @@ from .replay import speed as parse_speed
 from ..tools.distributed import Workers, WorkersError, add_arguments, positive
 from ..tools.distributed import run_all as run_everywhere
 from ..tools.study_runner import TrialJob, TrialReport, run_job, stats_table, summarise, table
+from ..study.classroom_file import ClassroomStudy
+from ..study.metrics.classroom import classroom_summary
+from ..study.network import profiles
 from ..study.studyfile import StudyFileError, load_study
+from ..tools.classroom_runner import classroom_stats_table, classroom_table, summarise_classroom
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -28,8 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "--all a table shaped like the framework paper's Table III.")
     r.add_argument("file", type=Path, metavar="FILE", help="the study file (YAML)")
     which = r.add_mutually_exclusive_group(required=True)
-    which.add_argument("--trial", metavar="NAME", help="the trial to run")
-    which.add_argument("--all", action="store_true", help="run every trial, in the file's order")
+    which.add_argument("--trial", "--condition", dest="trial", metavar="NAME",
+                       help="the trial (a classroom study's condition) to run")
+    which.add_argument("--all", action="store_true", help="run every trial (condition), in the file's order")
     r.add_argument("--record-dir", type=Path, default=Path("study-recordings"), metavar="DIR",
                    help="where each trial's session recording (TRIAL.mcap) goes (default: study-recordings)")
     r.add_argument("--json", type=Path, metavar="OUT",
@@ -43,6 +50,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "confidence interval beside the table; --json then holds every run")
     r.add_argument("--seed", type=int, default=None, metavar="S",
                    help="the simulated people's seed (default: the study file's seed)")
+    r.add_argument("--network", type=_profiles, default=None, metavar="P1,P2",
+                   help="classroom studies at --speed max: run each condition under each of these network profiles "
+                        "(netem/profiles.yaml: lan, wifi, city, continent, bad) on the teacher's connection")
     add_arguments(r, "trials")
     r.add_argument("--shared-dir", type=Path, default=None, metavar="DIR",
                    help="a directory every worker sees at this path (a network share): the workers write the "
@@ -57,11 +67,30 @@ def _speed(text: str) -> float:
     return value
 
 
+def _profiles(text: str) -> list[str]:
+    chosen = [p.strip() for p in text.split(",") if p.strip()]
+    try:
+        profiles(chosen)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--network: ")) from None
+    if not chosen:
+        raise argparse.ArgumentTypeError("name at least one profile, e.g. lan,continent")
+    return chosen
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         study = load_study(args.file)
     except StudyFileError as exc:
         print(f"vr-teleop study: error: {exc}", file=sys.stderr)
+        return 2
+    classroom = isinstance(study, ClassroomStudy)
+    if args.network is not None and not classroom:
+        print("vr-teleop study: error: --network is for classroom studies (kind: classroom)", file=sys.stderr)
+        return 2
+    if args.network is not None and not math.isinf(args.speed):
+        print("vr-teleop study: error: --network runs on the simulated clock only: add --speed max (at real time, "
+              "run the server behind the WAN emulator: docs/guides/deployment.md)", file=sys.stderr)
         return 2
     names = list(study.trials) if args.all else [args.trial]
     if args.trial is not None and args.trial not in study.trials:
@@ -79,9 +108,13 @@ def run(args: argparse.Namespace) -> int:
     # The recording is written where this process reads it (in this process, or a shared directory), or sent back.
     sent_back = not workers.in_process and args.shared_dir is None
     written_to = None if sent_back else record_dir if workers.in_process else record_dir.resolve()
-    jobs = [TrialJob(study, name, seed, f"{name}-seed{seed}.mcap" if args.repeat is not None else f"{name}.mcap",
-                     written_to, args.timeout, simulated, progress=workers.in_process)
-            for name in names for seed in seeds]
+    networks = args.network or [None]
+    jobs = [TrialJob(study, name, seed, "", written_to, args.timeout, simulated, progress=workers.in_process,
+                     network=network)
+            for name in names for network in networks for seed in seeds]
+    jobs = [dataclasses.replace(job, record_name=f"{job.name}-seed{job.seed}.mcap" if args.repeat is not None
+                                else f"{job.name}.mcap") for job in jobs]
+    groups = list(dict.fromkeys(job.name for job in jobs))  # conditions (x network profiles), in order
     done: dict[str, TrialReport] = {}
     if not workers.in_process:
         print(f"running {len(jobs)} trial{'' if len(jobs) == 1 else 's'} on {workers.describe()}", file=notes,
@@ -96,32 +129,42 @@ def run(args: argparse.Namespace) -> int:
                 report = dataclasses.replace(report, recording=path)
             done[job.key] = report
             seeded = f" (seed {job.seed})" if args.repeat is not None else ""
-            print(summary(f"{job.trial}{seeded} ({report.outcome})", report.live), file=notes)
+            describe = classroom_summary if classroom else summary
+            print(describe(f"{job.name}{seeded} ({report.outcome})", report.live), file=notes)
             if simulated:
                 t1, wall = report.live.t1, result.wall_s
                 print(f"  {t1:.1f} s of trial in {wall:.1f} s (x{t1 / wall:.1f})", file=notes)
-            print(f"  recording {report.recording}: metrics from it "
-                  f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes, flush=True)
+            if classroom:
+                print(f"  recording {report.recording}: the measures are read from it", file=notes, flush=True)
+            else:
+                print(f"  recording {report.recording}: metrics from it "
+                      f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes,
+                      flush=True)
             for refusal in report.refusals:
                 print(f"  operator command refused: {refusal}", file=notes)
     except WorkersError as exc:
         print(f"vr-teleop study: error: {exc}", file=sys.stderr)
         return 1
-    runs = {name: [done[job.key] for job in jobs if job.trial == name] for name in names}
-    reports = [r for name in names for r in runs[name]]
-    if len(names) > 1 or args.repeat is not None:
+    except ValueError as exc:  # what only the running server can check (a classroom's menu item ids)
+        print(f"vr-teleop study: error: {args.file}: {exc}", file=sys.stderr)
+        return 2
+    runs = {name: [done[job.key] for job in jobs if job.name == name] for name in groups}
+    reports = [r for name in groups for r in runs[name]]
+    shape, stats, summarised = (classroom_table, classroom_stats_table, summarise_classroom) if classroom else \
+        (table, stats_table, summarise)
+    if len(groups) > 1 or args.repeat is not None:
         print(file=notes)
-        print(table([r for name in names for r in runs[name][:1]] if args.repeat is None else reports), file=notes)
+        print(shape([r for name in groups for r in runs[name][:1]] if args.repeat is None else reports), file=notes)
     if args.repeat is not None:
         print(file=notes)
-        print(stats_table(runs), file=notes)
+        print(stats(runs), file=notes)
     if args.json is not None:
         if args.repeat is None:
             document = {r.trial: {"outcome": r.outcome, "modules": list(r.modules), **r.live.to_json_dict()}
                         for r in reports}
         else:
             document = {name: {"modules": list(trial_runs[0].modules), "seeds": seeds,
-                               "stats": summarise(trial_runs),
+                               "stats": summarised(trial_runs),
                                "runs": [{"seed": r.seed, "outcome": r.outcome, **r.live.to_json_dict()}
                                         for r in trial_runs]}
                         for name, trial_runs in runs.items()}

@@ -16,7 +16,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
 
-from client_protocol.files import load_model_file
+from client_protocol.files import load_model_file, read_document
+
+from .classroom_file import ClassroomStudy
 
 _STRICT = ConfigDict(extra="forbid", frozen=True)
 
@@ -146,7 +148,10 @@ class Trial(BaseModel):
 
 
 class Study(BaseModel):
+    """A task study (examples/toolbox.yaml): a robot and a human share a task, compared on fluency metrics."""
+
     model_config = _STRICT
+    kind: Literal["task"] = "task"
     study: str = Field(min_length=1)
     task: str = ""
     seed: int = 0
@@ -233,6 +238,15 @@ class Study(BaseModel):
         raise KeyError(f"no part {name!r}; parts: {', '.join(p.name for p in self.parts)}")
 
 
-def load_study(path: Path | str) -> Study:
+KINDS = ("task", "classroom")
+
+
+def load_study(path: Path | str) -> Study | ClassroomStudy:
+    """A study file of either kind: `kind: classroom` (a lesson, classroom.py) or none/`task` (a task study)."""
     path = Path(path)
-    return load_model_file(Study, path, error=StudyFileError)
+    document = read_document(path, error=StudyFileError)
+    kind = document.get("kind", "task") if isinstance(document, dict) else "task"
+    if kind not in KINDS:
+        raise StudyFileError(f"{path}: kind: {kind!r} is not a kind of study; give classroom (a lesson with "
+                             "simulated pupils and teacher) or leave it out (a task study such as toolbox.yaml)")
+    return load_model_file(ClassroomStudy if kind == "classroom" else Study, path, error=StudyFileError)

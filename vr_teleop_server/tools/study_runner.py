@@ -38,7 +38,9 @@ from ..settings import ServerSettings
 from ..study.metrics import FluencyResult, compute_metrics, read_trial
 from ..study.people import SimulatedPeople
 from ..study.runtime import TrialRuntime
+from ..study.classroom_file import ClassroomStudy
 from ..study.studyfile import Study
+from .classroom_runner import ClassroomReport, run_lesson
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +136,7 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
 class TrialJob:
     """One trial run: what `study run` asks of a worker. `record_dir`: where the recording goes, a directory the
     worker sees (this process's --record-dir, or a --shared-dir); None: a temporary one, the bytes sent back."""
-    study: Study
+    study: Study | ClassroomStudy
     trial: str
     seed: int
     record_name: str
@@ -142,10 +144,16 @@ class TrialJob:
     timeout: float = 900.0
     simulated: bool = True
     progress: bool = False  # progress lines on stderr while it runs (in this process only)
+    network: str | None = None  # a classroom lesson's network profile (netem/profiles.yaml), simulated clock only
+
+    @property
+    def name(self) -> str:
+        """The condition (trial), with its network profile when it has one: supervised@continent."""
+        return self.trial if self.network is None else f"{self.trial}@{self.network}"
 
     @property
     def key(self) -> str:
-        return f"{self.trial}-seed{self.seed}"
+        return f"{self.name}-seed{self.seed}"
 
 
 @dataclass(frozen=True)
@@ -153,7 +161,7 @@ class TrialDone:
     """A job's report, its recording's bytes when they were not written where the client reads them, and what it
     cost the process that ran it: wall and CPU seconds (with its children: the stand-in's render process) and its
     peak resident memory so far with its largest child's (MB: what a worker process needs)."""
-    report: TrialReport
+    report: TrialReport | ClassroomReport
     recording: bytes | None
     wall_s: float
     cpu_s: float
@@ -162,18 +170,24 @@ class TrialDone:
 
 
 def run_job(job: TrialJob) -> TrialDone:
+    what = ("speech", "speeches", "heard") if isinstance(job.study, ClassroomStudy) else ("action", "actions", "done")
+
     def progress(elapsed: float, done: int) -> None:
-        print(f"  {job.trial}: {elapsed:5.1f} s, {done} action{'' if done == 1 else 's'} done", file=sys.stderr,
-              flush=True)
+        print(f"  {job.name}: {elapsed:5.1f} s, {done} {what[0] if done == 1 else what[1]} {what[2]}",
+              file=sys.stderr, flush=True)
 
     with tempfile.TemporaryDirectory(prefix="vr-teleop-trial-") as tmp:
         directory = job.record_dir or Path(tmp)
         record = directory / job.record_name
         clock = SimulatedClock() if job.simulated else WALL
         wall, cpu = time.perf_counter(), _cpu_seconds()
-        report = run_on_clock(run_trial(job.study, job.trial, record=record, timeout=job.timeout,
-                                        progress=progress if job.progress else None, seed=job.seed, clock=clock),
-                              clock)
+        if isinstance(job.study, ClassroomStudy):
+            lesson = run_lesson(job.study, job.trial, record=record, seed=job.seed, clock=clock, network=job.network,
+                                timeout=job.timeout, progress=progress if job.progress else None)
+        else:
+            lesson = run_trial(job.study, job.trial, record=record, timeout=job.timeout,
+                               progress=progress if job.progress else None, seed=job.seed, clock=clock)
+        report = run_on_clock(lesson, clock)
         wall, cpu = time.perf_counter() - wall, _cpu_seconds() - cpu
         data = record.read_bytes() if job.record_dir is None else None
     peak_kb = sum(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))

@@ -127,6 +127,10 @@ class Attention:
         self._source = ""
         self._score = 0.0
 
+    def reseed(self, seed: int) -> None:
+        """The glances' draws from `seed` (a study's run: the same seed glances alike)."""
+        self._rng.seed(seed)
+
     def reset(self, here: tuple[float, float] | None) -> None:
         """Start again from the head's current direction (after something else moved it)."""
         self.out = here

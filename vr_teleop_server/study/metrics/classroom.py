@@ -1,0 +1,224 @@
+"""The classroom study's measures (beside the fluency metrics): how quickly and how much the robot attends to the
+pupil who speaks, and how much work is left to the teacher. `classroom_metrics(timeline)` is pure (no I/O: tests
+build timelines by hand); `read_classroom(path, lesson_s)` builds the timeline from a session recording.
+
+- onset to look: from a pupil's speech onset to the robot's head first pointing at them (HeadYaw within
+  POINTING_DEG of their direction, as metrics/autonomy.py), within REACH_S of the onset or never; mean over the
+  speeches looked at, p95 over all (a p95 that falls on a never is none);
+- share attended: of the pupils' speech time in the lesson, the share the head pointed at the speaker (the head's
+  yaw held from one joint-state sample to the next);
+- the teacher's actions per minute: her own (menu actions, interventions) plus her decisions on proposals;
+- proposals: accepted and rejected (forbidden counts as rejected) by her, timed out (done by the time-out), done
+  by the robot itself (autonomous), superseded or dropped;
+- interventions: the times she took control during the lesson (in teleoperated she holds it from before the
+  start: none);
+- effectiveness: the share of speeches looked at within REACH_S. Efficiency (the framework's time to complete a
+  task) does not apply: a lesson lasts what it lasts.
+
+The lesson starts at the teacher's level choice (an autonomy_level event on /vr_teleop/events) and lasts
+`lesson_s`; speeches that begin in it count, clipped at its end.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from client_protocol import names
+from client_protocol.events import EventKind
+
+from ...recording.format import read_recording
+from .autonomy import POINTING_DEG, REACH_S
+
+DECIDED_BY_MACHINE = ("timeout", "autonomy", "server")
+
+
+@dataclass(frozen=True)
+class Speech:
+    who: str
+    onset: float
+    end: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class Outcome:
+    t: float
+    outcome: str  # ProposalOutcome.outcome: accepted, rejected, forbidden, timed_out_executed, ..., teacher_initiated
+    decided_by: str = ""
+
+
+@dataclass
+class ClassroomTimeline:
+    """One lesson, times in seconds since its start (0): what the measures need and nothing else."""
+    lesson_s: float
+    speeches: list[Speech] = field(default_factory=list)
+    heads: list[tuple[float, float]] = field(default_factory=list)  # (t, HeadYaw deg), in time order
+    outcomes: list[Outcome] = field(default_factory=list)
+    interventions: list[float] = field(default_factory=list)  # when she took control
+
+
+@dataclass(frozen=True)
+class ClassroomResult:
+    lesson_s: float
+    speeches: int
+    never_looked_at: int
+    onset_to_look_mean_s: float | None
+    onset_to_look_p95_s: float | None
+    share_attended: float | None
+    teacher_own: int
+    teacher_decisions: int
+    teacher_actions_per_min: float
+    accepted: int
+    rejected: int
+    timed_out: int
+    robot_executed: int
+    superseded: int
+    dropped: int
+    interventions: int
+    effectiveness: float | None
+    efficiency_s: None = None  # does not apply to a lesson (see the module's docstring)
+
+    @property
+    def t0(self) -> float:
+        return 0.0
+
+    @property
+    def t1(self) -> float:
+        return self.lesson_s
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# The measures `--repeat` summarises (mean, SD, 95% CI), in table order.
+CLASSROOM_METRICS = ("onset_to_look_mean_s", "onset_to_look_p95_s", "share_attended", "teacher_actions_per_min",
+                     "accepted", "rejected", "timed_out", "interventions", "effectiveness")
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    if not values:
+        return None
+    value = float(np.percentile(values, q, method="higher"))
+    return round(value, 4) if math.isfinite(value) else None
+
+
+def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
+    times = np.array([h[0] for h in tl.heads], dtype=float)
+    yaws = np.array([h[1] for h in tl.heads], dtype=float)
+    latencies: list[float] = []
+    looked = spoken = 0.0
+    for s in tl.speeches:
+        end = min(s.end, tl.lesson_s)
+        if s.onset >= tl.lesson_s or end <= s.onset:
+            continue
+        spoken += end - s.onset
+        if len(times):
+            # the yaw held from each sample to the next, over [onset, end]: the sample before the onset counts too
+            first = max(int(np.searchsorted(times, s.onset, side="right")) - 1, 0)
+            last = int(np.searchsorted(times, end, side="left"))
+            for i in range(first, last):
+                a = max(times[i], s.onset)
+                b = min(times[i + 1] if i + 1 < len(times) else end, end)
+                if b > a and abs(yaws[i] - s.yaw) <= POINTING_DEG:
+                    looked += b - a
+            held = first if times[first] <= s.onset else None
+            if held is not None and abs(yaws[held] - s.yaw) <= POINTING_DEG:
+                latencies.append(0.0)
+                continue
+            near = (times >= s.onset) & (times <= s.onset + REACH_S) & (np.abs(yaws - s.yaw) <= POINTING_DEG)
+            if near.any():
+                latencies.append(float(times[np.argmax(near)] - s.onset))
+                continue
+        latencies.append(math.inf)
+    in_lesson = [o for o in tl.outcomes if 0.0 <= o.t < tl.lesson_s]
+    by_teacher = [o for o in in_lesson if o.decided_by not in DECIDED_BY_MACHINE]
+
+    def n(outcomes: list[Outcome], *kinds: str) -> int:
+        return sum(o.outcome in kinds for o in outcomes)
+
+    own_menu = n(in_lesson, "teacher_initiated")
+    interventions = sum(0.0 <= t < tl.lesson_s for t in tl.interventions)
+    decisions = n(by_teacher, "accepted", "rejected", "forbidden")
+    finite = [x for x in latencies if math.isfinite(x)]
+    minutes = tl.lesson_s / 60.0
+    return ClassroomResult(
+        lesson_s=tl.lesson_s, speeches=len(latencies), never_looked_at=len(latencies) - len(finite),
+        onset_to_look_mean_s=round(sum(finite) / len(finite), 4) if finite else None,
+        onset_to_look_p95_s=_percentile(latencies, 95),
+        share_attended=round(looked / spoken, 4) if spoken else None,
+        teacher_own=own_menu + interventions, teacher_decisions=decisions,
+        teacher_actions_per_min=round((own_menu + interventions + decisions) / minutes, 4),
+        accepted=n(by_teacher, "accepted"), rejected=n(by_teacher, "rejected", "forbidden"),
+        timed_out=n(in_lesson, "timed_out_executed"),
+        robot_executed=sum(o.outcome == "accepted" and o.decided_by == "autonomy" for o in in_lesson),
+        superseded=n(in_lesson, "superseded"), dropped=n(in_lesson, "dropped"), interventions=interventions,
+        effectiveness=round(len(finite) / len(latencies), 4) if latencies else None)
+
+
+def read_classroom(path: Path, lesson_s: float) -> ClassroomTimeline:
+    """A lesson's timeline from its session recording; ValueError when the recording has no lesson start."""
+    t0: float | None = None
+    heads: list[tuple[float, float]] = []
+    outcomes: list[tuple[float, dict[str, Any]]] = []
+    engages: list[float] = []
+    speaking: dict[str, tuple[float, float]] = {}
+    speeches: list[tuple[str, float, float, float]] = []
+    last = 0.0
+    for rec in read_recording(path):
+        t = rec.time_ns * 1e-9
+        last = t
+        topic = rec.topic
+        if topic == names.JOINT_STATE_TOPIC:
+            joints = dict(zip(rec.data.get("name", []), rec.data.get("position", [])))
+            if "HeadYaw" in joints:
+                heads.append((t, float(joints["HeadYaw"])))
+        elif topic == names.SIM_BYSTANDERS_TOPIC:
+            for b in rec.data.get("bystanders", []):
+                who = b["name"]
+                if b["speaking"] and who not in speaking:
+                    speaking[who] = (t, float(b["yaw"]))
+                elif not b["speaking"] and who in speaking:
+                    onset, yaw = speaking.pop(who)
+                    speeches.append((who, onset, t, yaw))
+        elif topic == names.AUTONOMY_OUTCOMES_TOPIC:
+            outcomes.append((t, rec.data))
+        elif topic == names.EVENT_TOPIC:
+            kind = rec.data.get("kind")
+            if kind == EventKind.AUTONOMY_LEVEL.value and t0 is None:
+                detail = json.loads(rec.data.get("detail") or "{}")
+                if detail.get("by") not in (None, "", "server"):
+                    t0 = t
+            elif kind == EventKind.ENGAGE.value and rec.data.get("source") == "teleop" and t0 is not None:
+                engages.append(t)  # taking control once the lesson has begun (in teleoperated she took it before)
+    if t0 is None:
+        raise ValueError(f"{path}: no lesson start (the teacher's autonomy level choice) in the recording")
+    for who, (onset, yaw) in speaking.items():
+        speeches.append((who, onset, last, yaw))
+    level_engages = [t - t0 for t in engages]
+    return ClassroomTimeline(
+        lesson_s=lesson_s,
+        speeches=sorted((Speech(w, a - t0, b - t0, y) for w, a, b, y in speeches), key=lambda s: s.onset),
+        heads=[(t - t0, y) for t, y in heads],
+        outcomes=[Outcome(t - t0, str(o.get("outcome", "")), str(o.get("decided_by", ""))) for t, o in outcomes],
+        interventions=level_engages)
+
+
+def classroom_summary(title: str, r: ClassroomResult) -> str:
+    def f(x: float | None, unit: str = "") -> str:
+        return "n/a" if x is None else f"{x:.2f}{unit}"
+
+    return "\n".join([
+        f"{title}: {r.lesson_s:.0f} s lesson, {r.speeches} speeches ({r.never_looked_at} never looked at)",
+        f"  onset to look  mean {f(r.onset_to_look_mean_s, ' s')}  p95 {f(r.onset_to_look_p95_s, ' s')}  "
+        f"speech attended {f(r.share_attended)}  effectiveness {f(r.effectiveness)}",
+        f"  teacher        {r.teacher_actions_per_min:.2f} actions/min ({r.teacher_own} her own, "
+        f"{r.teacher_decisions} decisions), {r.interventions} interventions",
+        f"  proposals      accepted {r.accepted}  rejected {r.rejected}  timed out {r.timed_out}  done by the robot "
+        f"{r.robot_executed}  superseded {r.superseded}  dropped {r.dropped}",
+    ])
