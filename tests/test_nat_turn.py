@@ -161,9 +161,12 @@ def drive(origin: str, take_control: bool, until: str = "", home: Path | None = 
             page.get_by_role("button", name="Enter VR").click()
             page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
                                    timeout=WAIT_MS)
-            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
-            time.sleep(0.3)
-            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
+            # held for a few of the page's XR frames, which is when it reads the buttons (a 0.3 s press fell between
+            # two frames of a page drawn at 3 fps on a busy machine, and control was never taken)
+            for value in (1, 0):
+                page.evaluate(f"xrDevice.controllers.right.updateButtonValue('trigger', {value})")
+                seen = page.evaluate("window.operator.state.frameCount")
+                page.wait_for_function(f"window.operator.state.frameCount > {seen + 2}", timeout=WAIT_MS)
             page.wait_for_function("document.getElementById('hud-control')?.textContent"
                                    ".startsWith('YOU HAVE CONTROL')", timeout=WAIT_MS)
             page.evaluate("xrDevice.quaternion.set(0, Math.sin(0.2), 0, Math.cos(0.2))")

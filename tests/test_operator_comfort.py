@@ -17,7 +17,7 @@ from PIL import Image, ImageStat
 
 from support import wait_for
 from test_operator_page import (SLOW, close_page, enter_vr, frames, open_page, press, screenshot, set_head, settles,
-                                take_control)
+                                take_control, take_control_by_key)
 from test_operator_page import iwer  # noqa: F401  (the fixture)
 
 COMFORT = "window.operator.comfort.snapshot()"
@@ -145,9 +145,7 @@ def test_the_address_and_the_checkbox_switch_it_on_the_flat_page(browser, sim_se
     page = open_page(browser, sim_server, camera="jpeg&vignette=off")
     try:
         assert not page.is_checked("#vignette") and not comfort(page)["enabled"]
-        page.keyboard.press("e")
-        page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('YOU HAVE CONTROL')",
-                               timeout=SLOW)
+        take_control_by_key(page)
         # mouse-look 85 degrees to the left (0.25 degrees a pixel): past HeadYaw's limit
         page.mouse.move(880, 300)
         page.mouse.down()

@@ -76,6 +76,16 @@ def press(page, hand: str, button: str) -> None:
     frames(page)
 
 
+def take_control_by_key(page) -> None:
+    """E takes control, as the page's help says, once the page shows that nobody holds it: the page needs the
+    control state first, and a page a module's earlier test closed may still be letting go of it on a busy
+    machine (E pressed before then was refused, and the wait for control ran out under two test workers)."""
+    control = "(document.getElementById('hud-control')?.textContent ?? '')"
+    page.wait_for_function(f"{control}.startsWith('no one in control')", timeout=SLOW)
+    page.keyboard.press("e")
+    page.wait_for_function(f"{control}.startsWith('YOU HAVE CONTROL')", timeout=SLOW)
+
+
 def set_head(page, yaw_left_deg: float, pitch_up_deg: float = 0.0) -> None:
     """WebXR: +y up, -z forward; turning left is positive about +y, looking down negative about +x."""
     q = Rotation.from_euler("YX", [yaw_left_deg, pitch_up_deg], degrees=True).as_quat()
@@ -336,9 +346,7 @@ def test_the_flat_view_drives_the_head_with_the_mouse(browser, sim_server):
     page = open_page(browser, sim_server, viewport={"width": 1000, "height": 640})
     try:
         assert page.get_by_role("button", name="Enter VR").is_disabled()  # no headset: the flat view
-        page.keyboard.press("e")  # E takes control, as the page's help says
-        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('YOU HAVE CONTROL')",
-                               timeout=SLOW)
+        take_control_by_key(page)
         page.mouse.move(500, 300)
         page.mouse.down()
         for i in range(1, 11):
@@ -369,16 +377,18 @@ def test_the_hud_shows_the_links_quality_and_warns_after_a_hold(browser, sim_ser
     page stalls long enough for the watchdog to hold the robot, it warns and says so."""
     page = open_page(browser, sim_server)
     try:
-        page.keyboard.press("e")
-        page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('YOU HAVE CONTROL')",
-                               timeout=SLOW)
-        # loopback: good, or degraded by a busy machine's jitter, but measured
-        page.wait_for_function("/^(link good · round trip \\d+ ms|LINK DEGRADED: .+)$/.test("
+        take_control_by_key(page)
+        # loopback: good, or degraded (or poor: a busy machine stalls the page, and the watchdog holds) but measured
+        page.wait_for_function("/^(link good · round trip \\d+ ms|LINK (DEGRADED|POOR): .+)$/.test("
                                "document.getElementById('hud-link')?.textContent ?? '')", timeout=SLOW)
-        # the page's thread busy for 1.5 s: no poses, the watchdog (ceiling 0.5 s) holds the robot
+        holds = page.evaluate("window.operator.state.link?.watchdog_holds ?? 0")
+        # the page's thread busy for 1.5 s: no poses, the watchdog (ceiling 0.5 s) holds the robot once more (a busy
+        # machine may have made it hold before: the count goes up by this one, whatever it was; its failure in CI
+        # under two test workers waited for "held 1 time" while the line said more)
         page.evaluate("() => { const t = performance.now(); while (performance.now() - t < 1500) {} }")
-        page.wait_for_function("/held 1 time in the last minute/.test(document.getElementById('hud-link')?.textContent"
-                               " ?? '')", timeout=SLOW)
+        page.wait_for_function(f"(window.operator.state.link?.watchdog_holds ?? 0) > {holds} && /held \\d+ times? in "
+                               "the last minute/.test(document.getElementById('hud-link')?.textContent ?? '')",
+                               timeout=SLOW)
         assert hud(page, "link").startswith(("LINK DEGRADED: ", "LINK POOR: "))
         assert page.get_attribute("#hud-link", "class") in ("warning", "error")
         assert page.errors == []
