@@ -307,8 +307,11 @@ def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,
 
     async def main() -> tuple[Collected, float]:
         server = TeleopServer(base.model_copy(update={"port": 0, "backend": "sim", "host": "127.0.0.1",
-                                                   # the session as it was: no autonomous moves of the robot's own
-                                                   "autonomy": "teleoperated"}), clock)
+                                                   # the session as it was: no autonomous moves of the robot's own,
+                                                   # no simulated pupils' lines (the recording has its own; each
+                                                   # line is an espeak-ng render the simulated clock waits for:
+                                                   # x7.3 against x10.3 without them)
+                                                   "autonomy": "teleoperated", "bystander_interval": 0}), clock)
         async with server:
             return await run_replay(steps, "", 1.0, camera=camera, progress=progress,
                                     connection=server.transport.connect_local, pose_frames=True)
