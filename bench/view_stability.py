@@ -29,7 +29,6 @@ import asyncio
 import json
 import math
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -44,12 +43,9 @@ sys.path.insert(0, str(ROOT))
 
 from client_protocol import names  # noqa: E402
 from netem import Emulator, available, cleanup_leftovers, load_profiles  # noqa: E402
+from testbed.pages import operator_in_namespace  # noqa: E402
 
 PORT = 9090
-IWER = ROOT / "node_modules" / "iwer" / "build" / "iwer.min.js"
-INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
-                   "window.xrDevice.installRuntime({forceInstall: true});")
-READY = "window.operator && window.operator.ros.connected && window.operator.state.teleop"
 AMPLITUDE_DEG = 30.0
 PEAK_DEG_S = 60.0
 FREQUENCY = PEAK_DEG_S / (2 * math.pi * AMPLITUDE_DEG)
@@ -150,40 +146,30 @@ def drive(origin: str, seconds: float) -> dict:
     from playwright.sync_api import sync_playwright
 
     out: dict = {"trace": []}
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=[
-            "--no-sandbox", "--enable-unsafe-swiftshader", f"--unsafely-treat-insecure-origin-as-secure={origin}"])
-        try:
-            page = browser.new_context(viewport={"width": 960, "height": 600}).new_page()
-            errors: list[str] = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.add_init_script(path=str(IWER))
-            page.add_init_script(script=INSTALL_HEADSET)
-            page.goto(f"{origin}/operator#camera=webrtc")
-            page.wait_for_function(READY, timeout=WAIT_MS)
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=WAIT_MS)
-            page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.poses.open",
-                                   timeout=WAIT_MS)
-            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 1)")
-            time.sleep(0.3)
-            page.evaluate("xrDevice.controllers.right.updateButtonValue('trigger', 0)")
-            page.wait_for_function("document.getElementById('hud-control')?.textContent"
-                                   ".startsWith('YOU HAVE CONTROL')", timeout=WAIT_MS)
-            frames0 = page.evaluate("window.operator.state.frameCount")
-            page.evaluate(MOTION)
-            start = time.monotonic()
-            while time.monotonic() - start < seconds:
-                time.sleep(min(5.0, seconds - (time.monotonic() - start)))
-                out["trace"] += page.evaluate("window.operator.camera.trace.splice(0)")
-            out["xr_fps"] = round((page.evaluate("window.operator.state.frameCount") - frames0) / seconds, 1)
-            ages = page.evaluate("window.operator.camera.ages.slice(-300)")
-            out["frame_age_ms_p50"] = round(float(np.median(ages)) * 1e3, 1) if ages else None
-            out["poses_received"] = page.evaluate("window.operator.camera.rtpPoses.received")
-            out["page_errors"] = errors
-        finally:
-            browser.close()
+    with sync_playwright() as p, operator_in_namespace(p, origin, "webrtc", {"width": 960, "height": 600},
+                                                       WAIT_MS) as (page, errors):
+        page.get_by_role("button", name="Enter VR").click()
+        page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                               timeout=WAIT_MS)
+        page.wait_for_function("window.operator.camera.path === 'WebRTC' && window.operator.poses.open",
+                               timeout=WAIT_MS)
+        for value in (1, 0):  # held for a few XR frames, which is when the page reads the buttons
+            page.evaluate(f"xrDevice.controllers.right.updateButtonValue('trigger', {value})")
+            seen = page.evaluate("window.operator.state.frameCount")
+            page.wait_for_function(f"window.operator.state.frameCount > {seen + 2}", timeout=WAIT_MS)
+        page.wait_for_function("document.getElementById('hud-control')?.textContent"
+                               ".startsWith('YOU HAVE CONTROL')", timeout=WAIT_MS)
+        frames0 = page.evaluate("window.operator.state.frameCount")
+        page.evaluate(MOTION)
+        start = time.monotonic()
+        while time.monotonic() - start < seconds:
+            time.sleep(min(5.0, seconds - (time.monotonic() - start)))
+            out["trace"] += page.evaluate("window.operator.camera.trace.splice(0)")
+        out["xr_fps"] = round((page.evaluate("window.operator.state.frameCount") - frames0) / seconds, 1)
+        ages = page.evaluate("window.operator.camera.ages.slice(-300)")
+        out["frame_age_ms_p50"] = round(float(np.median(ages)) * 1e3, 1) if ages else None
+        out["poses_received"] = page.evaluate("window.operator.camera.rtpPoses.received")
+        out["page_errors"] = errors
     return out
 
 
