@@ -37,7 +37,6 @@ import json
 import math
 import os
 import shutil
-import socket
 import statistics
 import subprocess
 import sys
@@ -48,7 +47,11 @@ from pathlib import Path
 from websockets.sync.client import connect
 
 ROOT = Path(__file__).resolve().parent.parent
-IWER = ROOT / "node_modules" / "iwer" / "build" / "iwer.min.js"
+sys.path.insert(0, str(ROOT))
+
+from testbed.pages import INSTALL_HEADSET, IWER, READY  # noqa: E402
+from testbed.processes import free_port  # noqa: E402
+
 PACED_FRAMES = """(() => {
   const period = 1000 / %(rate)s;
   const queue = new Map();
@@ -66,14 +69,22 @@ PACED_FRAMES = """(() => {
   window.requestAnimationFrame = (cb) => { queue.set(++ids, cb); schedule(); return ids; };
   window.cancelAnimationFrame = (id) => { queue.delete(id); };
 })();"""
-INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
-                   "window.xrDevice.installRuntime({forceInstall: true});")
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def open_paced(browser, port: int, rate: int, viewport: dict, camera: str, ready: str):
+    """The operator page in a context of its own, its animation frames paced at `rate` Hz, IWER as its headset,
+    in VR with a few camera frames shown. Returns (context, page)."""
+    context = browser.new_context(viewport=viewport)
+    page = context.new_page()
+    page.add_init_script(script=PACED_FRAMES % {"rate": rate})
+    page.add_init_script(path=str(IWER))
+    page.add_init_script(script=INSTALL_HEADSET)
+    page.goto(f"http://127.0.0.1:{port}/operator#camera={camera}")
+    page.wait_for_function(ready, timeout=60_000)
+    page.get_by_role("button", name="Enter VR").click()
+    page.wait_for_function("window.operator.state.xr !== null && window.operator.camera.uploaded > 5",
+                           timeout=60_000)
+    return context, page
 
 
 def percentile(values: list[float], p: float) -> float:
@@ -146,16 +157,8 @@ class Counter:
 
 def run_rate(browser, port: int, rate: int, seconds: float, viewport: dict, camera: str = "webrtc",
              window: float | None = None) -> dict:
-    context = browser.new_context(viewport=viewport)
-    page = context.new_page()
-    page.add_init_script(script=PACED_FRAMES % {"rate": rate})
-    page.add_init_script(path=str(IWER))
-    page.add_init_script(script=INSTALL_HEADSET)
-    page.goto(f"http://127.0.0.1:{port}/operator#camera={camera}")
-    page.wait_for_function("window.operator && window.operator.ros.connected", timeout=60_000)
-    page.get_by_role("button", name="Enter VR").click()
-    page.wait_for_function("window.operator.state.xr !== null && window.operator.camera.uploaded > 5",
-                           timeout=60_000)
+    context, page = open_paced(browser, port, rate, viewport, camera,
+                               "window.operator && window.operator.ros.connected")
     path = page.evaluate("window.operator.camera.path")
     if path.lower() != camera:
         raise RuntimeError(f"the page's camera is on {path}, not {camera}")
@@ -189,17 +192,7 @@ def run_vignette(browser, port: int, seconds: float, viewport: dict, blocks: int
     """The page at 90 Hz holding control with the robot's head trailing: per block, the vignette off or on; then on
     with the head following. Returns {"off": {...}, "on": {...}, "following": {...}} of frame and work times (ms)."""
     rate = 90
-    context = browser.new_context(viewport=viewport)
-    page = context.new_page()
-    page.add_init_script(script=PACED_FRAMES % {"rate": rate})
-    page.add_init_script(path=str(IWER))
-    page.add_init_script(script=INSTALL_HEADSET)
-    page.goto(f"http://127.0.0.1:{port}/operator#camera=jpeg")
-    page.wait_for_function("window.operator && window.operator.ros.connected && window.operator.state.teleop",
-                           timeout=60_000)
-    page.get_by_role("button", name="Enter VR").click()
-    page.wait_for_function("window.operator.state.xr !== null && window.operator.camera.uploaded > 5",
-                           timeout=60_000)
+    context, page = open_paced(browser, port, rate, viewport, "jpeg", READY)
 
     def frames(n: int) -> None:
         start = page.evaluate("window.operator.state.frameCount")
