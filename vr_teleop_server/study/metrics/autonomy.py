@@ -29,12 +29,46 @@ HUMAN_DECISIONS = ("accepted", "rejected", "forbidden")
 ROBOT_OUTCOMES = ("accepted", "rejected", "forbidden", "timed_out_executed", "superseded", "dropped")
 
 
-def _percentile(values: list[float], q: float) -> float | None:
+def percentile(values: list[float], q: float) -> float | None:
     """None when there are no values, or when the percentile falls on a never (infinite) one."""
     if not values:
         return None
     value = float(np.percentile(values, q, method="higher"))
     return round(value, 4) if math.isfinite(value) else None
+
+
+class HeadAndSpeech:
+    """What attention is judged on, followed through a recording (here and in metrics/classroom.py): the head's yaw
+    from the joint states, and each simulated pupil's speech (onset, end, direction) from /sim/bystanders."""
+
+    def __init__(self) -> None:
+        self.heads: list[tuple[float, float]] = []  # (t, HeadYaw)
+        self.speeches: list[tuple[str, float, float, float]] = []  # (name, onset, end, yaw)
+        self._speaking: dict[str, tuple[float, float]] = {}  # name -> (onset, yaw) while speaking
+
+    def take(self, topic: str, t: float, data: dict[str, Any]) -> bool:
+        """Follows one record; whether it was one of the two topics."""
+        if topic == names.JOINT_STATE_TOPIC:
+            joints = dict(zip(data.get("name", []), data.get("position", [])))
+            if "HeadYaw" in joints:
+                self.heads.append((t, float(joints["HeadYaw"])))
+            return True
+        if topic == names.SIM_BYSTANDERS_TOPIC:
+            for b in data.get("bystanders", []):
+                name = b["name"]
+                if b["speaking"] and name not in self._speaking:
+                    self._speaking[name] = (t, float(b["yaw"]))
+                elif not b["speaking"] and name in self._speaking:
+                    onset, yaw = self._speaking.pop(name)
+                    self.speeches.append((name, onset, t, yaw))
+            return True
+        return False
+
+    def end(self, last: float) -> None:
+        """The recording ended at `last`: whoever is still speaking stops there."""
+        for name, (onset, yaw) in self._speaking.items():
+            self.speeches.append((name, onset, last, yaw))
+        self._speaking.clear()
 
 
 def autonomy_metrics(path: Path, until: float | None = None) -> dict[str, Any]:
@@ -44,13 +78,13 @@ def autonomy_metrics(path: Path, until: float | None = None) -> dict[str, Any]:
     proposals = 0
     outcomes: list[dict[str, Any]] = []
     levels: list[dict[str, Any]] = []
-    heads: list[tuple[float, float]] = []  # (t, HeadYaw)
-    speaking: dict[str, tuple[float, float]] = {}  # name -> (onset, yaw) while speaking
-    speeches: list[tuple[str, float, float, float]] = []  # (name, onset, end, yaw)
+    follow = HeadAndSpeech()
     for rec in read_recording(path):
         t = rec.time_ns * 1e-9
         first = t if first is None else first
         last = t
+        if follow.take(rec.topic, t, rec.data):
+            continue
         if rec.topic == names.AUTONOMY_PROPOSALS_TOPIC:
             proposals += 1
         elif rec.topic == names.AUTONOMY_OUTCOMES_TOPIC:
@@ -58,22 +92,10 @@ def autonomy_metrics(path: Path, until: float | None = None) -> dict[str, Any]:
         elif rec.topic == names.EVENT_TOPIC and rec.data.get("source") == "autonomy" \
                 and rec.data.get("kind") == EventKind.AUTONOMY_LEVEL.value:
             levels.append({"t": round(t - first, 3), **json.loads(rec.data.get("detail") or "{}")})
-        elif rec.topic == names.JOINT_STATE_TOPIC:
-            joints = dict(zip(rec.data.get("name", []), rec.data.get("position", [])))
-            if "HeadYaw" in joints:
-                heads.append((t, float(joints["HeadYaw"])))
-        elif rec.topic == names.SIM_BYSTANDERS_TOPIC:
-            for b in rec.data.get("bystanders", []):
-                name = b["name"]
-                if b["speaking"] and name not in speaking:
-                    speaking[name] = (t, float(b["yaw"]))
-                elif not b["speaking"] and name in speaking:
-                    onset, yaw = speaking.pop(name)
-                    speeches.append((name, onset, t, yaw))
     if first is None or last is None:
         raise ValueError(f"{path}: an empty recording")
-    for name, (onset, yaw) in speaking.items():  # still speaking when the recording ended
-        speeches.append((name, onset, last, yaw))
+    follow.end(last)
+    heads, speeches = follow.heads, follow.speeches
     minutes = max(last - first, 1e-9) / 60.0
     robot = [o for o in outcomes if o.get("initiator") == "robot"]
     teacher = [o for o in outcomes if o.get("outcome") == "teacher_initiated"]
@@ -105,11 +127,11 @@ def autonomy_metrics(path: Path, until: float | None = None) -> dict[str, Any]:
         "proposals": proposals, "proposals_per_min": round(proposals / minutes, 3),
         "outcomes": counts,
         "share": {k: (round(v / len(robot), 4) if robot else None) for k, v in counts.items()},
-        "decision_s_median": _percentile(decided, 50), "decisions": len(decided),
+        "decision_s_median": percentile(decided, 50), "decisions": len(decided),
         "teacher_initiated": len(teacher), "teacher_initiated_per_min": round(len(teacher) / minutes, 3),
         "attention": {"speeches": len(latencies), "never_looked_at": missed,
-                      "onset_to_pointing_s_p50": _percentile(latencies, 50),
-                      "onset_to_pointing_s_p95": _percentile(latencies, 95),
+                      "onset_to_pointing_s_p50": percentile(latencies, 50),
+                      "onset_to_pointing_s_p95": percentile(latencies, 95),
                       "speech_time_looked_at": round(looked / spoken, 4) if spoken else None,
                       "pointing_deg": POINTING_DEG},
     }

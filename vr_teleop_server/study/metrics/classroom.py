@@ -33,7 +33,7 @@ from client_protocol import names
 from client_protocol.events import EventKind
 
 from ...recording.format import read_recording
-from .autonomy import POINTING_DEG, REACH_S
+from .autonomy import POINTING_DEG, REACH_S, HeadAndSpeech, percentile
 
 DECIDED_BY_MACHINE = ("timeout", "autonomy", "server")
 
@@ -101,13 +101,6 @@ CLASSROOM_METRICS = ("onset_to_look_mean_s", "onset_to_look_p95_s", "share_atten
                      "accepted", "rejected", "timed_out", "interventions", "effectiveness")
 
 
-def _percentile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    value = float(np.percentile(values, q, method="higher"))
-    return round(value, 4) if math.isfinite(value) else None
-
-
 def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
     times = np.array([h[0] for h in tl.heads], dtype=float)
     yaws = np.array([h[1] for h in tl.heads], dtype=float)
@@ -150,7 +143,7 @@ def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
     return ClassroomResult(
         lesson_s=tl.lesson_s, speeches=len(latencies), never_looked_at=len(latencies) - len(finite),
         onset_to_look_mean_s=round(sum(finite) / len(finite), 4) if finite else None,
-        onset_to_look_p95_s=_percentile(latencies, 95),
+        onset_to_look_p95_s=percentile(latencies, 95),
         share_attended=round(looked / spoken, 4) if spoken else None,
         teacher_own=own_menu + interventions, teacher_decisions=decisions,
         teacher_actions_per_min=round((own_menu + interventions + decisions) / minutes, 4),
@@ -164,29 +157,17 @@ def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
 def read_classroom(path: Path, lesson_s: float) -> ClassroomTimeline:
     """A lesson's timeline from its session recording; ValueError when the recording has no lesson start."""
     t0: float | None = None
-    heads: list[tuple[float, float]] = []
+    follow = HeadAndSpeech()
     outcomes: list[tuple[float, dict[str, Any]]] = []
     engages: list[float] = []
-    speaking: dict[str, tuple[float, float]] = {}
-    speeches: list[tuple[str, float, float, float]] = []
     last = 0.0
     for rec in read_recording(path):
         t = rec.time_ns * 1e-9
         last = t
         topic = rec.topic
-        if topic == names.JOINT_STATE_TOPIC:
-            joints = dict(zip(rec.data.get("name", []), rec.data.get("position", [])))
-            if "HeadYaw" in joints:
-                heads.append((t, float(joints["HeadYaw"])))
-        elif topic == names.SIM_BYSTANDERS_TOPIC:
-            for b in rec.data.get("bystanders", []):
-                who = b["name"]
-                if b["speaking"] and who not in speaking:
-                    speaking[who] = (t, float(b["yaw"]))
-                elif not b["speaking"] and who in speaking:
-                    onset, yaw = speaking.pop(who)
-                    speeches.append((who, onset, t, yaw))
-        elif topic == names.AUTONOMY_OUTCOMES_TOPIC:
+        if follow.take(topic, t, rec.data):
+            continue
+        if topic == names.AUTONOMY_OUTCOMES_TOPIC:
             outcomes.append((t, rec.data))
         elif topic == names.EVENT_TOPIC:
             kind = rec.data.get("kind")
@@ -198,8 +179,8 @@ def read_classroom(path: Path, lesson_s: float) -> ClassroomTimeline:
                 engages.append(t)  # taking control once the lesson has begun (in teleoperated she took it before)
     if t0 is None:
         raise ValueError(f"{path}: no lesson start (the teacher's autonomy level choice) in the recording")
-    for who, (onset, yaw) in speaking.items():
-        speeches.append((who, onset, last, yaw))
+    follow.end(last)
+    heads, speeches = follow.heads, follow.speeches
     level_engages = [t - t0 for t in engages]
     return ClassroomTimeline(
         lesson_s=lesson_s,
