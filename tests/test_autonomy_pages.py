@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from support import RawClient, RunningServer, wait_for
-from test_operator_page import INSTALL_HEADSET, IWER, READY, SLOW, enter_vr, frames, press
+from test_operator_page import INSTALL_HEADSET, IWER, READY, SLOW, choose_in_menu, enter_vr, frames, press
 from vr_teleop_server.features.autonomy.learner import Situation
 from vr_teleop_server.settings import ServerSettings
 
@@ -238,13 +238,7 @@ def test_the_attention_target_is_drawn_and_the_status_menu_switches_the_level(br
 
         # Status (X) › Autonomy (the list item, on the top-left diagonal) › Teleoperated (left), by the left stick
         page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
-        press(page, "left", "x-button")
-        page.wait_for_function("document.getElementById('menu-title').textContent === 'Status'", timeout=SLOW)
-        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', -0.7, -0.7)")
-        page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
-                               " === 'status.autonomy'", timeout=SLOW)
-        page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
-        press(page, "left", "trigger")
+        choose_in_menu(page, "left", "x-button", "Status", (-0.7, -0.7), "status.autonomy")
         page.wait_for_function("document.getElementById('menu-title').textContent === 'Status › Autonomy'",
                                timeout=SLOW)
         page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', -1, 0)")

@@ -16,8 +16,8 @@ import math
 from PIL import Image, ImageStat
 
 from support import wait_for
-from test_operator_page import (SLOW, close_page, enter_vr, frames, open_page, press, screenshot, set_head, settles,
-                                take_control, take_control_by_key)
+from test_operator_page import (SLOW, choose_in_menu, close_page, enter_vr, frames, open_page, press, screenshot,
+                                set_head, settles, take_control, take_control_by_key)
 from test_operator_page import iwer  # noqa: F401  (the fixture)
 
 COMFORT = "window.operator.comfort.snapshot()"
@@ -52,13 +52,7 @@ def brightness(page) -> tuple[float, float]:
 
 def select_vignette(page) -> None:
     """Status (X) › Vignette: the second list item, on the top-right diagonal; by the left stick and trigger."""
-    press(page, "left", "x-button")
-    page.wait_for_function("document.getElementById('menu-title').textContent === 'Status'", timeout=SLOW)
-    page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0.7, -0.7)")
-    page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
-                           " === 'status.vignette'", timeout=SLOW)
-    page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
-    press(page, "left", "trigger")
+    choose_in_menu(page, "left", "x-button", "Status", (0.7, -0.7), "status.vignette")
 
 
 def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_where_it_looks(browser, iwer,

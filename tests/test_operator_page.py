@@ -86,6 +86,17 @@ def take_control_by_key(page) -> None:
     page.wait_for_function(f"{control}.startsWith('YOU HAVE CONTROL')", timeout=SLOW)
 
 
+def choose_in_menu(page, hand: str, button: str, title: str, stick: tuple[float, float], item: str) -> None:
+    """Opens the menu on `hand`'s `button` (titled `title`), points its stick at `item` and pulls the trigger."""
+    press(page, hand, button)
+    page.wait_for_function(f"document.getElementById('menu-title').textContent === {title!r}", timeout=SLOW)
+    page.evaluate(f"xrDevice.controllers.{hand}.updateAxes('thumbstick', {stick[0]}, {stick[1]})")
+    page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
+                           f" === {item!r}", timeout=SLOW)
+    page.evaluate(f"xrDevice.controllers.{hand}.updateAxes('thumbstick', 0, 0)")
+    press(page, hand, "trigger")
+
+
 def set_head(page, yaw_left_deg: float, pitch_up_deg: float = 0.0) -> None:
     """WebXR: +y up, -z forward; turning left is positive about +y, looking down negative about +x."""
     q = Rotation.from_euler("YX", [yaw_left_deg, pitch_up_deg], degrees=True).as_quat()
