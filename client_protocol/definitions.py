@@ -44,6 +44,8 @@ MESSAGES: dict[str, str] = {
         "string[] topics"
     ),
     # this server's own events
+    "vr_teleop_msgs/Clip": "string name\nfloat64 duration",
+    "vr_teleop_msgs/Clips": "# The clip library (`serve --clips DIR`), by name\nClip[] clips\nbool enabled",
     "vr_teleop_msgs/Clamp": (
         "# A joint command that did not apply as sent: clamped to limits, or ignored (motor not ON)\n"
         "Header header\nstring source\nstring[] joints\nfloat64[] requested\nfloat64[] applied\nstring[] ignored"
@@ -291,6 +293,21 @@ SERVICES: dict[str, str] = {
         "# belongs to (every connection of one operator shares it; empty when the role is not operator), the\n"
         "# value /vr_teleop/teleop_state's holder names when this operator holds control; holding: whether it does.\n"
         "---\nbool success\nstring message\nstring connection\nstring role\nstring operator\nbool holding"
+    ),
+    "vr_teleop_msgs/SetLanguage": (
+        "# The robot's language by its code (en, de, fr or lb): its voice, its sentence list and its emotions'\n"
+        "# words change together. A refusal (an unknown code, a missing sentence list) says why in message.\n"
+        "string language\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/AddClip": (
+        "# A recorded clip for the library (WAV, Ogg or MP3 bytes; name: letters, digits, - and _). Refused with\n"
+        "# the reason when too long, too loud or not decodable. Supervisor only.\n"
+        "string name\nuint8[] data\n---\nbool success\nstring message\nfloat64 duration"
+    ),
+    "vr_teleop_msgs/ClipName": (
+        "# One clip of the library by name: played through the robot (answers when it has played or was stopped),\n"
+        "# or removed from the library (supervisor only).\n"
+        "string name\n---\nbool success\nstring message"
     ),
     "vr_teleop_msgs/MenuSelect": (
         "# Run a menu item by id. args: a JSON object merged over the item's own (e.g. {\"text\": \"...\"})\n"

@@ -76,6 +76,16 @@ OPERATOR_AUDIO_TOPIC = "/vr_teleop/audio/operator"
 OPERATOR_AUDIO_INFO_TOPIC = "/vr_teleop/audio/operator/info"
 FACES_TOPIC = "/perception/faces"
 WHOAMI_SERVICE = "/vr_teleop/whoami"
+# The robot's language (features/speech.py's LANGUAGES: en, de, fr, lb): set with the service
+# (vr_teleop_msgs/SetLanguage), the one in force on the latched topic (std_msgs/String holding its code)
+SPEECH_LANGUAGE_SERVICE = "/vr_teleop/speech/set_language"
+SPEECH_LANGUAGE_TOPIC = "/vr_teleop/speech/language"
+# Voices from home (features/clips.py, `serve --clips DIR`): the library on a latched topic (vr_teleop_msgs/Clips),
+# a clip added (supervisor only; vr_teleop_msgs/AddClip), removed (supervisor only) or played through the robot
+CLIPS_TOPIC = "/vr_teleop/clips"
+CLIP_ADD_SERVICE = "/vr_teleop/clips/add"
+CLIP_REMOVE_SERVICE = "/vr_teleop/clips/remove"
+CLIP_PLAY_SERVICE = "/vr_teleop/clips/play"
 
 # ---- the robot avatar (ROS#'s URDF importer and JointStatePatcher) ------------------------------------------------
 URDF_JOINT_STATES_TOPIC = "/joint_states"  # sensor_msgs/JointState, radians, URDF joint names

@@ -35,6 +35,14 @@ class SpeechConfigArgs(_Args):
     speed: int = Field(0, ge=0, le=400, description="0 keeps the current; percent of the normal rate")
 
 
+class LanguageArgs(_Args):
+    language: Literal["en", "de", "fr", "lb"] = Field(description="English, German, French or Luxembourgish")
+
+
+class ClipArgs(_Args):
+    name: str = Field(min_length=1, description="a clip of the library (`serve --clips DIR`)")
+
+
 class GestureArgs(_Args):
     name: str = Field(min_length=1)
     speed: float = Field(1.0, ge=0.1, le=10.0, description="1 plays as recorded; the velocity caps still hold")
@@ -90,6 +98,8 @@ COMMANDS: dict[str, type[_Args]] = {
     "say": SayArgs,
     "stop_speech": NoArgs,
     "configure_speech": SpeechConfigArgs,
+    "set_language": LanguageArgs,
+    "play_clip": ClipArgs,
     "play_gesture": GestureArgs,
     "stop_gesture": NoArgs,
     "record_toggle": RecordArgs,  # start recording, or stop and save the running one

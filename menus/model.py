@@ -28,7 +28,8 @@ from client_protocol.files import load_model_file
 from .commands import COMMANDS
 
 COMPASS = ("left", "top", "right", "bottom")
-GENERATORS = ("gestures", "emotions", "sentences")
+GENERATORS = ("gestures", "emotions", "sentences", "clips")
+REFERENCE_LANGUAGE = "en"  # the sentence list whose lines name the items (speech.sentences.well_done) in every language
 PACKAGED_DIR = Path(__file__).with_name("data")
 
 
@@ -48,8 +49,9 @@ class Item(_Strict):
     command: str | None = None
     args: dict[str, Any] = Field(default_factory=dict)
     submenu: list[Item] | None = None
-    generate: Literal["gestures", "emotions", "sentences"] | None = None
-    source: str | None = Field(None, description="the sentences file, for generate: sentences")
+    generate: Literal["gestures", "emotions", "sentences", "clips"] | None = None
+    source: str | None = Field(None, description="the sentences file, for generate: sentences (sentences.txt stands "
+                               "for sentences.<language>.txt, one per language)")
 
     @model_validator(mode="after")
     def _one_kind(self) -> Item:
@@ -115,6 +117,36 @@ def read_sentences(path: Path) -> list[str]:
     return [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
 
 
+def sentences_file(source: Path, language: str) -> Path:
+    """The sentence list of `language` that `source` stands for: sentences.txt -> sentences.de.txt. English falls
+    back to the plain file (a menu directory written before languages)."""
+    path = source.with_name(f"{source.stem}.{language}{source.suffix}")
+    if language == REFERENCE_LANGUAGE and not path.exists() and source.exists():
+        return source
+    return path
+
+
+def language_sentences(source: Path, language: str) -> list[tuple[str, str]]:
+    """(reference sentence, sentence in `language`) line by line: the items keep the reference's ids in every
+    language, so autonomy rules and recordings name the same item whatever the robot speaks. MenuError names the
+    file that is missing or does not match the reference line for line."""
+    reference_path = sentences_file(source, REFERENCE_LANGUAGE)
+    path = sentences_file(source, language)
+    try:
+        reference = read_sentences(reference_path)
+        sentences = read_sentences(path)
+    except FileNotFoundError as exc:
+        raise MenuError(f"no sentence list for {language!r}: {exc.filename} is missing") from None
+    except OSError as exc:
+        raise MenuError(f"cannot read sentences: {exc}") from None
+    if not reference:
+        raise MenuError(f"{reference_path} holds no sentences")
+    if len(sentences) != len(reference):
+        raise MenuError(f"{path} holds {len(sentences)} sentences and {reference_path} {len(reference)}: each "
+                        "language's list has the same sentences, line by line")
+    return list(zip(reference, sentences))
+
+
 class LoadedMenu:
     def __init__(self, path: Path, data: MenuFile) -> None:
         self.path = path
@@ -148,12 +180,10 @@ def load_menu_file(path: Path) -> LoadedMenu:
     data = load_model_file(MenuFile, path, error=MenuError, place=_item_place)
     for _parent, _pos, item in walk(data.items, data.menu.id):
         if item.source is not None:
-            source = path.parent / item.source
             try:
-                if not read_sentences(source):
-                    raise MenuError(f"{path}: item {item.id!r}: {source} holds no sentences")
-            except OSError as exc:
-                raise MenuError(f"{path}: item {item.id!r}: cannot read sentences: {exc}") from None
+                language_sentences(path.parent / item.source, REFERENCE_LANGUAGE)
+            except MenuError as exc:
+                raise MenuError(f"{path}: item {item.id!r}: {exc}") from None
     return LoadedMenu(path, data)
 
 

@@ -60,7 +60,7 @@ BAD_FILES = [
     ("- {id: a, label: A}\n", "item 'a'", "exactly one of command, submenu or generate"),
     ("- {id: a, label: A, command: estop, colour: red}\n", "item 'a'", "colour"),
     ("- {id: a, label: A, submenu: [{id: b, label: B, command: say, args: {}}]}\n", "item 'b'", "text"),
-    ("- {id: a, label: A, generate: sentences, source: missing.txt}\n", "item 'a'", "cannot read sentences"),
+    ("- {id: a, label: A, generate: sentences, source: missing.txt}\n", "item 'a'", "missing.en.txt is missing"),
     ("- {id: a, label: A, command: estop}\n- {id: a, label: B, command: estop}\n", "item 'a'", "duplicate id"),
     ("- {id: a, label: A, command: estop\n", "", "not valid YAML"),  # as every data file (client_protocol/files)
     ("- {label: A, command: estop}\n", "item #1", "id: Field required"),

@@ -30,6 +30,7 @@ from .features.luxai_api import LuxaiApi
 from .features.menu_service import MenuService, check_commands_implemented
 from .features.motivation import Motivation
 from .features.motivation import load_config as load_motivation_config
+from .features.clips import ClipLibrary
 from .features.speech import OperatorVoiceIn, Speaker, default_audio_dir
 from .features.status import StatusPublisher
 from .media import MediaService
@@ -169,6 +170,8 @@ class TeleopServer:
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
+        clips = ClipLibrary(self.bus, speaker, s.clips)
+        self._start(clips)
         self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners)
         self._start(self.luxai)
         self.control = ExplicitControl(
@@ -185,7 +188,11 @@ class TeleopServer:
         panels = {"hardware": status.hardware, "motors": status.motors, "dialog": status.dialog,
                   "motivation": motivation.message}
         menu = MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
-                           status=lambda which: panels[which](), luxai=self.luxai)
+                           status=lambda which: panels[which](), luxai=self.luxai, language=lambda: speaker.language,
+                           clips=clips.names)
+        speaker.language_checks.append(menu.check_language)  # a missing sentence list refuses the switch
+        speaker.language_changed.append(menu.publish)
+        clips.changed.append(menu.publish)
         self._start(menu)
         check_actions(self.autonomy_rules, menu.ids(), s.autonomy_rules)
         if s.backend == "sim":  # the stand-in's simulated pupils (simulation only)

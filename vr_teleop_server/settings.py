@@ -47,6 +47,10 @@ class ServerSettings(CoreSettings):
     audio_dir: Annotated[Path | None, Cli("files", metavar="DIR")] = Field(
         None, description="where the operator's voice is logged, one WAV per client (default: a temporary "
                           "directory)")
+    clips: Annotated[Path | None, Cli("files", metavar="DIR")] = Field(
+        None, description="the voices from home: a directory of recorded clips (WAV, Ogg or MP3, at most 60 s) the "
+                          "robot plays from the speech menu and the dashboard, where a supervisor adds them; none: "
+                          "no clips are kept")
     motivation_config: Annotated[Path | None, Cli("files", metavar="FILE")] = Field(
         None, description="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
     bystander_interval: Annotated[float, Cli("sim", metavar="S")] = Field(

@@ -31,7 +31,8 @@ READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, nam
                       names.CLOCK_SERVICE,
                       names.WHOAMI_SERVICE, names.FILE_SERVER_SERVICE}
 # What only a supervisor may do on top of an operator.
-SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE}
+SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE, names.CLIP_ADD_SERVICE,
+                            names.CLIP_REMOVE_SERVICE}
 READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}
 
 

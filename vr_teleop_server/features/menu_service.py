@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from client_protocol import names
 from client_protocol.events import EventKind, EventLevel, MenuFailure, MenuSelection
-from menus import COMMANDS, Item, LoadedMenu, read_sentences, walk
+from menus import COMMANDS, REFERENCE_LANGUAGE, Item, LoadedMenu, language_sentences, walk
 from robot_models.types import MotorMode
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -40,13 +40,16 @@ def _slug(text: str) -> str:
 class MenuService:
     def __init__(self, bus: Bus, menus: list[LoadedMenu], *, gestures: Callable[[], list[str]],
                  emotions: tuple[str, ...], status: Callable[[str], dict[str, Any]],
-                 luxai: Any | None) -> None:
+                 luxai: Any | None, language: Callable[[], str] = lambda: REFERENCE_LANGUAGE,
+                 clips: Callable[[], list[str]] = list) -> None:
         self.bus = bus
         self.menus = menus
         self._gestures = gestures
         self._emotions = emotions
         self._status = status
         self._luxai_api = luxai  # gesture recording (start_recording / save_recording / recording) and its news
+        self._language = language  # the robot's language: the sentences are that language's list
+        self._clips = clips
         self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
         self._labels: dict[str, str] = {}
         self._arms_on = True
@@ -70,15 +73,17 @@ class MenuService:
     def _generated(self, item: Item, menu: LoadedMenu) -> list[tuple[str, str, str, dict[str, Any]]]:
         """(id, label, command, args) of the items a `generate` item stands for."""
         if item.generate == "gestures":
-            rows = [(name, "play_gesture", {"name": name}) for name in self._gestures()]
+            rows = [(name, name, "play_gesture", {"name": name}) for name in self._gestures()]
         elif item.generate == "emotions":
-            rows = [(name, "show_emotion", {"name": name}) for name in self._emotions]
+            rows = [(name, name, "show_emotion", {"name": name}) for name in self._emotions]
+        elif item.generate == "clips":
+            rows = [(name, name, "play_clip", {"name": name}) for name in self._clips()]
         else:
-            sentences = read_sentences(menu.path.parent / str(item.source))
-            rows = [(text, "say", {"text": text}) for text in sentences]
+            pairs = language_sentences(menu.path.parent / str(item.source), self._language())
+            rows = [(key, text, "say", {"text": text}) for key, text in pairs]
         out, seen = [], set()
-        for label, command, args in rows:
-            ident = f"{item.id}.{_slug(label)}"
+        for key, label, command, args in rows:
+            ident = f"{item.id}.{_slug(key)}"
             while ident in seen:
                 ident += "_"
             seen.add(ident)
@@ -110,6 +115,13 @@ class MenuService:
             "menus": [{"id": m.info.id, "label": m.info.label, "controller": m.info.controller,
                        "button": m.info.button, "icon": m.info.icon} for m in self.menus],
             "items": items}, latch=True)
+
+    def check_language(self, language: str) -> None:
+        """ValueError (MenuError) naming the file when a menu has no sentence list for `language`."""
+        for menu in self.menus:
+            for _parent, _position, item in walk(menu.items, menu.info.id):
+                if item.source is not None:
+                    language_sentences(menu.path.parent / item.source, language)
 
     def entry(self, item_id: str) -> tuple[str, str, dict[str, Any]] | None:
         """(label, command, args) of an item that runs a command, None for any other id."""
@@ -192,6 +204,12 @@ class MenuService:
     async def _do_configure_speech(self, a: Any, caller: str) -> str:
         return await self._luxai(names.SPEECH_CONFIG_SERVICE, {"language": a.language, "pitch": a.pitch,
                                                              "speed": a.speed}, caller, "speech configured")
+
+    async def _do_set_language(self, a: Any, caller: str) -> str:
+        return await self._trigger(names.SPEECH_LANGUAGE_SERVICE, {"language": a.language}, caller)
+
+    async def _do_play_clip(self, a: Any, caller: str) -> str:
+        return await self._trigger(names.CLIP_PLAY_SERVICE, {"name": a.name}, caller)
 
     async def _do_play_gesture(self, a: Any, caller: str) -> str:
         response = await self._call(names.GESTURE_PLAY_SERVICE, {"name": a.name, "speed": a.speed}, caller)

@@ -9,6 +9,16 @@ on /vr_teleop/audio/robot, paced in real time with a small lead, whose format is
 
 Every WAV the robot says is also kept in the audio log directory (robot-<time>-<text>.wav).
 
+Languages. The robot speaks one of LANGUAGES at a time (/vr_teleop/speech/set_language): espeak-ng's voice for
+that language renders what the headset hears (and the stand-in's speech), the real robot's own voice gets the
+language through its own interface (configure_speech: /qt_robot/speech/config on ROS 1, the TTS config on v3), and
+the menus follow (the sentence list of that language). The one in force is on the latched /vr_teleop/speech/language.
+
+Clips. A recorded clip (features/clips.py) plays like a sentence: it stops what is being said, the robot shows its
+talking face and gets the audio through `Robot.play_voice` at real-time pace (the stand-in's mouth follows its
+level, the ROS 1 robot's speaker topic and the v3's media stream carry it), the headset hears it, and "stop talking"
+stops it.
+
 Operator voice. Chunks on /vr_teleop/audio/operator (PCM S16LE; the format a client declares on
 /vr_teleop/audio/operator/info, else mono 16 kHz) are appended to one WAV per client in the audio log directory.
 The WAV header is rewritten with every chunk, so a crash loses nothing already received.
@@ -25,13 +35,15 @@ import tempfile
 import time
 import wave
 from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from client_protocol import names
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
-from ..robot.interface import Robot, SpeechResult
+from ..robot.interface import Robot, SpeechResult, stopped_within
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +57,25 @@ ESPEAK_PITCH = 50  # espeak-ng's normal pitch (0..99)
 # voice file, about 50 ms a render
 ESPEAK_VOICE = "gmw/en"
 ESPEAK_TIMEOUT_S = 30.0  # espeak-ng renders far faster than real time: a render this long is a hung process
+CLIP_CHUNK_S = 0.04  # a clip goes to the robot in pieces this long, at real-time pace
+
+
+@dataclass(frozen=True)
+class Language:
+    code: str  # what clients send and the sentence lists are named by (sentences.<code>.txt)
+    name: str  # in the language itself, as a menu shows it
+    espeak: str  # espeak-ng's voice file (`espeak-ng --voices`): a file, not a language, costs no voice search
+    robot: str  # the locale a QTrobot's own TTS takes (/qt_robot/speech/config, tts set_config's lang)
+
+
+LANGUAGES: dict[str, Language] = {lang.code: lang for lang in (
+    Language("en", "English", "gmw/en", "en-US"),
+    Language("de", "Deutsch", "gmw/de", "de-DE"),
+    Language("fr", "Français", "roa/fr", "fr-FR"),
+    Language("lb", "Lëtzebuergesch", "gmw/lb", "lb-LU"),
+)}
+DEFAULT_LANGUAGE = "en"
+
 # a row of `espeak-ng --voices`: Pty, Language, Age/Gender, VoiceName, File, Other Languages
 VOICE_ROW = re.compile(r"\s*\d+\s+(?P<language>\S+)\s+\S+\s+\S+\s+(?P<file>\S+)")
 
@@ -148,11 +179,47 @@ class Speaker:
         self.last_wav_path: Path | None = None
         self._stream: asyncio.Task[None] | None = None
         self._info: tuple[int, int, int] | None = None
+        self.language = DEFAULT_LANGUAGE
+        # each is called with a language code before the switch: one raising ValueError refuses it (a menu whose
+        # sentence list for that language is missing says which file)
+        self.language_checks: list[Callable[[str], None]] = []
+        self.language_changed: list[Callable[[], None]] = []  # after a switch (the menus publish their sentences)
+        self._clip_stop: asyncio.Event | None = None
 
     def start(self) -> None:
         self.bus.declare_topic(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
         self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True,
                                persistent=True)
+        self.bus.declare_topic(names.SPEECH_LANGUAGE_TOPIC, "std_msgs/String", latched=True, persistent=True)
+        self.bus.provide(names.SPEECH_LANGUAGE_SERVICE, "vr_teleop_msgs/SetLanguage", self._set_language_service)
+        self.bus.publish(names.SPEECH_LANGUAGE_TOPIC, {"data": self.language}, latch=True)
+
+    async def _set_language_service(self, request: Any) -> dict[str, Any]:
+        return {"success": True, "message": await self.set_language(request.language)}
+
+    async def set_language(self, code: str) -> str:
+        """Switch the robot's language: its own voice first (a robot that refuses it leaves everything as it was),
+        then the server's voice, then the menus. BusError says why not."""
+        code = code.strip().lower()
+        language = LANGUAGES.get(code)
+        if language is None:
+            raise BusError(f"unknown language {code!r}; the robot speaks {', '.join(LANGUAGES)} "
+                           f"({', '.join(lang.name for lang in LANGUAGES.values())})")
+        for check in self.language_checks:
+            try:
+                check(code)
+            except ValueError as exc:
+                raise BusError(f"cannot switch to {language.name}: {exc}") from None
+        await self.robot.configure_speech(language.robot, 0, 0)
+        try:
+            await self.tts.configure(language.espeak)
+        except ValueError as exc:
+            raise BusError(str(exc)) from None
+        self.language = code
+        self.bus.publish(names.SPEECH_LANGUAGE_TOPIC, {"data": code}, latch=True)
+        for changed in tuple(self.language_changed):
+            changed()
+        return f"speaking {language.name}"
 
     async def say(self, text: str) -> SpeechResult:
         if not text.strip():
@@ -176,9 +243,48 @@ class Speaker:
 
     def stop_speaking(self) -> None:
         self.robot.stop_speech()
+        if self._clip_stop is not None:
+            self._clip_stop.set()
+            self._clip_stop = None
         if self._stream is not None:
             self._stream.cancel()
             self._stream = None
+
+    async def play_clip(self, pcm: bytes, sample_rate: int) -> bool:
+        """Play a clip (mono S16LE) through the robot with its talking face; True if it played to its end, False
+        when stop_speaking() (or a new sentence or clip) cut it short."""
+        self.stop_speaking()
+        stop = self._clip_stop = asyncio.Event()
+        wav = Wav(pcm, sample_rate, 1, 2)
+        self._publish_info(wav)
+        self._show("talking")
+        stream = self._stream = asyncio.ensure_future(self._stream_audio(wav))
+        step = int(CLIP_CHUNK_S * sample_rate) * 2
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        try:
+            for i, offset in enumerate(range(0, len(pcm), step)):
+                delay = start + i * CLIP_CHUNK_S - loop.time()
+                if delay > 0 and await stopped_within(stop, delay) or stop.is_set():
+                    return False
+                self.robot.play_voice(pcm[offset:offset + step], sample_rate, 1)
+            end = start + len(pcm) / (2 * sample_rate) - loop.time()
+            return not (end > 0 and await stopped_within(stop, end)) and not stop.is_set()
+        finally:
+            superseded = self._clip_stop is not None and self._clip_stop is not stop  # a newer clip's face stays
+            if self._clip_stop is stop:
+                self._clip_stop = None
+            if stop.is_set():
+                stream.cancel()
+            if not superseded:
+                self._show("neutral")
+
+    def _show(self, emotion: str) -> None:
+        """The face a clip plays with; a robot that cannot show it now (lost) still plays the clip."""
+        try:
+            self.robot.show_emotion(emotion)
+        except Exception as exc:  # noqa: BLE001 -- the audio matters more than the face
+            log.warning("the robot could not show %s while a clip played: %s", emotion, exc)
 
     async def configure(self, language: str, pitch: int, speed: int) -> None:
         """The server's voice (what the headset hears) and the robot's own, if it has one, change together."""
