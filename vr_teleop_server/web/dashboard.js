@@ -7,6 +7,7 @@ import {CODEC_NAMES, IceErrors, RenderTimes, ServerClock, cameraMode, chooseVide
         createPeerConnection, fetchIceServers, hasTurn, mediaRoute, negotiate, onVideoFrames,
         webRtcMissing} from "./webrtc.js";
 import {AutonomyModel, attentionInImage, attentionText, outcomeText} from "./autonomy.js";
+import {language, t, translatePage} from "./i18n.js";
 
 const $ = (id) => document.getElementById(id);
 const el = (tag, props = {}, ...children) => {
@@ -25,13 +26,17 @@ function logLine(list, text, level = "info") {
   while (list.children.length > 200) list.lastChild.remove();
 }
 
+translatePage();
 function setup() {
-  $("role").textContent = token ? "token given" : "open access";
-  $("connection").textContent = "connected";
+  $("role").textContent = token ? t("role.token") : t("role.open");
+  $("connection").textContent = t("connection.connected");
   $("connection").className = "badge on";
 }
 ros.onopen = () => { setup(); startCamera(); };  // a new connection has no peer connection: negotiate again
-ros.onclose = () => { $("connection").textContent = "disconnected"; $("connection").className = "badge off"; };
+ros.onclose = () => {
+  $("connection").textContent = t("connection.disconnected");
+  $("connection").className = "badge off";
+};
 ros.onstatus = (msg) => {
   logLine($("events"), `server: ${msg.msg}`, msg.level);
   if (/\/study\/|\/decision\/|label/.test(msg.msg)) logLine($("labels"), msg.msg, msg.level);  // where it was asked
@@ -276,6 +281,70 @@ $("say-form").onsubmit = (event) => {
   if (text && sayItem) select(sayItem, JSON.stringify({text}));
   $("say-text").value = "";
 };
+
+// ---- languages and voices from home -----------------------------------------------------------------------------
+// The robot's language (/vr_teleop/speech/set_language, the one in force on its latched topic); this page's own
+// language (#lang= in the address, kept with the token); the clip library: play, stop, delete and, for a
+// supervisor, add (the file's bytes in /vr_teleop/clips/add; the server decodes and checks them and says why not).
+$("page-language").value = language;
+$("page-language").onchange = (event) => {
+  const params = new URLSearchParams(location.hash.slice(1));
+  params.set("lang", event.target.value);
+  location.hash = params.toString();
+  location.reload();  // the catalogue is read once, when the page loads
+};
+function clipResult(text, level = "info") {
+  $("clip-result").textContent = text;
+  $("clip-result").className = level === "error" ? "error-text" : "muted";
+  logLine($("events"), text, level);
+}
+for (const button of document.querySelectorAll("#robot-languages [data-language]")) {
+  button.onclick = () => ros.call(names.SPEECH_LANGUAGE_SERVICE, {language: button.dataset.language})
+    .then((r) => logLine($("events"), r.message))
+    .catch((err) => clipResult(err.message, "error"));
+}
+ros.subscribe(names.SPEECH_LANGUAGE_TOPIC, "std_msgs/String", (msg) => {
+  for (const button of document.querySelectorAll("#robot-languages [data-language]")) {
+    button.setAttribute("aria-pressed", String(button.dataset.language === msg.data));
+  }
+});
+ros.subscribe(names.CLIPS_TOPIC, "vr_teleop_msgs/Clips", (library) => {
+  $("clips-none").textContent = library.enabled ? t("voices.none") : t("voices.disabled");
+  $("clips-none").hidden = library.clips.length > 0;
+  $("clip-form").hidden = !library.enabled;
+  $("clips").replaceChildren(...library.clips.map((clip) => {
+    const play = el("button", {textContent: t("voices.play"), onclick: () =>
+      ros.call(names.CLIP_PLAY_SERVICE, {name: clip.name}, 120_000)
+        .then((r) => logLine($("events"), r.message)).catch((err) => clipResult(err.message, "error"))});
+    play.dataset.clip = clip.name;
+    const remove = el("button", {textContent: t("voices.delete"), className: "danger", onclick: () =>
+      ros.call(names.CLIP_REMOVE_SERVICE, {name: clip.name})
+        .then((r) => clipResult(r.message)).catch((err) => clipResult(err.message, "error"))});
+    return el("li", {}, el("strong", {textContent: clip.name}), " ",
+              el("span", {className: "muted", textContent: t("voices.seconds", {seconds: clip.duration.toFixed(1)})}),
+              " ", play, " ", remove);
+  }));
+});
+function base64(bytes) {
+  let binary = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) binary += String.fromCharCode(...bytes.subarray(i, i + 0x8000));
+  return btoa(binary);
+}
+$("clip-form").onsubmit = async (event) => {
+  event.preventDefault();
+  const file = $("clip-file").files[0];
+  if (!file) { clipResult(t("voices.choose_file"), "error"); return; }
+  const name = $("clip-name").value.trim() || file.name.replace(/\.[^.]*$/, "").replace(/[^A-Za-z0-9_-]+/g, "_");
+  const data = base64(new Uint8Array(await file.arrayBuffer()));
+  ros.call(names.CLIP_ADD_SERVICE, {name, data}, 60_000)
+    .then((r) => {
+      clipResult(t("voices.added", {name, seconds: r.duration.toFixed(1)}));
+      $("clip-form").reset();
+    })
+    .catch((err) => clipResult(t("voices.refused", {reason: err.message}), "error"));
+};
+$("clip-stop").onclick = () => ros.call(names.SPEECH_STOP_SERVICE)
+  .then(() => logLine($("events"), t("voices.stop"))).catch((err) => clipResult(err.message, "error"));
 
 // ---- emergency stop and control ---------------------------------------------------------------------------------
 function estop() {
