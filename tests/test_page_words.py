@@ -129,3 +129,21 @@ def _loud_wav() -> bytes:
         w.setframerate(16000)
         w.writeframes((np.sign(np.sin(np.arange(16000) / 5)) * 32767).astype("<i2").tobytes())
     return buf.getvalue()
+
+
+def test_the_operator_page_speaks_the_readers_language(browser, words_server):
+    context = browser.new_context(locale="de-AT", viewport={"width": 1000, "height": 640})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        page.goto(f"http://127.0.0.1:{words_server.port}/operator#camera=jpeg&lang=fr")  # the setting wins
+        page.wait_for_function("document.querySelector('#vr-note').textContent !== ''", timeout=60_000)
+        assert page.evaluate("document.documentElement.lang") == "fr"
+        assert page.text_content("h1") == "Opérateur QTrobot"
+        assert page.text_content("#enter-vr") == "Entrer en VR"
+        assert page.text_content("#vr-note") == "pas de casque : vue à plat"  # no headset in this browser
+        assert page.text_content("[data-i18n='operator.help.5']") == "arrêt d'urgence"
+        assert errors == []
+    finally:
+        context.close()

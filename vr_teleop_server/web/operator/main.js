@@ -16,6 +16,7 @@ import {ControllerActions} from "./controls.js";
 import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, withHandMenu} from "./hands.js";
 import {OperatorAutonomy} from "./autonomy.js";
 import {Comfort, COMMAND as COMFORT_COMMAND, optionFromAddress} from "./comfort.js";
+import {t, translatePage} from "../i18n.js";
 
 const TOPICS = {
   head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
@@ -39,6 +40,7 @@ const FLAT_LOOK_DEG_PER_PX = 0.25;
 const EYE_HEIGHT = 1.6;
 
 const $ = (id) => document.getElementById(id);
+translatePage();  // the page's words in the reader's language (../i18n.js)
 const token = new URLSearchParams(location.hash.slice(1)).get("token");
 const scheme = location.protocol === "https:" ? "wss" : "ws";
 const ros = new Rosbridge(`${scheme}://${location.host}/`, {token, idPrefix: "operator"});
@@ -736,7 +738,7 @@ async function enterVr() {
                                                                            optionalFeatures: ["hand-tracking"]});
     session.addEventListener("end", () => {
       state.xr = null;
-      $("enter-vr").textContent = "Enter VR";
+      $("enter-vr").textContent = t("operator.enter_vr");
       document.body.classList.remove("in-vr");
       menuDirty = true;
       resize();
@@ -744,7 +746,7 @@ async function enterVr() {
     await renderer.xr.setSession(session);
     state.xr = session;
     document.body.classList.add("in-vr");
-    $("enter-vr").textContent = "Exit VR";
+    $("enter-vr").textContent = t("operator.exit_vr");
     const rates = Array.from(session.supportedFrameRates || []);
     if (rates.length && session.updateTargetFrameRate) {
       const best = Math.max(...rates);
@@ -769,9 +771,7 @@ async function checkVr() {
     ok = !!navigator.xr && await navigator.xr.isSessionSupported("immersive-vr");
   } catch { /* no WebXR */ }
   button.disabled = !ok;
-  $("vr-note").textContent = ok ? "" : window.isSecureContext
-    ? "no headset: flat view"
-    : "flat view (VR needs https://: see vr-teleop cert)";
+  $("vr-note").textContent = ok ? "" : window.isSecureContext ? t("operator.no_headset") : t("operator.needs_https");
 }
 checkVr();
 
