@@ -86,6 +86,9 @@ CLIPS_TOPIC = "/vr_teleop/clips"
 CLIP_ADD_SERVICE = "/vr_teleop/clips/add"
 CLIP_REMOVE_SERVICE = "/vr_teleop/clips/remove"
 CLIP_PLAY_SERVICE = "/vr_teleop/clips/play"
+# The caller's own voice (the operator voice road) recorded as a clip: the first call starts, the next stops and keeps
+# it (std_srvs/Trigger); while it records, that voice is not played on the robot
+CLIP_RECORD_SERVICE = "/vr_teleop/clips/record"
 
 # ---- the robot avatar (ROS#'s URDF importer and JointStatePatcher) ------------------------------------------------
 URDF_JOINT_STATES_TOPIC = "/joint_states"  # sensor_msgs/JointState, radians, URDF joint names

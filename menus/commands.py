@@ -100,6 +100,7 @@ COMMANDS: dict[str, type[_Args]] = {
     "configure_speech": SpeechConfigArgs,
     "set_language": LanguageArgs,
     "play_clip": ClipArgs,
+    "record_clip": NoArgs,  # start recording the selecting client's voice as a clip, or stop and keep it
     "play_gesture": GestureArgs,
     "stop_gesture": NoArgs,
     "record_toggle": RecordArgs,  # start recording, or stop and save the running one

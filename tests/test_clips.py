@@ -9,6 +9,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import re
 import threading
 import wave
 
@@ -16,7 +17,7 @@ import av
 import numpy as np
 import pytest
 import roslibpy
-from operator_voice import pitch
+from operator_voice import VoiceSender, logged, pitch, tone
 from testbed.luxai_hub import FakeQtrobotV3
 from testbed.ros1_rosbridge import Ros1QTrobot
 from support import Watch, call, refused, wait_for
@@ -226,3 +227,29 @@ def test_a_clip_reaches_the_v3_robots_media_stream(servers, tmp_path):
             ros.close()
     finally:
         hub.stop()
+
+
+def test_the_teacher_records_a_clip_from_her_voice_and_the_robot_does_not_play_it(sim):
+    """The operator voice road (a client's AudioData at 48 kHz stereo, as its AudioInfo says) recorded from the
+    speech menu's Record a clip: the first selection starts, the second keeps the clip, checked as any upload."""
+    server, ros = sim
+    robot = server.server.robot
+    levels: list[float] = []
+    reply = select(ros, "speech.record_clip")
+    assert reply["success"] and reply["message"].startswith("recording your voice"), reply
+    sender = VoiceSender(ros, tone(1.5, 48000, 2, amplitude=0.1), 48000, 2).start()
+    while not sender.done.is_set():  # sampled while the voice comes: the mouth must stay shut
+        levels.append(server.call(lambda: robot.voice_level))
+    assert sender.done.wait(30)
+    audio_dir = server.settings.audio_dir
+    assert wait_for(lambda: len(logged(audio_dir)[2]) >= 1.5 * 48000 * 4, 30)  # every chunk has come
+    reply = select(ros, "speech.record_clip")
+    assert reply["success"], reply
+    name = re.fullmatch(r"kept your 1\.5 s as clip '(recorded-\d{8}-\d{6})'", reply["message"])
+    assert name, reply
+    assert max(levels) == 0.0, "the robot played the voice being recorded"
+    assert (server.settings.clips / f"{name[1]}.wav").exists()
+    assert f"speech.clips.{name[1].replace('-', '_')}" in clip_items(ros)
+
+    assert select(ros, "speech.record_clip")["success"]  # started again, and stopped with nothing said
+    refused(select(ros, "speech.record_clip"), r"no voice came while recording")

@@ -170,8 +170,6 @@ class TeleopServer:
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
-        clips = ClipLibrary(self.bus, speaker, s.clips)
-        self._start(clips)
         self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners)
         self._start(self.luxai)
         self.control = ExplicitControl(
@@ -179,7 +177,10 @@ class TeleopServer:
             operator_of=self._operator, operator_online=self._operator_online, clock=self.clock,
             owners=self.owners)
         self._start(self.control)
-        self._start(OperatorVoiceIn(self.bus, robot, audio_dir))
+        voice = OperatorVoiceIn(self.bus, robot, audio_dir)
+        self._start(voice)
+        clips = ClipLibrary(self.bus, speaker, s.clips, voice)
+        self._start(clips)
         status = StatusPublisher(self.bus, robot)
         self._start(status)
         motivation = Motivation(self.bus, self.motivation_config)

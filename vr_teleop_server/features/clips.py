@@ -2,7 +2,9 @@
 
 The library is a directory (`serve --clips DIR`) of WAV, Ogg and MP3 files, listed on the latched /vr_teleop/clips
 and in the speech menu. A supervisor adds one from the dashboard (/vr_teleop/clips/add: the file's bytes) or removes
-one (/vr_teleop/clips/remove: the file is deleted, as a family's withdrawal asks); anyone who may run menu commands
+one (/vr_teleop/clips/remove: the file is deleted, as a family's withdrawal asks); the teacher records one from the
+headset's microphone (/vr_teleop/clips/record, twice: the operator voice road's chunks from that client are kept,
+and not played on the robot, until the second call, which checks and keeps them as any added clip); anyone who may run menu commands
 plays one (/vr_teleop/clips/play), through the Speaker (features/speech.py), which hands it to `Robot.play_voice` on
 every backend with the robot's talking face, and which "stop talking" stops.
 
@@ -19,6 +21,8 @@ import io
 import logging
 import math
 import re
+import time
+import wave
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,7 +33,7 @@ import numpy as np
 from client_protocol import names
 
 from ..core.bus import Bus, BusError
-from .speech import Speaker
+from .speech import OperatorVoiceIn, Speaker
 
 log = logging.getLogger(__name__)
 
@@ -108,10 +112,13 @@ def check_name(name: str) -> str:
 class ClipLibrary:
     """The clips in `directory` (None: no library, and adding is refused saying how to have one)."""
 
-    def __init__(self, bus: Bus, speaker: Speaker, directory: Path | None) -> None:
+    def __init__(self, bus: Bus, speaker: Speaker, directory: Path | None,
+                 voice: OperatorVoiceIn | None = None) -> None:
         self.bus = bus
         self.speaker = speaker
         self.directory = directory
+        self.voice = voice  # the operator voice road, recorded from
+        self._recording: dict[str, tuple[int, int, bytearray]] = {}  # client -> (rate, channels, PCM so far)
         self.clips: dict[str, tuple[Path, float]] = {}  # name -> (file, seconds)
         self.changed: list[Any] = []  # called after the list changes (the menus list the clips)
 
@@ -120,13 +127,51 @@ class ClipLibrary:
         self.bus.provide(names.CLIP_ADD_SERVICE, "vr_teleop_msgs/AddClip", self._add)
         self.bus.provide(names.CLIP_REMOVE_SERVICE, "vr_teleop_msgs/ClipName", self._remove)
         self.bus.provide(names.CLIP_PLAY_SERVICE, "vr_teleop_msgs/ClipName", self._play)
+        self.bus.provide(names.CLIP_RECORD_SERVICE, "std_srvs/Trigger", self._record)
+        if self.voice is not None:
+            self.voice.taps.append(self._tap)
         if self.directory is not None:
             self.directory.mkdir(parents=True, exist_ok=True)
             self.clips = self._scan()
         self._publish()
 
     async def stop(self) -> None:
-        pass
+        if self.voice is not None and self._tap in self.voice.taps:
+            self.voice.taps.remove(self._tap)
+        self._recording.clear()
+
+    def _tap(self, sender: str, pcm: bytes, rate: int, channels: int) -> bool:
+        entry = self._recording.get(sender)
+        if entry is None:
+            return False
+        if (rate, channels) != entry[:2]:
+            if entry[2]:  # a new format mid-clip: keep what came in the first one
+                return True
+            entry = self._recording[sender] = (rate, channels, entry[2])
+        if len(entry[2]) < 2 * rate * channels * (MAX_CLIP_S + 1):  # beyond, the clip is refused as too long
+            entry[2].extend(pcm)
+        return True
+
+    async def _record(self, _request: Any) -> dict[str, Any]:
+        caller = Bus.caller()
+        self._need_library()
+        entry = self._recording.pop(caller, None)
+        if entry is None:
+            self._recording[caller] = (16000, 1, bytearray())
+            return {"success": True, "message": "recording your voice (the robot does not play it): select again "
+                                                "to stop and keep the clip"}
+        rate, channels, pcm = entry
+        buf = io.BytesIO()
+        with wave.open(buf, "wb") as w:
+            w.setnchannels(channels)
+            w.setsampwidth(2)
+            w.setframerate(rate)
+            w.writeframes(bytes(pcm))
+        name = f"recorded-{time.strftime('%Y%m%d-%H%M%S')}"
+        if not pcm:
+            raise BusError("no voice came while recording: hold to talk (or the left trigger) while it records")
+        duration = await self.add(name, buf.getvalue())
+        return {"success": True, "message": f"kept your {duration:.1f} s as clip {name!r}"}
 
     def names(self) -> list[str]:
         return sorted(self.clips)

@@ -211,6 +211,9 @@ class MenuService:
     async def _do_play_clip(self, a: Any, caller: str) -> str:
         return await self._trigger(names.CLIP_PLAY_SERVICE, {"name": a.name}, caller)
 
+    async def _do_record_clip(self, _a: Any, caller: str) -> str:
+        return await self._trigger(names.CLIP_RECORD_SERVICE, {}, caller)
+
     async def _do_play_gesture(self, a: Any, caller: str) -> str:
         response = await self._call(names.GESTURE_PLAY_SERVICE, {"name": a.name, "speed": a.speed}, caller)
         return f"played {a.name}" if response.status else f"{a.name} was stopped"

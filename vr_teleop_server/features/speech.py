@@ -348,6 +348,9 @@ class OperatorVoiceIn:
         self.default_rate = default_rate
         self._formats: dict[str, tuple[int, int]] = {}  # sender -> (sample rate, channels)
         self._files: dict[str, tuple[wave.Wave_write, Path]] = {}
+        # each takes (sender, pcm, rate, channels) and returns True when it keeps the chunk from the robot (a clip
+        # being recorded from that voice)
+        self.taps: list[Callable[[str, bytes, int, int], bool]] = []
 
     def start(self) -> None:
         self.bus.declare_topic(names.OPERATOR_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
@@ -386,6 +389,8 @@ class OperatorVoiceIn:
             entry = self._files[published.sender] = (w, path)
             log.info("operator audio from %s goes to %s", published.sender, path)
         entry[0].writeframes(data)  # rewrites the header: the file is whole after every chunk
+        if any([tap(published.sender, data, rate, channels) for tap in self.taps]):
+            return
         try:
             self.robot.play_voice(data, rate, channels)
         except Exception:  # the log above is kept whatever the robot does with it

@@ -59,6 +59,7 @@ export const CLIPS_TOPIC = "/vr_teleop/clips";
 export const CLIP_ADD_SERVICE = "/vr_teleop/clips/add";
 export const CLIP_REMOVE_SERVICE = "/vr_teleop/clips/remove";
 export const CLIP_PLAY_SERVICE = "/vr_teleop/clips/play";
+export const CLIP_RECORD_SERVICE = "/vr_teleop/clips/record";
 export const URDF_JOINT_STATES_TOPIC = "/joint_states";
 export const ROBOT_DESCRIPTION_PARAM = "robot_description";
 export const FILE_SERVER_SERVICE = "/file_server/get_file";
