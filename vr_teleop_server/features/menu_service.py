@@ -96,6 +96,9 @@ class MenuService:
         labels: dict[str, str] = {}
         for menu in self.menus:
             for parent, position, item in walk(menu.items, menu.info.id):
+                generated = self._generated(item, menu) if item.generate else []
+                if item.generate and not generated:
+                    continue  # an empty list (no clips yet) is left out: a menu item leads somewhere
                 items.append({"id": item.id, "menu": menu.info.id, "parent": parent, "label": item.label,
                               "slot": item.slot, "position": position, "icon": item.icon,
                               "command": item.command or "", "args": json.dumps(item.args) if item.command else ""})
@@ -103,7 +106,7 @@ class MenuService:
                     table[item.id] = (item.command, dict(item.args))
                     labels[item.id] = item.label
                 if item.generate:
-                    for pos, (ident, label, command, args) in enumerate(self._generated(item, menu)):
+                    for pos, (ident, label, command, args) in enumerate(generated):
                         items.append({"id": ident, "menu": menu.info.id, "parent": item.id, "label": label,
                                       "slot": "list", "position": pos, "icon": "", "command": command,
                                       "args": json.dumps(args)})
