@@ -45,7 +45,10 @@ MESSAGES: dict[str, str] = {
     ),
     # this server's own events
     "vr_teleop_msgs/Clip": "string name\nfloat64 duration",
-    "vr_teleop_msgs/Clips": "# The clip library (`serve --clips DIR`), by name\nClip[] clips\nbool enabled",
+    "vr_teleop_msgs/Clips": (
+        "# The clip library (`serve --clips DIR`), by name; enabled: whether the server keeps clips; playing: the\n"
+        "# clip the robot is playing now (empty: none)\nClip[] clips\nbool enabled\nstring playing"
+    ),
     "vr_teleop_msgs/Clamp": (
         "# A joint command that did not apply as sent: clamped to limits, or ignored (motor not ON)\n"
         "Header header\nstring source\nstring[] joints\nfloat64[] requested\nfloat64[] applied\nstring[] ignored"
@@ -305,7 +308,8 @@ SERVICES: dict[str, str] = {
         "string name\nuint8[] data\n---\nbool success\nstring message\nfloat64 duration"
     ),
     "vr_teleop_msgs/ClipName": (
-        "# One clip of the library by name: played through the robot (answers when it has played or was stopped),\n"
+        "# One clip of the library by name: played through the robot (answers as it starts; /vr_teleop/clips says\n"
+        "# what plays until it has played or was stopped),\n"
         "# or removed from the library (supervisor only).\n"
         "string name\n---\nbool success\nstring message"
     ),

@@ -119,6 +119,8 @@ class ClipLibrary:
         self.directory = directory
         self.voice = voice  # the operator voice road, recorded from
         self._recording: dict[str, tuple[int, int, bytearray]] = {}  # client -> (rate, channels, PCM so far)
+        self.playing = ""  # the clip being played
+        self._player: asyncio.Task[None] | None = None
         self.clips: dict[str, tuple[Path, float]] = {}  # name -> (file, seconds)
         self.changed: list[Any] = []  # called after the list changes (the menus list the clips)
 
@@ -136,6 +138,8 @@ class ClipLibrary:
         self._publish()
 
     async def stop(self) -> None:
+        if self._player is not None:
+            self._player.cancel()
         if self.voice is not None and self._tap in self.voice.taps:
             self.voice.taps.remove(self._tap)
         self._recording.clear()
@@ -191,7 +195,7 @@ class ClipLibrary:
     def _publish(self) -> None:
         self.bus.publish(names.CLIPS_TOPIC, {
             "clips": [{"name": n, "duration": round(self.clips[n][1], 3)} for n in self.names()],
-            "enabled": self.directory is not None}, latch=True)
+            "enabled": self.directory is not None, "playing": self.playing}, latch=True)
         for changed in tuple(self.changed):
             changed()
 
@@ -223,14 +227,28 @@ class ClipLibrary:
             raise BusError(f"no clip named {name!r}; the clips are: {', '.join(self.names()) or 'none yet'}")
         return entry[0]
 
-    async def play(self, name: str) -> bool:
-        """Plays a clip through the robot; True if it played to its end (False: stopped)."""
+    async def play(self, name: str) -> float:
+        """Starts playing a clip through the robot (a sentence or a clip playing stops); its duration. It plays on
+        until its end or stop talking; `playing` (and /vr_teleop/clips) names it meanwhile."""
         path = self._clip(name)
         try:
             decoded = await asyncio.to_thread(lambda: decode(path.read_bytes()))
         except (ClipRefused, OSError) as exc:
             raise BusError(f"clip {name!r} cannot be played: {exc}") from None
-        return await self.speaker.play_clip(decoded.pcm, RATE)
+        self.speaker.stop_speaking()
+        player = self._player = asyncio.ensure_future(self.speaker.play_clip(decoded.pcm, RATE))
+        self.playing = name
+        self._publish()
+        player.add_done_callback(self._played)
+        return decoded.duration_s
+
+    def _played(self, player: asyncio.Task[Any]) -> None:
+        if not player.cancelled() and player.exception() is not None:
+            log.error("a clip failed while playing: %s", player.exception())
+        if player is self._player:
+            self._player = None
+            self.playing = ""
+            self._publish()
 
     async def _add(self, request: Any) -> dict[str, Any]:
         duration = await self.add(request.name, bytes(request.data))
@@ -244,6 +262,5 @@ class ClipLibrary:
         return {"success": True, "message": f"clip {request.name!r} deleted"}
 
     async def _play(self, request: Any) -> dict[str, Any]:
-        completed = await self.play(request.name)
-        return {"success": True, "message": f"played {request.name!r}" if completed else
-                f"{request.name!r} was stopped"}
+        duration = await self.play(request.name)
+        return {"success": True, "message": f"playing {request.name!r} ({duration:.1f} s)"}

@@ -317,6 +317,7 @@ ros.subscribe(names.CLIPS_TOPIC, "vr_teleop_msgs/Clips", (library) => {
       ros.call(names.CLIP_PLAY_SERVICE, {name: clip.name}, 120_000)
         .then((r) => logLine($("events"), r.message)).catch((err) => clipResult(err.message, "error"))});
     play.dataset.clip = clip.name;
+    play.setAttribute("aria-pressed", String(clip.name === library.playing));
     const remove = el("button", {textContent: t("voices.delete"), className: "danger", onclick: () =>
       ros.call(names.CLIP_REMOVE_SERVICE, {name: clip.name})
         .then((r) => clipResult(r.message)).catch((err) => clipResult(err.message, "error"))});
