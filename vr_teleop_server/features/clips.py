@@ -192,12 +192,15 @@ class ClipLibrary:
                 log.warning("clip %s left out: %s", path, exc)
         return found
 
-    def _publish(self) -> None:
+    def _publish(self, listed: bool = True) -> None:
+        """The library on its topic; `listed`: the list itself changed (the menus follow it; a clip starting or
+        ending does not republish the menus, which would disturb a teacher navigating them)."""
         self.bus.publish(names.CLIPS_TOPIC, {
             "clips": [{"name": n, "duration": round(self.clips[n][1], 3)} for n in self.names()],
             "enabled": self.directory is not None, "playing": self.playing}, latch=True)
-        for changed in tuple(self.changed):
-            changed()
+        if listed:
+            for changed in tuple(self.changed):
+                changed()
 
     def _need_library(self) -> Path:
         if self.directory is None:
@@ -238,7 +241,7 @@ class ClipLibrary:
         self.speaker.stop_speaking()
         player = self._player = asyncio.ensure_future(self.speaker.play_clip(decoded.pcm, RATE))
         self.playing = name
-        self._publish()
+        self._publish(listed=False)
         player.add_done_callback(self._played)
         return decoded.duration_s
 
@@ -248,7 +251,7 @@ class ClipLibrary:
         if player is self._player:
             self._player = None
             self.playing = ""
-            self._publish()
+            self._publish(listed=False)
 
     async def _add(self, request: Any) -> dict[str, Any]:
         duration = await self.add(request.name, bytes(request.data))
