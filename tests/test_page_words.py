@@ -14,6 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from support import wait_for
+from testbed.pages import READY
+
+from menus import load_menus, walk
+from robot_models import load_qtrobot
 
 WEB = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web"
 CATALOGUES = {code: json.loads((WEB / "i18n" / f"{code}.json").read_text(encoding="utf-8")) for code in
@@ -46,7 +50,23 @@ def test_the_pages_use_only_keys_that_exist_and_every_key_is_used():
     used = used_keys()
     missing = {key: files for key, files in used.items() if key not in CATALOGUES["en"]}
     assert not missing, f"keys used by the pages but in no catalogue: {missing}"
-    assert set(CATALOGUES["en"]) - set(used) == set(), "keys no page uses"
+    static = {k for k in CATALOGUES["en"] if not k.startswith(("menu.", "emotion."))}
+    assert static - set(used) == set(), "keys no page uses"
+
+
+def test_the_menu_words_name_every_packaged_item_and_emotion():
+    """i18n.js's translateMenus looks words up by menu item id (menu.<id>) and emotion (emotion.<name>): each key
+    names one that exists, and every packaged item and emotion has its word (the language items keep their own
+    names, the generated items theirs)."""
+    ids = set()
+    for menu in load_menus():
+        ids.add(menu.info.id)
+        ids.update(item.id for _p, _i, item in walk(menu.items, menu.info.id)
+                   if item.command != "show_emotion" and not item.id.startswith("speech.language."))
+    words = {k.removeprefix("menu.") for k in CATALOGUES["en"] if k.startswith("menu.")}
+    assert words == ids, (words ^ ids)
+    emotions = {k.removeprefix("emotion.") for k in CATALOGUES["en"] if k.startswith("emotion.")}
+    assert emotions == set(load_qtrobot().emotions)
 
 
 def open_dashboard(browser, server, fragment: str, locale: str = "en-GB"):
@@ -87,6 +107,8 @@ def test_from_the_dashboard_the_robots_language_switches_and_a_clip_is_added_and
     server = words_server
     page = open_dashboard(browser, server, "lang=de")
     try:
+        page.wait_for_selector("#menus button:text-is('fröhlich')", timeout=20_000)  # the emotions' words
+        page.wait_for_selector("#menus h3:text-is('Gefühle')", timeout=20_000)
         page.click("#robot-languages [data-language='lb']")
         page.wait_for_selector("#robot-languages [data-language='lb'][aria-pressed='true']", timeout=20_000)
         assert server.call(lambda: server.server.robot is not None)
@@ -137,13 +159,17 @@ def test_the_operator_page_speaks_the_readers_language(browser, words_server):
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     try:
-        page.goto(f"http://127.0.0.1:{words_server.port}/operator#camera=jpeg&lang=fr")  # the setting wins
+        page.goto(f"http://127.0.0.1:{words_server.port}/operator#token={TOKENS['operator']}&camera=jpeg&lang=fr")  # lang= wins over de-AT
         page.wait_for_function("document.querySelector('#vr-note').textContent !== ''", timeout=60_000)
         assert page.evaluate("document.documentElement.lang") == "fr"
         assert page.text_content("h1") == "Opérateur QTrobot"
         assert page.text_content("#enter-vr") == "Entrer en VR"
         assert page.text_content("#vr-note") == "pas de casque : vue à plat"  # no headset in this browser
         assert page.text_content("[data-i18n='operator.help.5']") == "arrêt d'urgence"
+        page.wait_for_function(READY, timeout=60_000)
+        page.wait_for_function("window.operator.nav.tree !== null", timeout=60_000)
+        page.keyboard.press("y")  # Y: the speech menu, its title in French
+        page.wait_for_function("document.getElementById('menu-title').textContent === 'Parole'", timeout=60_000)
         assert errors == []
     finally:
         context.close()

@@ -7,7 +7,7 @@ import {CODEC_NAMES, IceErrors, RenderTimes, ServerClock, cameraMode, chooseVide
         createPeerConnection, fetchIceServers, hasTurn, mediaRoute, negotiate, onVideoFrames,
         webRtcMissing} from "./webrtc.js";
 import {AutonomyModel, attentionInImage, attentionText, outcomeText} from "./autonomy.js";
-import {language, t, translatePage} from "./i18n.js";
+import {language, t, translateMenus, translatePage} from "./i18n.js";
 
 const $ = (id) => document.getElementById(id);
 const el = (tag, props = {}, ...children) => {
@@ -246,7 +246,8 @@ function canonicalArgs(args) {
   const parsed = JSON.parse(args);
   return JSON.stringify(Object.keys(parsed).sort().map((k) => [k, parsed[k]]));
 }
-ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (m) => {
+ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (message) => {
+  const m = translateMenus(message);  // the labels in the page's language (i18n.js)
   const byParent = new Map();
   for (const item of m.items) {
     if (!byParent.has(item.parent)) byParent.set(item.parent, []);

@@ -31,3 +31,22 @@ export function translatePage(root = document) {
     node.placeholder = t(node.dataset.i18nPlaceholder);
   }
 }
+
+/** The menus message (/vr_teleop/menus) with its labels in the page's language. The menu files' labels are
+ * English, a lab's own words, shown as written on an English page; other languages take the catalogue's word for
+ * an emotion (emotion.<name>) or for the item's id (menu.<id>), and keep the file's label where it has none (a
+ * lab's own items, the sentences, which follow the robot's language, and the clips' names). */
+export function translateMenus(msg) {
+  if (language === "en" || !msg || !Array.isArray(msg.menus) || !Array.isArray(msg.items)) return msg;
+  const word = (item) => {
+    if (item.command === "show_emotion") {
+      try {
+        const name = String(JSON.parse(item.args || "{}").name || "").replace(/^QT\//, "");
+        if (`emotion.${name}` in catalogue) return catalogue[`emotion.${name}`];
+      } catch { /* args that are not JSON: the server's own check reports them */ }
+    }
+    return catalogue[`menu.${item.id}`] ?? item.label;
+  };
+  return {...msg, menus: msg.menus.map((m) => ({...m, label: word(m)})),
+          items: msg.items.map((item) => ({...item, label: word(item)}))};
+}

@@ -16,7 +16,7 @@ import {ControllerActions} from "./controls.js";
 import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, withHandMenu} from "./hands.js";
 import {OperatorAutonomy} from "./autonomy.js";
 import {Comfort, COMMAND as COMFORT_COMMAND, optionFromAddress} from "./comfort.js";
-import {t, translatePage} from "../i18n.js";
+import {t, translateMenus, translatePage} from "../i18n.js";
 
 const TOPICS = {
   head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
@@ -292,7 +292,7 @@ const nav = new MenuNavigator();
 let menuDirty = true;
 ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (msg) => {
   try {
-    nav.setTree(withHandMenu(parseMenus(msg)));  // hands open the menus from a ring of them (hands.js)
+    nav.setTree(withHandMenu(parseMenus(translateMenus(msg))));  // hands open the menus from a ring of them (hands.js)
     state.menusProblem = null;
   } catch (err) {
     if (!(err instanceof MenuError)) console.error(err);
