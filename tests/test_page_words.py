@@ -159,7 +159,8 @@ def test_the_operator_page_speaks_the_readers_language(browser, words_server):
     errors: list[str] = []
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     try:
-        page.goto(f"http://127.0.0.1:{words_server.port}/operator#token={TOKENS['operator']}&camera=jpeg&lang=fr")  # lang= wins over de-AT
+        # lang= wins over the browser's de-AT
+        page.goto(f"http://127.0.0.1:{words_server.port}/operator#token={TOKENS['operator']}&camera=jpeg&lang=fr")
         page.wait_for_function("document.querySelector('#vr-note').textContent !== ''", timeout=60_000)
         assert page.evaluate("document.documentElement.lang") == "fr"
         assert page.text_content("h1") == "Opérateur QTrobot"
