@@ -4,8 +4,8 @@ The library is a directory (`serve --clips DIR`) of WAV, Ogg and MP3 files, list
 and in the speech menu. A supervisor adds one from the dashboard (/vr_teleop/clips/add: the file's bytes) or removes
 one (/vr_teleop/clips/remove: the file is deleted, as a family's withdrawal asks); the teacher records one from the
 headset's microphone (/vr_teleop/clips/record, twice: the operator voice road's chunks from that client are kept,
-and not played on the robot, until the second call, which checks and keeps them as any added clip); anyone who may run menu commands
-plays one (/vr_teleop/clips/play), through the Speaker (features/speech.py), which hands it to `Robot.play_voice` on
+and not played on the robot, until the second call, which checks and keeps them as any added clip); anyone who may
+run menu commands plays one (/vr_teleop/clips/play), through the Speaker (features/speech.py), which hands it to `Robot.play_voice` on
 every backend with the robot's talking face, and which "stop talking" stops.
 
 Every clip is decoded with PyAV (FFmpeg's decoders) and checked before it is kept: a clip that is not WAV, Ogg or

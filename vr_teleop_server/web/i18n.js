@@ -1,6 +1,6 @@
-// The pages' words in the reader's language: one message catalogue per language (i18n/<code>.json; every catalogue
-// has every key, and the pages use only keys that exist: tests/test_page_words.py). The language: #lang=de in the page's
-// address, else the first of the browser's languages that has a catalogue, else English. In the HTML, an element's
+// The pages' words in the reader's language: one message catalogue per language (i18n/<code>.json; every
+// catalogue has every key, and the pages use only keys that exist: tests/test_page_words.py). The language: #lang=de
+// in the page's address, else the first of the browser's languages that has a catalogue, else English. In the HTML, an element's
 // text comes from the key in its data-i18n attribute (its title from data-i18n-title, a field's placeholder from
 // data-i18n-placeholder); in the scripts, from t(key, {name: value}) for "{name}" in the text.
 
