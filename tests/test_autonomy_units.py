@@ -143,7 +143,7 @@ def test_ownership_gives_the_strongest_claimant_and_an_older_gestures_end_keeps_
 
 def test_the_packaged_rules_load_and_name_menu_items(tmp_path):
     rules = load_rules(None)
-    assert rules.timeout_s == 3.0 and rules.on_timeout == "execute"
+    assert rules.timeout_s == 6.0 and rules.on_timeout == "execute"
     assert {r.when for r in rules.rules} == {"speech_ended", "silence", "new_face", "looked_away"}
     with pytest.raises(ValueError, match=r"rules\.yaml: no menu item for praise -> speech\.sentences\.well_done"):
         check_actions(rules, {"emotion.happy"}, None)
