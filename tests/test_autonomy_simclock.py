@@ -30,7 +30,7 @@ def test_time_outs_and_attention_on_the_simulated_clock(tmp_path):
 
     async def main() -> tuple[list[dict], list[tuple[float, float]], float, float]:
         async with TeleopServer(settings, clock) as server:
-            conn = server.transport.connect_local()  # a supervisor (open access): proposals are made
+            conn = server.transport.connect_local()  # a supervisor (open access) watching them: proposals are made
             got: dict[str, list] = {"outcomes": [], "joints": []}
 
             async def read() -> None:
@@ -43,7 +43,8 @@ def test_time_outs_and_attention_on_the_simulated_clock(tmp_path):
                         got["joints"].append((clock.monotonic(), joints["HeadYaw"]))
 
             reader = asyncio.ensure_future(read())
-            for topic, type_name in ((names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome"),
+            for topic, type_name in ((names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal"),
+                                     (names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome"),
                                      (names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")):
                 await conn.send(json.dumps({"op": "subscribe", "topic": topic, "type": type_name}))
             await asyncio.sleep(2.0)
