@@ -159,8 +159,11 @@ MESSAGES: dict[str, str] = {
         "# An action the robot proposes (SPARC), on /vr_teleop/autonomy/proposals. action: a menu item id; label:\n"
         "# that item's words; reason: why, for the teacher; confidence 0..1; timeout: seconds until on_timeout is\n"
         "# done (execute or drop); situation: the situation it was proposed in, as the learner names it.\n"
+        "# left: seconds of the time-out left when this message was sent (a page opening onto a pending\n"
+        "# proposal counts down from it); 0 once the time-out has come and the proposal waits for the voice,\n"
+        "# the face or the parts it needs, which someone else is using.\n"
         "Header header\nstring id\nstring action\nstring label\nstring reason\nfloat64 confidence\n"
-        "float64 timeout\nstring on_timeout\nstring situation"
+        "float64 timeout\nstring on_timeout\nstring situation\nfloat64 left"
     ),
     "vr_teleop_msgs/ProposalOutcome": (
         "# How a proposal ended, or an action the teacher took herself, on /vr_teleop/autonomy/outcomes.\n"
@@ -172,7 +175,9 @@ MESSAGES: dict[str, str] = {
         "float64 seconds\nstring situation"
     ),
     "vr_teleop_msgs/PartOwner": (
-        "# Who moves a part now: operator (the holder of control), trial, gesture, autonomy, estop or none.\n"
+        "# Who moves a part now: operator (the holder of control), trial, gesture, client (a LuxAI API client\n"
+        "# while it commands and a grace after), autonomy, estop or none. Parts: head, right_arm, left_arm, and\n"
+        "# voice (a sentence) and face (an emotion).\n"
         "string part\nstring owner"
     ),
     "vr_teleop_msgs/AutonomyState": (

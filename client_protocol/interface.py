@@ -289,8 +289,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "with " + names.AUTONOMY_DECIDE_SERVICE + "; its end comes on " + names.AUTONOMY_OUTCOMES_TOPIC + ".",
              "on proposal",
              {"header": _stamp(), "id": "p-3", "action": "speech.sentences.well_done", "label": "Well done!",
-              "reason": "a pupil has stopped after speaking a while", "confidence": 0.7, "timeout": 3.0,
-              "on_timeout": "execute", "situation": "speech_ended"}),
+              "reason": "a pupil has stopped after speaking a while", "confidence": 0.7, "timeout": 6.0,
+              "on_timeout": "execute", "situation": "speech_ended", "left": 6.0}),
     Endpoint(names.AUTONOMY_DECIDE_SERVICE, "vr_teleop_msgs/DecideProposal", "call",
              "Decide a pending proposal: accept (done now), reject (not now), forbid (never in this situation: "
              "the robot learns it). Operators and supervisors. An unknown or ended id, or another decision, is "

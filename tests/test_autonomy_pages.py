@@ -318,8 +318,10 @@ def test_the_dashboard_decides_with_buttons_and_keys_and_switches_the_level(brow
 
 
 def test_a_spectator_sees_the_proposal_but_its_decision_is_refused(browser, server, autonomy):
-    decider = RawClient(server.url)  # an operator connected: a supervised robot proposes only then
+    decider = RawClient(server.url)  # an operator watching the proposals: a supervised robot proposes only then
     decider.send({"op": "auth", "mac": TOKENS["operator"]})
+    decider.send({"op": "subscribe", "topic": "/vr_teleop/autonomy/proposals", "type": "vr_teleop_msgs/Proposal"})
+    assert wait_for(lambda: server.call(autonomy.feature.may_decide), 30)  # the spectator's page is no audience
     page = dashboard_page(browser, server, "spectator")
     try:
         ident = autonomy.propose("emotion.happy", "Ben has just said something")

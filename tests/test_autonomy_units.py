@@ -143,7 +143,7 @@ def test_ownership_gives_the_strongest_claimant_and_an_older_gestures_end_keeps_
 
 def test_the_packaged_rules_load_and_name_menu_items(tmp_path):
     rules = load_rules(None)
-    assert rules.timeout_s == 3.0 and rules.on_timeout == "execute"
+    assert rules.timeout_s == 6.0 and rules.on_timeout == "execute"
     assert {r.when for r in rules.rules} == {"speech_ended", "silence", "new_face", "looked_away"}
     with pytest.raises(ValueError, match=r"rules\.yaml: no menu item for praise -> speech\.sentences\.well_done"):
         check_actions(rules, {"emotion.happy"}, None)
@@ -195,3 +195,52 @@ def test_a_bad_memory_file_is_refused_by_name(tmp_path, content):
     with pytest.raises(ValueError, match="autonomy memory") as info:
         Learner(path)
     assert str(path) in str(info.value)
+
+
+def test_a_clients_hold_lasts_while_it_commands_and_its_grace_after():
+    """Ownership.hold: a command claims its parts at once; after it ends they stay the client's for the grace,
+    renewed by a command in between (a script's pause), then are free; a stronger claimant still wins meanwhile."""
+    import asyncio
+
+    async def main() -> list[tuple[str, str]]:
+        owners = Ownership(("head", "right_arm", "left_arm"))
+        assert {"voice", "face"} <= set(owners.parts)
+        loop = asyncio.get_running_loop()
+        seen: list[tuple[str, str]] = []
+        grace_over = loop.create_future()
+        owners.changed.append(lambda: seen.append((owners.owner("head"), owners.owner("voice"))))
+        owners.changed.append(lambda: owners.free("voice") and not grace_over.done() and grace_over.set_result(None))
+        saying = owners.hold("client", ["voice"], "script", 0.05)  # a sentence runs
+        owners.hold("client", ["head"], "script", 0.05)()  # a head command: instant
+        owners.claim("operator", ["head"], "op")
+        assert owners.owner("head") == "operator" and owners.holder("voice") == "script"
+        owners.release("operator")
+        saying()
+        saying()  # ending twice is ending once
+        owners.hold("client", ["voice"], "script", 0.05)()  # the next sentence within the grace renews it
+        await grace_over
+        return seen
+
+    seen = asyncio.run(main())
+    assert seen[0] == ("none", "client") and ("operator", "client") in seen
+    assert seen[-1] == ("none", "none")  # after the graces, both free
+
+
+def test_a_motivation_variable_at_rest_is_never_coloured():
+    """Fatigue rests at 0, under its low limit 15: at rest it reads ok (nothing to act on); a limit away from the
+    rest value (curiosity's high 80) still counts."""
+    from vr_teleop_server.core.bus import Bus
+    from vr_teleop_server.core.events import declare_event_topic
+    from client_protocol.registry import TypeRegistry
+    from vr_teleop_server.features.motivation import Motivation
+
+    from client_protocol import names
+
+    bus = Bus(TypeRegistry())
+    declare_event_topic(bus)
+    bus.declare_topic(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation")
+    motivation = Motivation(bus)
+    levels = dict(zip(motivation.message()["name"], motivation.message()["level"]))
+    assert levels["fatigue"] == "ok" and motivation.values["fatigue"] == 0
+    motivation._change("curiosity", 85)
+    assert dict(zip(motivation.message()["name"], motivation.message()["level"]))["curiosity"] == "high"

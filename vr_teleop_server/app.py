@@ -118,11 +118,18 @@ class TeleopServer:
         """Whether this connection's operator holds explicit control (the poses data channel's rule)."""
         return self.control is not None and self.control.holds(owner)
 
-    def _decider_connected(self) -> bool:
-        """Whether someone is connected who may decide a proposal (an operator or a supervisor)."""
-        return any(not session.closed and (session.role in ("operator", "supervisor")
-                                           or (session.role is None and self.access.open))
-                   for session in self.sessions.values())
+    def _audience(self) -> bool:
+        """Whether someone who may decide a proposal (an operator or a supervisor) is watching the proposals: a
+        client subscribed to them or to the autonomy state (the operator page's HUD, the dashboard). A client that
+        only uses LuxAI's API is no audience, however open the access."""
+        for topic_name in (names.AUTONOMY_PROPOSALS_TOPIC, names.AUTONOMY_STATE_TOPIC):
+            topic = self.bus.topics.get(topic_name)
+            for owner, _callback in topic.subscribers.values() if topic is not None else ():
+                session = self.sessions.get(owner)
+                if session is not None and not session.closed and (
+                        session.role in ("operator", "supervisor") or (session.role is None and self.access.open)):
+                    return True
+        return False
 
     def _operator_online(self, operator: str, gone: str) -> bool:
         return any(name != gone and not session.closed and session.operator == operator
@@ -170,7 +177,8 @@ class TeleopServer:
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
-        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners)
+        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners,
+                              grace_s=self.attention_config.client_grace_s)
         self._start(self.luxai)
         self.control = ExplicitControl(
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
@@ -207,7 +215,7 @@ class TeleopServer:
             self._start(self.bystanders)
         self.autonomy = Autonomy(self.bus, robot, self.owners, level=s.autonomy, attention=self.attention_config,
                                  rules=self.autonomy_rules, learner=self.learner, menu_entry=menu.entry,
-                                 may_decide=self._decider_connected, operator_of=self._operator, clock=self.clock)
+                                 may_decide=self._audience, operator_of=self._operator, clock=self.clock)
         self._start(self.autonomy)
 
     async def start(self) -> None:

@@ -1,24 +1,30 @@
 """Who moves each part of the robot: one arbiter that every mover tells when it starts and stops (design.md,
 "Who moves the robot").
 
-Claimants, strongest first: an emergency stop (until someone engages or sets the autonomy level again), the
-operator who holds control (the parts they follow, from engage until release, through any watchdog hold), a
-running study trial, a gesture being played. The robot's own autonomy has no claim: it may move a part only while
-nobody claims it, and asks before each command.
+Parts: the robot's (head, arms) and two that are not joints, the voice (a sentence being said) and the face (an
+emotion being shown). Claimants, strongest first: an emergency stop (until someone engages or sets the autonomy level
+again), the operator who holds control (the parts they follow, from engage until release, through any watchdog
+hold), a running study trial, a gesture being played, and a client of LuxAI's API (a script, the 2018 Unity client)
+for as long as it commands a part and a grace after (`hold`). The robot's own autonomy has no claim: it may move a
+part only while nobody claims it, and asks before each command.
 """
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable, Iterable
 
 # strongest first
-CLAIMANTS = ("estop", "operator", "trial", "gesture")
+CLAIMANTS = ("estop", "operator", "trial", "gesture", "client")
+VOICE, FACE = "voice", "face"  # the parts that are not joints
 
 
 class Ownership:
     def __init__(self, parts: Iterable[str]) -> None:
-        self.parts = tuple(parts)
+        self.parts = tuple(dict.fromkeys((*parts, VOICE, FACE)))
         self._claims: dict[str, dict[str, str]] = {part: {} for part in self.parts}  # part -> claimant -> who
+        self._holds: dict[tuple[str, str], int] = {}  # (claimant, part) -> commands running now
+        self._ends: dict[tuple[str, str], asyncio.TimerHandle] = {}  # (claimant, part) -> the grace's end
         self.changed: list[Callable[[], None]] = []  # called after every change (autonomy republishes its state)
 
     def claim(self, claimant: str, parts: Iterable[str], who: str = "") -> None:
@@ -36,6 +42,48 @@ class Ownership:
             if who is None or claims.get(claimant) == who:
                 claims.pop(claimant, None)
         self._notify()
+
+    def hold(self, claimant: str, parts: Iterable[str], who: str, grace_s: float) -> Callable[[], None]:
+        """Claims `parts` for `who` now, while a command runs; the returned function ends the command, after which
+        the claim lasts `grace_s` more (on the running loop's clock), unless `who` or another commands again. A
+        script's pauses between commands shorter than the grace never give a part away."""
+        parts = tuple(self._part(p) for p in parts)
+        for part in parts:
+            key = (claimant, part)
+            self._holds[key] = self._holds.get(key, 0) + 1
+            end = self._ends.pop(key, None)
+            if end is not None:
+                end.cancel()
+        self.claim(claimant, parts, who)
+        done = False
+
+        def finished() -> None:
+            nonlocal done
+            if done:
+                return
+            done = True
+            loop = asyncio.get_running_loop()
+            for part in parts:
+                key = (claimant, part)
+                self._holds[key] -= 1
+                if self._holds[key] <= 0:
+                    del self._holds[key]
+                    self._ends[key] = loop.call_later(grace_s, self._grace_over, key)
+
+        return finished
+
+    def _grace_over(self, key: tuple[str, str]) -> None:
+        self._ends.pop(key, None)
+        claimant, part = key
+        if key not in self._holds:
+            self._claims[part].pop(claimant, None)
+            self._notify()
+
+    def close(self) -> None:
+        """Cancels the graces' timers (the server stops)."""
+        for end in self._ends.values():
+            end.cancel()
+        self._ends.clear()
 
     def owner(self, part: str) -> str:
         """The strongest claimant of `part`, or "none"."""

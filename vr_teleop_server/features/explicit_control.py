@@ -263,7 +263,7 @@ class ExplicitControl:
         """Holds the robot and takes control away from whoever holds it; anyone may stop the robot."""
         holder, self.holder = self.holder, None
         self.mapper.estop()
-        self.owners.claim("estop", self.robot.model.parts, caller)  # autonomy stops too, until engage or a level
+        self.owners.claim("estop", self.owners.parts, caller)  # autonomy stops too, until engage or a level
         self._claim_parts()
         state = self.robot.joint_state().as_dict()
         for part, joints in self.robot.model.parts.items():

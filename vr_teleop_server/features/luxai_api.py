@@ -3,6 +3,10 @@
 An existing QTrobot script (roslibpy, roslibjs) written against `/qt_robot/*` works against the stand-in
 unchanged. Every command goes through the Robot interface, which clamps; a clamp or an ignored joint is published
 on `/vr_teleop/clamps` and reported to the sender as a status warning, never hidden.
+
+A client that commands a part here (head, arms, a gesture's parts, the face by an emotion, the voice by speech) owns
+it in the arbiter (core/ownership.py) while the command runs and `grace_s` after: the robot's autonomy keeps off it.
+The server's own features (autonomy's proposals, the menus when autonomy selects) claim nothing this way.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.events import declare_event_topic, publish_event
-from ..core.ownership import Ownership
+from ..core.ownership import FACE, VOICE, Ownership
 from ..core.tasks import cancel_and_wait, every
 from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
 from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
@@ -31,13 +35,21 @@ from .speech import Speaker
 
 log = logging.getLogger(__name__)
 
+CLIENT_GRACE_S = 5.0  # the packaged client_grace_s (features/autonomy/data/attention.yaml says why)
+
+
+def client_of(sender: str) -> str | None:
+    """The client behind a command, or None for the server's own nodes (autonomy, the menus it selects from)."""
+    return None if not sender or sender.startswith((SERVER_NODE, "/rosapi")) else sender
 
 
 class LuxaiApi:
     def __init__(self, bus: Bus, robot: Robot, gestures: GestureLibrary, speaker: Speaker,
-                 joint_state_hz: float = 30.0, clock: Clock = WALL, owners: Ownership | None = None) -> None:
+                 joint_state_hz: float = 30.0, clock: Clock = WALL, owners: Ownership | None = None,
+                 grace_s: float = CLIENT_GRACE_S) -> None:
         self.bus = bus
         self.owners = owners or Ownership(robot.model.parts)  # a playing gesture owns the parts it moves
+        self.grace_s = grace_s
         self._plays = itertools.count(1)
         self.clock = clock  # times the gesture recorder's samples
         self.robot = robot
@@ -86,6 +98,7 @@ class LuxaiApi:
 
     async def stop(self) -> None:
         self.recorder.cancel()
+        self.owners.close()
         await cancel_and_wait(self._joint_task, self._camera_task, self._record_task, *self._tasks)
 
     def _spawn(self, coro: Any) -> None:
@@ -93,8 +106,25 @@ class LuxaiApi:
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
+    # ---- who commands -------------------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def _commanding(self, sender: str, parts: tuple[str, ...]) -> Any:
+        """A client's command owns `parts` while it runs and the grace after; the server's own commands claim
+        nothing."""
+        client = client_of(sender)
+        done = self.owners.hold("client", parts, client, self.grace_s) if client is not None else None
+        try:
+            yield
+        finally:
+            if done is not None:
+                done()
+
     # ---- joint commands -----------------------------------------------------------------------------------------
     def _on_part_command(self, part: str, published: Published) -> None:
+        with self._commanding(published.sender, (part,)):
+            self._command_part(part, published)
+
+    def _command_part(self, part: str, published: Published) -> None:
         try:
             # a plain dict when validated from a client or a feature: no model built for the one field read
             data = published.data["data"]
@@ -117,8 +147,9 @@ class LuxaiApi:
 
     async def _home(self, request: Any) -> dict[str, Any]:
         parts = self._parts(request.parts)
-        for part, report in self.robot.home(parts).items():
-            self.publish_clamp(f"/qt_robot/motors/home {part}", report)
+        with self._commanding(Bus.caller(), tuple(parts)):
+            for part, report in self.robot.home(parts).items():
+                self.publish_clamp(f"/qt_robot/motors/home {part}", report)
         return {"status": True}
 
     async def _control_mode(self, request: Any) -> dict[str, Any]:
@@ -182,12 +213,14 @@ class LuxaiApi:
 
     def _on_emotion_topic(self, published: Published) -> None:
         try:
-            self._show(published.data["data"])
+            with self._commanding(published.sender, (FACE,)):
+                self._show(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _emotion_show(self, request: Any) -> dict[str, Any]:
-        self._show(request.name)
+        with self._commanding(Bus.caller(), (FACE,)):
+            self._show(request.name)
         return {"status": True}
 
     def _on_speech_topic(self, published: Published) -> None:
@@ -195,12 +228,14 @@ class LuxaiApi:
 
     async def _say_reporting(self, published: Published) -> None:
         try:
-            await self.speaker.say(published.data["data"])
+            with self._commanding(published.sender, (VOICE,)):
+                await self.speaker.say(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _speech_say(self, request: Any) -> dict[str, Any]:
-        result = await self.speaker.say(request.message)
+        with self._commanding(Bus.caller(), (VOICE,)):
+            result = await self.speaker.say(request.message)
         return {"status": result.completed}
 
     async def _speech_stop(self, _request: Any) -> dict[str, Any]:
@@ -227,14 +262,14 @@ class LuxaiApi:
     def _on_gesture_topic(self, published: Published) -> None:
         name = published.data["data"]
         if name not in self.gestures and name in self.robot.own_gestures():
-            self._spawn(self._play_own(name, 1.0, published.sender))
+            self._spawn(self._play_own(name, 1.0, published.sender, published.sender))
             return
         try:
             gesture = self._gesture(name)
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
             return
-        self._spawn(self._play(gesture, 1.0, published.sender))
+        self._spawn(self._play(gesture, 1.0, published.sender, published.sender))
 
     @contextlib.contextmanager
     def _owning(self, name: str, parts: tuple[str, ...]) -> Any:
@@ -247,9 +282,10 @@ class LuxaiApi:
         finally:
             self.owners.release("gesture", parts, who)
 
-    async def _play_own(self, name: str, speed: float, sender: str | None) -> bool:
+    async def _play_own(self, name: str, speed: float, sender: str | None, by: str) -> bool:
+        parts = tuple(self.robot.model.parts)  # the robot's own file: its parts unknown here
         try:
-            with self._owning(name, tuple(self.robot.model.parts)):  # the robot's own file: its parts unknown here
+            with self._commanding(by, parts), self._owning(name, parts):
                 return (await self.robot.play_own_gesture(name, speed)).completed
         except Refusal as exc:
             if sender is None:
@@ -257,10 +293,10 @@ class LuxaiApi:
             self.bus.report(sender, "error", f"{names.GESTURE_PLAY_SERVICE} {name}: {exc}")
             return False
 
-    async def _play(self, gesture: Gesture, speed: float, sender: str | None) -> bool:
+    async def _play(self, gesture: Gesture, speed: float, sender: str | None, by: str) -> bool:
         model = self.robot.model
         parts = tuple(dict.fromkeys(model.joint(n).part for wp in gesture.waypoints for n in wp.targets))
-        with self._owning(gesture.name, parts):
+        with self._commanding(by, parts), self._owning(gesture.name, parts):
             result = await self.robot.play_gesture(gesture, speed)
         if result.clamps or result.ignored:
             self.publish_clamp(
@@ -273,9 +309,10 @@ class LuxaiApi:
         speed = request.speed or 1.0  # LuxAI scripts often leave speed out (0)
         if not 0.1 <= speed <= 10:
             raise BusError(f"speed {request.speed:g} is outside 0.1..10 (1 plays as recorded)")
+        by = Bus.caller()
         if request.name not in self.gestures and request.name in self.robot.own_gestures():
-            return {"status": await self._play_own(request.name, speed, None)}
-        return {"status": await self._play(self._gesture(request.name), speed, None)}
+            return {"status": await self._play_own(request.name, speed, None, by)}
+        return {"status": await self._play(self._gesture(request.name), speed, None, by)}
 
     async def _gesture_list(self, _request: Any) -> dict[str, Any]:
         return {"gestures": self.gesture_names()}

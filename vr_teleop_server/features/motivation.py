@@ -8,7 +8,8 @@ its initial value for pain, its min otherwise) at decay_per_min.
 
 Crossing a limit publishes a vr_teleop_msgs/Event (source "motivation", kind "motivation_high" or
 "motivation_low", level warning; danger once the variable reaches its min or max; kind "motivation_ok", info, on
-the way back; the detail names the variable).
+the way back; the detail names the variable). A limit on the side of the variable's rest value (fatigue's low 15,
+when it rests at 0) never fires: what a teacher sees coloured is something to act on.
 Services (vr_teleop_msgs/MotivationChange): /vr_teleop/motivation/increment, /set, /reset (empty name: all).
 """
 
@@ -157,11 +158,14 @@ class Motivation:
 
     # ---- values, levels, events ---------------------------------------------------------------------------------
     def _level(self, name: str) -> tuple[str, bool]:
-        """('high'|'low'|'ok', at the extreme)."""
+        """('high'|'low'|'ok', at the extreme). A limit counts only on the far side of where the variable rests:
+        a level is something to act on, never a value at rest (fatigue 0 is under its low limit 15, but a rested
+        robot is nothing to warn about)."""
         cfg, value = self.config.variables[name], self.values[name]
-        if cfg.high is not None and value >= cfg.high:
+        rest = cfg.rest_value
+        if cfg.high is not None and value >= cfg.high > rest:
             return "high", value >= cfg.max
-        if cfg.low is not None and value <= cfg.low:
+        if cfg.low is not None and value <= cfg.low < rest:
             return "low", value <= cfg.min
         return "ok", False
 

@@ -37,7 +37,7 @@ export class AutonomyModel {
     this.attention = null;    // the newest vr_teleop_msgs/AttentionTarget, or null
     this.running = [];
     this.owners = [];
-    this.pending = new Map(); // id -> {proposal, seenAt}: the countdown runs from when this page learnt of it
+    this.pending = new Map(); // id -> {proposal, due}: due (this page's clock) from the time the server says is left
     this.outcomes = [];       // newest first
     this.refusal = null;      // {text, at}: the server's word on the last refused decision or level
     this.decided = new Map(); // id -> label: proposals this page decided, until their outcome arrives
@@ -60,8 +60,12 @@ export class AutonomyModel {
     });
   }
 
+  /** A proposal from the proposals topic or the state: its time-out is due when the server says (`left`, seconds
+   * left when it sent the message; an older server sends none: the whole time-out), so that a page opening onto a
+   * pending proposal counts down what is really left. */
   add(proposal) {
-    if (!this.pending.has(proposal.id)) this.pending.set(proposal.id, {proposal, seenAt: this.now()});
+    const left = Number.isFinite(proposal.left) ? proposal.left : (proposal.timeout || 0);
+    this.pending.set(proposal.id, {proposal, due: this.now() + 1000 * Math.max(0, left)});
   }
 
   onState(s) {
@@ -75,14 +79,22 @@ export class AutonomyModel {
     this.onChange();
   }
 
-  /** The proposal to decide on now (the oldest pending) with its countdown, or null. */
+  /** The proposal to decide on now (the oldest pending) with its countdown, or null. waiting: its time-out has
+   * come and the server does it once the robot's voice (face, parts) is free of someone else's sentence. */
   current() {
     const first = this.pending.values().next().value;
     if (!first) return null;
-    const {proposal, seenAt} = first;
+    const {proposal, due} = first;
     const timeout = Math.max(0, proposal.timeout || 0);
-    const left = Math.max(0, timeout - (this.now() - seenAt) / 1000);
-    return {...proposal, left, fraction: timeout > 0 ? left / timeout : 0, others: this.pending.size - 1};
+    const left = Math.max(0, (due - this.now()) / 1000);
+    return {...proposal, left, waiting: left <= 0, fraction: timeout > 0 ? Math.min(1, left / timeout) : 0,
+            others: this.pending.size - 1};
+  }
+
+  /** The countdown in words: "4.2 s, then done", or what a proposal whose time-out has come waits for. */
+  static countdown(p) {
+    if (p.on_timeout === "drop") return p.waiting ? "dropping" : `${p.left.toFixed(1)} s, then dropped`;
+    return p.waiting ? "done once the robot is free" : `${p.left.toFixed(1)} s, then done`;
   }
 
   /** decision: accept, reject or forbid, on the current proposal. Resolves to the server's message; rejects with

@@ -380,8 +380,7 @@ function showAutonomy() {
     $("proposal-reason").textContent = p.reason ? `because ${p.reason}` : "(no reason given)";
     $("proposal-confidence").textContent = `${Math.round(100 * (p.confidence || 0))}% sure`;
     $("proposal-bar").style.width = `${(100 * p.fraction).toFixed(1)}%`;
-    $("proposal-left").textContent = `${p.left.toFixed(1)} s, then ${p.on_timeout === "drop" ? "dropped" : "done"}` +
-      " unless rejected";
+    $("proposal-left").textContent = `${AutonomyModel.countdown(p)} unless rejected`;
   }
   $("autonomy-refusal").hidden = !m.refusal;
   $("autonomy-refusal").textContent = m.refusal?.text || "";

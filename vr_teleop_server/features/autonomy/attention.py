@@ -41,6 +41,8 @@ class AttentionConfig(BaseModel):
     glance_z_m: float = Field(0.65, description="...and this height above the robot's base")
     eye_height_m: float = Field(0.6, description="the head camera's height above the base (for pitch)")
     release_grace_s: float = Field(1.0, ge=0, description="after a part is given back, autonomy waits this long")
+    client_grace_s: float = Field(5.0, ge=0, le=600, description="a LuxAI API client owns what it commands until "
+                                  "this long after its last command")
     face_height_m: float = Field(0.25, gt=0, description="a face's height, to tell a face's distance from its box")
     match_deg: float = Field(12.0, gt=0, description="a voice this close to a face is that face's")
 

@@ -2,8 +2,11 @@
 
 It acts as a client would: head commands on the head command topic (the Robot interface clamps them), actions as
 menu items through the menu service. Before each head command it asks the ownership arbiter (core/ownership.py):
-autonomy moves only a part nobody claims, and only once it has been free for the release grace. Everything runs
-on the server's clock: attention at its rate (the control tick), each proposal's time-out on a timer of its own.
+autonomy moves only a part nobody claims, and only once it has been free for the release grace. An action waits
+until the part it uses is free: a sentence never starts over someone else's, an emotion never over theirs.
+Proposals go only to an audience (`may_decide`: someone who may decide is watching them), one at a time, each
+shown at least MIN_SHOWN_S before a newer one replaces it. Everything runs on the server's clock: attention at
+its rate (the control tick), each proposal's time-out on a timer of its own.
 """
 
 from __future__ import annotations
@@ -44,6 +47,9 @@ NEW_FACE_CONFIRM_S = 1.0  # a face must stay this long before it is "new" (the d
 SITUATION_WINDOW_S = 10.0  # an event stays the situation this long (the teacher's own actions are learned in it)
 ATTENTION_REPUBLISH_S = 1.0
 EXECUTE_TIMEOUT_S = 60.0
+MIN_SHOWN_S = 1.0  # a proposal is not replaced sooner: a teacher in a headset must be able to read it
+BUSY_WAIT_S = 30.0  # an accepted action waits this long at most for its part (someone else's speech) to be free
+ACTION_PARTS = {"say": ("voice",), "show_emotion": ("face",)}  # play_gesture: the robot's parts
 
 
 @dataclass
@@ -80,11 +86,13 @@ class Proposal:
     created: float
     stamp: Any = None
     timer: asyncio.TimerHandle | None = None
+    waiting: bool = False  # its time-out came while its part was someone else's: done once the part is free
 
-    def message(self) -> dict[str, Any]:
+    def message(self, now: float) -> dict[str, Any]:
+        left = 0.0 if self.waiting else max(0.0, self.timeout - (now - self.created))
         return {"header": {"stamp": self.stamp}, "id": self.id, "action": self.action, "label": self.label,
                 "reason": self.reason, "confidence": self.confidence, "timeout": self.timeout,
-                "on_timeout": self.on_timeout, "situation": self.situation.name}
+                "on_timeout": self.on_timeout, "situation": self.situation.name, "left": round(left, 3)}
 
 
 @dataclass
@@ -139,13 +147,19 @@ class Autonomy:
         self._save: asyncio.Task[None] | None = None
         self._pub = _Published()
         self._started = 0.0
+        self._queued: tuple[str, str, float, Situation] | None = None  # a newer proposal, until the shown one's 1 s
+        self._queue_timer: asyncio.TimerHandle | None = None
+        self._free: list[asyncio.Future[None]] = []  # actions waiting for their parts
         self.head_commands = 0  # head commands published (tests, the bench)
 
     # ---- lifetime -------------------------------------------------------------------------------------------
     def start(self) -> None:
         bus = self.bus
         declare_event_topic(bus)
-        bus.declare_topic(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", latched=True, persistent=True)
+        state = bus.declare_topic(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", latched=True,
+                                  persistent=True)
+        # a page that opens gets the time really left of a pending proposal, not the latched message's
+        state.on_subscriber_count = lambda _count: self.pending and self._publish_state(force=True)
         bus.declare_topic(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", latched=True,
                           persistent=True)
         bus.declare_topic(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", persistent=True)
@@ -162,7 +176,7 @@ class Autonomy:
         self._task = asyncio.ensure_future(self._run())
 
     async def stop(self) -> None:
-        for handle in [self._confirm] + [p.timer for p in self.pending.values()]:
+        for handle in [self._confirm, self._queue_timer] + [p.timer for p in self.pending.values()]:
             if handle is not None:
                 handle.cancel()
         if self._on_owners in self.owners.changed:
@@ -346,7 +360,18 @@ class Autonomy:
             return False
         return self.level == "autonomous" or self.may_decide()
 
-    def propose(self, action: str, reason: str, confidence: float, situation: Situation, now: float) -> Proposal:
+    def propose(self, action: str, reason: str, confidence: float, situation: Situation,
+                now: float) -> Proposal | None:
+        """Proposes now, or, while the shown proposal is younger than MIN_SHOWN_S, once it has been shown that long
+        (the newest situation waiting wins); None when it waits."""
+        shown = [p for p in self.pending.values() if now - p.created < MIN_SHOWN_S]
+        if shown:
+            self._queued = (action, reason, confidence, situation)
+            if self._queue_timer is None:
+                delay = max(p.created for p in shown) + MIN_SHOWN_S - now
+                self._queue_timer = asyncio.get_running_loop().call_later(delay + 1e-3, self._propose_queued)
+            return None
+        self._queued = None
         entry = self.menu_entry(action)
         label = entry[0] if entry is not None else action
         for old in list(self.pending.values()):
@@ -354,7 +379,7 @@ class Autonomy:
         proposal = Proposal(f"p-{next(self._ids)}", action, label, reason, round(confidence, 3),
                             self.rules.timeout_s, self.rules.on_timeout, situation, now,
                             self.bus.registry.now())
-        self.bus.publish(names.AUTONOMY_PROPOSALS_TOPIC, proposal.message())
+        self.bus.publish(names.AUTONOMY_PROPOSALS_TOPIC, proposal.message(now))
         if self.level == "autonomous":
             self._end(proposal, "accepted", "autonomy", now, execute=True)
         else:
@@ -364,8 +389,15 @@ class Autonomy:
         self._publish_state()
         return proposal
 
+    def _propose_queued(self) -> None:
+        self._queue_timer = None
+        queued, self._queued = self._queued, None
+        if queued is not None and self._proposing():
+            self.propose(*queued, self.clock.monotonic())
+
     def _expire_proposals(self, now: float) -> None:
-        if self.level == "supervised" and self.pending and not self.may_decide():
+        if self.level == "supervised" and (self.pending or self._queued) and not self.may_decide():
+            self._queued = None
             for p in list(self.pending.values()):
                 self._end(p, "dropped", "server", now)
 
@@ -374,9 +406,24 @@ class Autonomy:
             return
         now = self.clock.monotonic()
         if p.on_timeout == "execute":
+            if self._busy(p.action):  # someone else speaks (or shows, or moves): wait, never interrupt
+                if not p.waiting:
+                    p.waiting = True
+                    self._publish_state(force=True)
+                return
             self._end(p, "timed_out_executed", "timeout", now, execute=True)
         else:
             self._end(p, "dropped", "timeout", now)
+
+    def _parts_of(self, action: str) -> tuple[str, ...]:
+        entry = self.menu_entry(action)
+        if entry is None:
+            return ()
+        return ACTION_PARTS.get(entry[1], tuple(self.robot.model.parts) if entry[1] == "play_gesture" else ())
+
+    def _busy(self, action: str) -> bool:
+        """Whether a part the action uses is someone else's now."""
+        return not all(self.owners.free(part) for part in self._parts_of(action))
 
     def _end(self, p: Proposal, outcome: str, by: str, now: float, *, execute: bool = False) -> None:
         self.pending.pop(p.id, None)
@@ -390,16 +437,29 @@ class Autonomy:
         self._publish_state()
 
     def _may_act(self, action: str) -> bool:
-        """A gesture moves parts: only when nobody but autonomy holds them. Words and faces always may."""
+        """Not after an emergency stop, and a gesture not while an operator or a trial holds a part it moves (it
+        would wait for them for long); whatever a gesture or a client holds is waited for (`_until_free`)."""
         entry = self.menu_entry(action)
         if entry is None or "estop" in self.owners.owners().values():
             return False
-        if entry[1] == "play_gesture":
-            return all(owner in ("none", "gesture") for owner in self.owners.owners().values())
-        return True
+        return not any(self.owners.owner(part) in ("operator", "trial") for part in self._parts_of(action))
+
+    async def _until_free(self, action: str) -> None:
+        """Returns once every part the action uses is nobody's (woken by the arbiter's changes)."""
+        while self._busy(action):
+            free: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+            self._free.append(free)
+            await free
 
     async def _execute(self, p: Proposal) -> None:
         try:
+            try:
+                await asyncio.wait_for(self._until_free(p.action), BUSY_WAIT_S)
+            except TimeoutError:
+                raise BusError(f"{', '.join(self._parts_of(p.action))} stayed someone else's for "
+                               f"{BUSY_WAIT_S:g} s") from None
+            if not self._may_act(p.action):
+                raise BusError("the emergency stop, an operator or a trial took the part meanwhile")
             await self.bus.call_service(names.MENU_SELECT_SERVICE, {"id": p.action, "args": ""}, EXECUTE_TIMEOUT_S,
                                         caller=AUTONOMY_NODE, refusal_response=False)
         except BusError as exc:
@@ -498,6 +558,12 @@ class Autonomy:
     # ---- attention ------------------------------------------------------------------------------------------
     def _on_owners(self) -> None:
         now = self.clock.monotonic()
+        free, self._free = self._free, []
+        for waiter in free:
+            if not waiter.done():
+                waiter.set_result(None)
+        for p in [p for p in self.pending.values() if p.waiting and not self._busy(p.action)]:
+            self._timed_out(p)
         if not self.owners.free("head"):
             self._head_free_since = None
             self._driving = False
@@ -567,8 +633,8 @@ class Autonomy:
 
     def _publish_state(self, force: bool = False) -> None:
         t = self.target
-        summary = (self.level, tuple(self.pending), tuple(self.running()), tuple(self.owners.owners().items()),
-                   (t.source, t.key) if t else ())
+        summary = (self.level, tuple((p.id, p.waiting) for p in self.pending.values()), tuple(self.running()),
+                   tuple(self.owners.owners().items()), (t.source, t.key) if t else ())
         if not force and summary == self._pub.summary:
             return
         self._pub.summary = summary
@@ -578,5 +644,6 @@ class Autonomy:
                       for part, owner in owners.items()}
         self.bus.publish(names.AUTONOMY_STATE_TOPIC, {
             "header": {"stamp": self.bus.registry.now()}, "level": self.level,
-            "attention": self._attention_message(), "pending": [p.message() for p in self.pending.values()],
+            "attention": self._attention_message(),
+            "pending": [p.message(self.clock.monotonic()) for p in self.pending.values()],
             "running": self.running(), "owners": [{"part": k, "owner": v} for k, v in owners.items()]}, latch=True)

@@ -34,7 +34,7 @@ class Rule(BaseModel):
 class Rules(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    timeout_s: float = Field(3.0, gt=0, le=60, description="a proposal not decided within this...")
+    timeout_s: float = Field(6.0, gt=0, le=60, description="a proposal not decided within this...")
     on_timeout: Literal["execute", "drop"] = Field("execute", description="...is executed (SPARC) or dropped")
     rules: list[Rule] = Field(default_factory=list)
 

@@ -52,9 +52,8 @@ export function drawProposal(canvas, p, hints, note) {
   }
   ctx.fillStyle = COLORS.muted;
   ctx.font = `600 40px ${FONT}`;
-  const then = p.on_timeout === "drop" ? "dropped" : "done";
   if (note) ctx.fillStyle = COLORS.reject;
-  ctx.fillText(fit(ctx, note || `${p.left.toFixed(1)} s, then ${then}`, width / 2 - 48), 32, 240);
+  ctx.fillText(fit(ctx, note || AutonomyModel.countdown(p), width / 2 - 48), 32, 240);
   ctx.font = `700 44px ${FONT}`;
   ctx.textAlign = "right";
   ctx.fillStyle = COLORS.accept;
