@@ -113,8 +113,19 @@ def test_clips_uploaded_are_listed_and_one_played_moves_the_mouth_until_stopped(
     heard = Watch(ros, names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData")
     reply = select(ros, "speech.clips.grandma_hello")
     assert reply == {"success": True, "message": "playing 'grandma_hello' (1.5 s)"}, reply
-    assert wait_for(lambda: server.call(lambda: robot.voice_level) > 0.3 or library.latest["playing"] == "", 30)
+    owners = server.server.owners
+    talking = []  # the voice's and the face's owners read on the server's loop at the moment the mouth is open
+
+    def mouth_open() -> bool:
+        level, owned = server.call(lambda: (robot.voice_level, (owners.owner("voice"), owners.owner("face"))))
+        if level > 0.3:
+            talking.append(owned)
+        return level > 0.3 or library.latest["playing"] == ""
+
+    assert wait_for(mouth_open, 30)
     assert library.latest["playing"] == "grandma_hello", "the mouth did not move while the clip played"
+    # whoever played it owns the voice and the face while it plays: autonomy neither talks over it nor cuts it
+    assert talking == [("client", "client")], talking
     assert server.call(lambda: robot.standin.emotion) == "talking"  # the talking face while it plays
     assert wait_for(lambda: library.latest["playing"] == "", 30)
     with heard.lock:

@@ -66,7 +66,6 @@ class TeleopServer:
         self.media: MediaService | None = None
         self.autonomy: Autonomy | None = None
         self.bystanders: Any = None  # the stand-in's simulated pupils (features/bystanders.py), backend sim only
-        self.owners = Ownership(self.model.parts)  # who moves each part (design.md, "Who moves the robot")
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
                               "spectator": settings.spectator_token})
@@ -80,6 +79,8 @@ class TeleopServer:
         self.motivation_config = load_motivation_config(settings.motivation_config)
         self.autonomy_rules = load_rules(settings.autonomy_rules)
         self.attention_config = load_attention_config(settings.autonomy_attention)
+        # who moves each part (design.md, "Who moves the robot")
+        self.owners = Ownership(self.model.parts, client_grace_s=self.attention_config.client_grace_s)
         self.learner = Learner(settings.autonomy_memory)
         self.transport = WebSocketTransport(settings, self._open_session, self._close_session, self.access)
 
@@ -177,17 +178,16 @@ class TeleopServer:
         audio_dir = s.audio_dir or default_audio_dir()
         speaker = Speaker(self.bus, robot, audio_dir)
         self._start(speaker)
-        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners,
-                              grace_s=self.attention_config.client_grace_s)
+        self.luxai = LuxaiApi(self.bus, robot, gestures, speaker, clock=self.clock, owners=self.owners)
         self._start(self.luxai)
         self.control = ExplicitControl(
             self.bus, robot, s.teleop, may_override=lambda caller: self.access.may_override_control(self._role(caller)),
             operator_of=self._operator, operator_online=self._operator_online, clock=self.clock,
             owners=self.owners)
         self._start(self.control)
-        voice = OperatorVoiceIn(self.bus, robot, audio_dir)
+        voice = OperatorVoiceIn(self.bus, robot, audio_dir, owners=self.owners)
         self._start(voice)
-        clips = ClipLibrary(self.bus, speaker, s.clips, voice)
+        clips = ClipLibrary(self.bus, speaker, s.clips, voice, owners=self.owners)
         self._start(clips)
         status = StatusPublisher(self.bus, robot)
         self._start(status)

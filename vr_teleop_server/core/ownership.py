@@ -12,16 +12,26 @@ part only while nobody claims it, and asks before each command.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Iterable
+import contextlib
+from collections.abc import Callable, Iterable, Iterator
+
+from .bus import SERVER_NODE
 
 # strongest first
 CLAIMANTS = ("estop", "operator", "trial", "gesture", "client")
 VOICE, FACE = "voice", "face"  # the parts that are not joints
+CLIENT_GRACE_S = 5.0  # the packaged client_grace_s (features/autonomy/data/attention.yaml says why)
+
+
+def client_of(sender: str) -> str | None:
+    """The client behind a command, or None for the server's own nodes (autonomy, the menus it selects from)."""
+    return None if not sender or sender.startswith((SERVER_NODE, "/rosapi")) else sender
 
 
 class Ownership:
-    def __init__(self, parts: Iterable[str]) -> None:
+    def __init__(self, parts: Iterable[str], client_grace_s: float = CLIENT_GRACE_S) -> None:
         self.parts = tuple(dict.fromkeys((*parts, VOICE, FACE)))
+        self.client_grace_s = client_grace_s
         self._claims: dict[str, dict[str, str]] = {part: {} for part in self.parts}  # part -> claimant -> who
         self._holds: dict[tuple[str, str], int] = {}  # (claimant, part) -> commands running now
         self._ends: dict[tuple[str, str], asyncio.TimerHandle] = {}  # (claimant, part) -> the grace's end
@@ -71,6 +81,18 @@ class Ownership:
                     self._ends[key] = loop.call_later(grace_s, self._grace_over, key)
 
         return finished
+
+    @contextlib.contextmanager
+    def commanding(self, sender: str, parts: Iterable[str]) -> Iterator[None]:
+        """A client's command (a LuxAI API call, a clip it plays, its voice through the robot) owns `parts` while it
+        runs and `client_grace_s` after; the server's own commands claim nothing."""
+        client = client_of(sender)
+        done = self.hold("client", parts, client, self.client_grace_s) if client is not None else None
+        try:
+            yield
+        finally:
+            if done is not None:
+                done()
 
     def _grace_over(self, key: tuple[str, str]) -> None:
         self._ends.pop(key, None)

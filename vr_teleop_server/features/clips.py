@@ -25,6 +25,7 @@ import time
 import wave
 from dataclasses import dataclass
 from pathlib import Path
+from collections.abc import Awaitable
 from typing import Any
 
 import av
@@ -33,6 +34,7 @@ import numpy as np
 from client_protocol import names
 
 from ..core.bus import Bus, BusError
+from ..core.ownership import FACE, VOICE, Ownership
 from .speech import OperatorVoiceIn, Speaker
 
 log = logging.getLogger(__name__)
@@ -113,8 +115,9 @@ class ClipLibrary:
     """The clips in `directory` (None: no library, and adding is refused saying how to have one)."""
 
     def __init__(self, bus: Bus, speaker: Speaker, directory: Path | None,
-                 voice: OperatorVoiceIn | None = None) -> None:
+                 voice: OperatorVoiceIn | None = None, owners: Ownership | None = None) -> None:
         self.bus = bus
+        self.owners = owners  # a clip owns the voice and the face while it plays, for whoever played it
         self.speaker = speaker
         self.directory = directory
         self.voice = voice  # the operator voice road, recorded from
@@ -239,11 +242,18 @@ class ClipLibrary:
         except (ClipRefused, OSError) as exc:
             raise BusError(f"clip {name!r} cannot be played: {exc}") from None
         self.speaker.stop_speaking()
-        player = self._player = asyncio.ensure_future(self.speaker.play_clip(decoded.pcm, RATE))
+        player = self._player = asyncio.ensure_future(self._owned(Bus.caller(), self.speaker.play_clip(decoded.pcm,
+                                                                                                    RATE)))
         self.playing = name
         self._publish(listed=False)
         player.add_done_callback(self._played)
         return decoded.duration_s
+
+    async def _owned(self, by: str, playing: Awaitable[bool]) -> bool:
+        if self.owners is None:
+            return await playing
+        with self.owners.commanding(by, (VOICE, FACE)):
+            return await playing
 
     def _played(self, player: asyncio.Task[Any]) -> None:
         if not player.cancelled() and player.exception() is not None:

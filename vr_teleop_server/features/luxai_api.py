@@ -5,7 +5,7 @@ unchanged. Every command goes through the Robot interface, which clamps; a clamp
 on `/vr_teleop/clamps` and reported to the sender as a status warning, never hidden.
 
 A client that commands a part here (head, arms, a gesture's parts, the face by an emotion, the voice by speech) owns
-it in the arbiter (core/ownership.py) while the command runs and `grace_s` after: the robot's autonomy keeps off it.
+it in the arbiter (core/ownership.py) while the command runs and the arbiter's client grace after: the robot's autonomy keeps off it.
 The server's own features (autonomy's proposals, the menus when autonomy selects) claim nothing this way.
 """
 
@@ -35,21 +35,11 @@ from .speech import Speaker
 
 log = logging.getLogger(__name__)
 
-CLIENT_GRACE_S = 5.0  # the packaged client_grace_s (features/autonomy/data/attention.yaml says why)
-
-
-def client_of(sender: str) -> str | None:
-    """The client behind a command, or None for the server's own nodes (autonomy, the menus it selects from)."""
-    return None if not sender or sender.startswith((SERVER_NODE, "/rosapi")) else sender
-
-
 class LuxaiApi:
     def __init__(self, bus: Bus, robot: Robot, gestures: GestureLibrary, speaker: Speaker,
-                 joint_state_hz: float = 30.0, clock: Clock = WALL, owners: Ownership | None = None,
-                 grace_s: float = CLIENT_GRACE_S) -> None:
+                 joint_state_hz: float = 30.0, clock: Clock = WALL, owners: Ownership | None = None) -> None:
         self.bus = bus
         self.owners = owners or Ownership(robot.model.parts)  # a playing gesture owns the parts it moves
-        self.grace_s = grace_s
         self._plays = itertools.count(1)
         self.clock = clock  # times the gesture recorder's samples
         self.robot = robot
@@ -106,22 +96,9 @@ class LuxaiApi:
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
-    # ---- who commands -------------------------------------------------------------------------------------------
-    @contextlib.contextmanager
-    def _commanding(self, sender: str, parts: tuple[str, ...]) -> Any:
-        """A client's command owns `parts` while it runs and the grace after; the server's own commands claim
-        nothing."""
-        client = client_of(sender)
-        done = self.owners.hold("client", parts, client, self.grace_s) if client is not None else None
-        try:
-            yield
-        finally:
-            if done is not None:
-                done()
-
     # ---- joint commands -----------------------------------------------------------------------------------------
     def _on_part_command(self, part: str, published: Published) -> None:
-        with self._commanding(published.sender, (part,)):
+        with self.owners.commanding(published.sender, (part,)):
             self._command_part(part, published)
 
     def _command_part(self, part: str, published: Published) -> None:
@@ -147,7 +124,7 @@ class LuxaiApi:
 
     async def _home(self, request: Any) -> dict[str, Any]:
         parts = self._parts(request.parts)
-        with self._commanding(Bus.caller(), tuple(parts)):
+        with self.owners.commanding(Bus.caller(), tuple(parts)):
             for part, report in self.robot.home(parts).items():
                 self.publish_clamp(f"/qt_robot/motors/home {part}", report)
         return {"status": True}
@@ -213,13 +190,13 @@ class LuxaiApi:
 
     def _on_emotion_topic(self, published: Published) -> None:
         try:
-            with self._commanding(published.sender, (FACE,)):
+            with self.owners.commanding(published.sender, (FACE,)):
                 self._show(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _emotion_show(self, request: Any) -> dict[str, Any]:
-        with self._commanding(Bus.caller(), (FACE,)):
+        with self.owners.commanding(Bus.caller(), (FACE,)):
             self._show(request.name)
         return {"status": True}
 
@@ -228,13 +205,13 @@ class LuxaiApi:
 
     async def _say_reporting(self, published: Published) -> None:
         try:
-            with self._commanding(published.sender, (VOICE,)):
+            with self.owners.commanding(published.sender, (VOICE,)):
                 await self.speaker.say(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _speech_say(self, request: Any) -> dict[str, Any]:
-        with self._commanding(Bus.caller(), (VOICE,)):
+        with self.owners.commanding(Bus.caller(), (VOICE,)):
             result = await self.speaker.say(request.message)
         return {"status": result.completed}
 
@@ -285,7 +262,7 @@ class LuxaiApi:
     async def _play_own(self, name: str, speed: float, sender: str | None, by: str) -> bool:
         parts = tuple(self.robot.model.parts)  # the robot's own file: its parts unknown here
         try:
-            with self._commanding(by, parts), self._owning(name, parts):
+            with self.owners.commanding(by, parts), self._owning(name, parts):
                 return (await self.robot.play_own_gesture(name, speed)).completed
         except Refusal as exc:
             if sender is None:
@@ -296,7 +273,7 @@ class LuxaiApi:
     async def _play(self, gesture: Gesture, speed: float, sender: str | None, by: str) -> bool:
         model = self.robot.model
         parts = tuple(dict.fromkeys(model.joint(n).part for wp in gesture.waypoints for n in wp.targets))
-        with self._commanding(by, parts), self._owning(gesture.name, parts):
+        with self.owners.commanding(by, parts), self._owning(gesture.name, parts):
             result = await self.robot.play_gesture(gesture, speed)
         if result.clamps or result.ignored:
             self.publish_clamp(

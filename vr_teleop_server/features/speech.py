@@ -43,6 +43,7 @@ from typing import Any
 from client_protocol import names
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
+from ..core.ownership import VOICE, Ownership
 from ..robot.interface import Robot, SpeechResult, stopped_within
 
 log = logging.getLogger(__name__)
@@ -341,9 +342,11 @@ class OperatorVoiceIn:
     media/audio.py publishes there as the client; a replayed recording), is played on the robot
     (`Robot.play_voice`) and logged, one WAV per client in `directory`."""
 
-    def __init__(self, bus: Bus, robot: Robot, directory: Path, default_rate: int = 16000) -> None:
+    def __init__(self, bus: Bus, robot: Robot, directory: Path, default_rate: int = 16000,
+                 owners: Ownership | None = None) -> None:
         self.bus = bus
         self.robot = robot
+        self.owners = owners or Ownership(robot.model.parts)  # the operator's voice owns the robot's while it talks
         self.directory = directory
         self.default_rate = default_rate
         self._formats: dict[str, tuple[int, int]] = {}  # sender -> (sample rate, channels)
@@ -392,7 +395,8 @@ class OperatorVoiceIn:
         if any([tap(published.sender, data, rate, channels) for tap in self.taps]):
             return
         try:
-            self.robot.play_voice(data, rate, channels)
+            with self.owners.commanding(published.sender, (VOICE,)):
+                self.robot.play_voice(data, rate, channels)
         except Exception:  # the log above is kept whatever the robot does with it
             log.exception("the robot could not play the operator's voice")
 
