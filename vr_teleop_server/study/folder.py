@@ -202,13 +202,25 @@ class StudyFolder:
                            reason="the server stopped while the trial ran; its recording is kept")
         return folder
 
-    def _replay(self) -> None:
+    @classmethod
+    def read(cls, path: str | Path) -> StudyFolder:
+        """The folder's state for reading (the report), without the lock: a server may be writing it. A trial
+        still running shows as running; nothing is written."""
+        path = Path(path)
+        if not (path / PLAN_FILE).exists():
+            raise FolderError(f"{path}: not a study folder (no {PLAN_FILE})")
+        plan = StudyPlan.from_json(json.loads((path / PLAN_FILE).read_text(encoding="utf-8")))
+        folder = cls(path, plan, _now)
+        folder._replay(repair=False)
+        return folder
+
+    def _replay(self, repair: bool = True) -> None:
         log = self.path / LOG_FILE
         if not log.exists():
             return
         data = log.read_bytes()
         good = data.rfind(b"\n") + 1
-        if good < len(data):  # a line the crash cut: it never counted (its action was not acknowledged)
+        if good < len(data) and repair:  # a line the crash cut: it never counted (its action was not acknowledged)
             with log.open("r+b") as handle:
                 handle.truncate(good)
                 os.fsync(handle.fileno())
@@ -479,10 +491,7 @@ def _differences(stored: StudyPlan, plan: StudyPlan) -> list[str]:
 
 def withdraw(path: str | Path, pid: str, who: str = "cli") -> StudyFolder:
     """`vr-teleop study withdraw DIR P07`: the folder opened with the plan it was made with."""
-    path = Path(path)
-    if not (path / PLAN_FILE).exists():
-        raise FolderError(f"{path}: not a study folder (no {PLAN_FILE})")
-    plan = StudyPlan.from_json(json.loads((path / PLAN_FILE).read_text(encoding="utf-8")))
+    plan = StudyFolder.read(path).plan
     with StudyFolder.open(path, plan, who=who) as folder:
         folder.withdraw(who, pid)
     return folder
