@@ -109,3 +109,9 @@ class StudyPlan:
     def from_json(cls, document: dict[str, Any]) -> StudyPlan:
         return cls(document["study"], tuple(document["conditions"]), int(document["seed"]),
                    ProtocolFields.model_validate(document["protocol"]))
+
+
+def plan_of(study: Any) -> StudyPlan:
+    """The plan of a loaded study file of either kind (its trials, or a classroom's conditions, in file order)."""
+    fields = ProtocolFields.model_validate({k: getattr(study, k) for k in ProtocolFields.model_fields})
+    return StudyPlan(study.study, tuple(study.trials), study.seed, fields)
