@@ -32,9 +32,9 @@ class Scale(BaseModel):
 
     model_config = _STRICT
     min: float
-    max: float | None  # None: no upper bound (an objective measure in seconds)
-    integer: bool = True  # False: any number in range (NASA-TLX's 0-100)
-    anchors: dict[int, str] = {}
+    max: float | None = Field(description="null: no upper bound (an objective measure in seconds)")
+    integer: bool = Field(default=True, description="false: any number in range (NASA-TLX's 0-100)")
+    anchors: dict[int, str] = Field(default={}, description="labels of points of the scale: {1: strongly disagree}")
     unit: str | None = None
 
     @model_validator(mode="after")
@@ -50,11 +50,11 @@ class Item(BaseModel):
     model_config = _STRICT
     id: str = Field(min_length=1, pattern=r"^[A-Za-z][A-Za-z0-9_]*$")
     text: str | None = None
-    short: str | None = None  # a label for tables and charts
-    left: str | None = None
-    right: str | None = None
-    reverse: bool = False  # scored as min + max - answer
-    scale: Scale | None = None  # its own scale (QAM's objective parameters); None: the instrument's
+    short: str | None = Field(default=None, description="a label for tables and charts")
+    left: str | None = Field(default=None, description="a semantic differential's anchor at the minimum")
+    right: str | None = Field(default=None, description="its anchor at the maximum")
+    reverse: bool = Field(default=False, description="reverse-keyed: scored as min + max - answer")
+    scale: Scale | None = Field(default=None, description="the item's own scale (QAM's objective parameters)")
 
 
 class Subscale(BaseModel):
@@ -65,9 +65,9 @@ class Subscale(BaseModel):
     id: str = Field(min_length=1)
     name: str
     long_name: str | None = None
-    items: list[Item] = []
-    includes: list[str] = []
-    multiplier: float = 1.0
+    items: list[Item] = Field(default=[], description="the subscale's own items")
+    includes: list[str] = Field(default=[], description="ids of items declared elsewhere that count here too")
+    multiplier: float = Field(default=1.0, description="the score is the raw score times this weight")
 
 
 class Total(BaseModel):
@@ -76,16 +76,16 @@ class Total(BaseModel):
 
     model_config = _STRICT
     name: str
-    of: Literal["items", "subscales"] = "items"
+    of: Literal["items", "subscales"] = Field(default="items", description="keyed items, or subscales' raw scores")
     rule: Literal["sum", "mean"] = "sum"
-    from_min: bool = False
+    from_min: bool = Field(default=False, description="subtract the scale's min from each keyed answer (SUS)")
     multiplier: float = 1.0
 
 
 class Scoring(BaseModel):
     model_config = _STRICT
-    subscales: Literal["sum", "mean"] = "mean"
-    total: Total | None = None
+    subscales: Literal["sum", "mean"] = Field(default="mean", description="a subscale's raw score from its items")
+    total: Total | None = Field(default=None, description="the one overall score, if there is one")
 
 
 class PairwiseWeights(BaseModel):
@@ -101,10 +101,11 @@ class Instrument(BaseModel):
     title: str
     source: str
     scale: Scale
-    phases: list[str] = []  # QAM: expected (before the first use), perceived (after)
-    items: list[Item] = []  # items not declared inside a subscale
-    subscales: list[Subscale] = Field(default=[], validation_alias=AliasChoices("subscales", "series"))
-    scoring: Scoring | None = None  # None: items are reported one by one (QAM)
+    phases: list[str] = Field(default=[], description="when it is given (QAM: expected, perceived)")
+    items: list[Item] = Field(default=[], description="items not declared inside a subscale")
+    subscales: list[Subscale] = Field(default=[], validation_alias=AliasChoices("subscales", "series"),
+                                      description="also accepted as series (Godspeed)")
+    scoring: Scoring | None = Field(default=None, description="null: reported item by item (QAM)")
     weights: PairwiseWeights | None = None
 
     @model_validator(mode="after")
