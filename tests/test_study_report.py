@@ -46,13 +46,13 @@ def rating(tmp_path):
 
 
 def build(tmp_path, rating, values: dict[str, dict[str, float | None]], design="within", order="latin",
-          before=()):
+          before=(), conditions=CONDITIONS):
     """A folder where participant i gave values[i][condition] after each condition (None: not submitted)."""
     protocol = ProtocolFields.model_validate({
         "design": design, "order": order, "consent_form": FORM,
         "questionnaires": {"after_each": [rating], "before_first": list(before)}})
     path = tmp_path / "study"
-    with StudyFolder.open(path, StudyPlan("demo", CONDITIONS, 1, protocol), clock=Clock()) as folder:
+    with StudyFolder.open(path, StudyPlan("demo", conditions, 1, protocol), clock=Clock()) as folder:
         for wanted in values.values():
             p = folder.enrol("experimenter", consent=True, consent_form=FORM)
             for condition in p.order:
@@ -95,6 +95,26 @@ def test_friedman_wilcoxon_and_holm_hand_computed(tmp_path, rating):
     assert ab.n_for_80_power == math.ceil(TTestPower().solve_power(effect_size=dz, power=0.8, alpha=0.05))
     assert m.conditions["A"].mean == pytest.approx(47.5) and m.conditions["C"].median == pytest.approx(68.75)
     assert m.missing == {"A": 0, "B": 0, "C": 0} and m.excluded == []
+    duration = next(x for x in report.measures if x.measure == "trial.duration_s")
+    assert duration.conditions["A"].mean == 1.0  # the test's clock: a second from start to end
+    assert duration.omnibus.text == "across conditions: not run, every value is the same"
+    assert [p.note for p in duration.pairwise] == ["not run: every difference is zero"] * 3
+
+
+def test_two_conditions_take_the_pairwise_test_alone(tmp_path, rating):
+    values = {p: {"A": v["A"], "B": v["B"]} for p, v in RANKED.items()}
+    report = report_of(build(tmp_path, rating, values, conditions=("A", "B")))
+    m = next(x for x in report.measures if x.measure == "rating")
+    assert m.omnibus is None and len(m.pairwise) == 1
+    pair = m.pairwise[0]
+    reference = stats.wilcoxon([v["B"] for v in values.values()], [v["A"] for v in values.values()])
+    assert (pair.statistic, pair.p_unc, pair.p_holm) == pytest.approx((reference.statistic, reference.pvalue,
+                                                                       reference.pvalue))
+    # by position: P01 and P03 met A first, P02 and P04 B first (Latin rows 01, 10)
+    first = [40, 60, 50, 60]
+    second = [50, 45, 52.5, 55]
+    reference = stats.wilcoxon(second, first)
+    assert m.order_effect.p == pytest.approx(reference.pvalue)
 
 
 def test_parametric_against_scipy_and_a_hand_anova(tmp_path, rating):

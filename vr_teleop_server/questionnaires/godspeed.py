@@ -21,7 +21,7 @@ from pydantic import BaseModel, model_validator
 
 from . import tables
 from .definitions import view
-from .instrument import Instrument, load_instrument, score, source_name
+from .instrument import Instrument, load_instrument, load_instrument_file, score, source_name
 from .sheets import Sheet, SheetSpec, ValueColumn, split_rows
 from .stats import Describe, cronbach_alpha, describe
 
@@ -78,7 +78,7 @@ class GodspeedDefinition(BaseModel):
 def load_godspeed_definition(path: str | Path | None = None) -> GodspeedDefinition:
     """The packaged items, or a user's item file (e.g. a translation with some anchors swapped)."""
     name = "godspeed" if path is None else path
-    instrument = load_instrument(name)
+    instrument = load_instrument("godspeed") if path is None else load_instrument_file(path)
     return view(GodspeedDefinition, dict(
         instrument=instrument, scale=dict(min=instrument.scale.min, max=instrument.scale.max),
         series=[dict(id=s.id, name=s.name, items=[dict(id=i.id, left=i.left, right=i.right, reverse=i.reverse)

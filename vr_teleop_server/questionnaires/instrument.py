@@ -255,13 +255,18 @@ def source_name(name_or_path: str | Path) -> str:
     return f"package data {text}.yaml" if text in PACKAGED else text
 
 
+def load_instrument_file(path: str | Path) -> Instrument:
+    """A lab's own instrument file (YAML)."""
+    return load_model_file(Instrument, Path(path), error=DefinitionError)
+
+
 def load_instrument(name_or_path: str | Path) -> Instrument:
-    """A packaged instrument by name (`sus`), or a lab's own file (a path ending in .yaml or .yml)."""
+    """A packaged instrument by name (`sus`), or a lab's own file (its path)."""
     text = str(name_or_path)
     if text in PACKAGED:
         return load_model_file(Instrument, data_file(f"{text}.yaml"), shown=source_name(text),
                                error=DefinitionError)
-    if not text.endswith((".yaml", ".yml")):
+    if not text.endswith((".yaml", ".yml")) and not Path(text).is_file():
         raise DefinitionError(f"{text}: not a questionnaire (the packaged ones are {', '.join(PACKAGED)}; "
                               "a lab's own is the path of its .yaml file)")
-    return load_model_file(Instrument, Path(text), error=DefinitionError)
+    return load_instrument_file(text)

@@ -22,7 +22,7 @@ from pydantic import BaseModel, model_validator
 
 from . import tables
 from .definitions import DefinitionError, view
-from .instrument import load_instrument, source_name
+from .instrument import load_instrument, load_instrument_file, source_name
 from .sheets import AnswerRow, Sheet, SheetSpec, ValueColumn, split_rows
 from .stats import DEFAULT_MIN_NONZERO, Describe, PairedTest, describe, wilcoxon_paired
 
@@ -98,7 +98,7 @@ class QAMDefinition(BaseModel):
 def load_qam_definition(path: str | Path | None = None) -> QAMDefinition:
     """QAM's view of its instrument file: parameter N is item PN, the actor groups are its subscales."""
     name = "qam" if path is None else path
-    instrument = load_instrument(name)
+    instrument = load_instrument("qam") if path is None else load_instrument_file(path)
     parameters = []
     for group in instrument.subscales:
         for item in instrument.members(group):

@@ -61,6 +61,7 @@ def _positions(participant) -> dict[str, int]:
 def collect(folder: StudyFolder) -> list[Row]:
     """The long-format table of a study folder: every value a participant owes, present or missing."""
     plan = folder.plan.protocol.questionnaires
+    instruments = {e.name: load_instrument(e.name) for e in (*plan.before_first, *plan.after_each, *plan.after_last)}
     rows: list[Row] = []
     for p in folder.participants.values():
         positions = _positions(p)
@@ -74,13 +75,12 @@ def collect(folder: StudyFolder) -> list[Row]:
             for entry in plan.after_each:
                 given = next((a for a in p.answers if a.questionnaire == entry.name and a.condition == condition),
                              None)
-                instrument = load_instrument(entry.name)
-                for measure in instrument.measures():
+                for measure in instruments[entry.name].measures():
                     rows.append(Row(p.id, p.group, condition, position, measure,
                                     None if given is None else given.scores.get(measure)))
         for when, entries in (("before_first", plan.before_first), ("after_last", plan.after_last)):
             for entry in entries:
-                instrument = load_instrument(entry.name)
+                instrument = instruments[entry.name]
                 prefix = f"{entry.name}.{entry.phase or when}"
                 given = next((a for a in p.answers if a.questionnaire == entry.name and a.condition is None
                               and a.phase == entry.phase), None)
