@@ -225,8 +225,13 @@ def test_a_crash_mid_trial_loses_nothing_and_the_study_carries_on(tmp_path):
         assert folder.enrol("experimenter", consent=False).id == "P03"
 
 
-def test_a_folder_refuses_another_plan(tmp_path):
+def test_a_folder_refuses_another_plan_and_a_log_edited_by_hand(tmp_path):
     StudyFolder.open(tmp_path / "s", plan()).close()
+    with (tmp_path / "s" / LOG_FILE).open("a") as handle:
+        handle.write('{"seq": 1, "what": "trial_end", "participant": "P01", "trial": 1}\n')
+    with pytest.raises(FolderError, match=r"events.jsonl, line 1: not an event this tool wrote \(KeyError"):
+        StudyFolder.open(tmp_path / "s", plan())
+    (tmp_path / "s" / LOG_FILE).unlink()
     with pytest.raises(FolderError, match=r"another plan \(order latin, not random\)"):
         StudyFolder.open(tmp_path / "s", plan(order="random"))
     with pytest.raises(FolderError, match="declares no consent_form"):

@@ -224,11 +224,16 @@ class StudyFolder:
             with log.open("r+b") as handle:
                 handle.truncate(good)
                 os.fsync(handle.fileno())
-        for line in data[:good].decode("utf-8").splitlines():
-            if line.strip():
+        for number, line in enumerate(data[:good].decode("utf-8").splitlines(), start=1):
+            if not line.strip():
+                continue
+            try:
                 event = json.loads(line)
                 self._apply(event)
                 self._seq = event["seq"]
+            except (ValueError, KeyError, IndexError, TypeError) as exc:
+                raise FolderError(f"{log}, line {number}: not an event this tool wrote ({exc!r}); was the log "
+                                  "edited by hand? Restore it from a backup") from None
 
     @staticmethod
     def _log_lines(path: Path) -> list[dict[str, Any]]:
@@ -353,8 +358,9 @@ class StudyFolder:
             raise Refused(f"{condition!r} is not one of {where} conditions for {pid} ({', '.join(participant.order)})")
         deviation = condition != following
         if deviation and not reason.strip():
-            why = f"already done ({', '.join(t.outcome or '' for t in participant.trials if t.condition == condition)})" \
-                if condition in participant.done() else f"the next in {pid}'s order is {following}"
+            outcomes = [t.outcome or "" for t in participant.trials
+                        if t.condition == condition and t.outcome in ENDINGS]
+            why = f"already done ({', '.join(outcomes)})" if outcomes else f"the next in {pid}'s order is {following}"
             raise Refused(f"running {condition} now is a deviation ({why}): give a reason, which is logged")
         number = len(participant.trials) + 1
         runs = sum(t.condition == condition for t in participant.trials)
