@@ -7,11 +7,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..questionnaires import tables
 from ..study.folder import FolderError, StudyFolder
-from ..study.report import StudyReport, analyse, collect, p_text, write_csv
-from ..study.report_plots import plot_measures
+
+if TYPE_CHECKING:
+    from ..study.report import StudyReport
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +37,8 @@ def _num(value: float | None, digits: int = 2) -> str:
 
 
 def summary(report: StudyReport) -> str:
+    from ..study.report import p_text
+
     out = [f"Study {report.study}: {report.design}-subject, {report.participants} participant(s), "
            f"conditions {', '.join(report.conditions)}; "
            + ("parametric tests" if report.parametric else "non-parametric tests (--parametric for ANOVA/t)")]
@@ -81,6 +85,10 @@ def summary(report: StudyReport) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    # pandas and pingouin take a second to import: only for this command, not for every `vr-teleop` start
+    from ..study.report import analyse, collect, write_csv
+    from ..study.report_plots import plot_measures
+
     try:
         folder = StudyFolder.read(args.dir)
     except FolderError as exc:
