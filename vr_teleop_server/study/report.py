@@ -357,6 +357,9 @@ def _between(measure: str, frame: pd.DataFrame, conditions: Sequence[str], param
 
 
 def analyse(folder: StudyFolder, rows: Sequence[Row], parametric: bool = False) -> StudyReport:
+    """Per measure compared across conditions: descriptives, omnibus and pairwise tests (Holm), effect sizes, order
+    effects, post hoc power, missing values and exclusions; with the folder's deviations, unfinished trials,
+    withdrawals and balance."""
     design = folder.plan.protocol.design
     conditions = list(folder.plan.conditions)
     frame = pd.DataFrame([r.__dict__ for r in rows], columns=list(CSV_COLUMNS))
