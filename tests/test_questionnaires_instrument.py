@@ -82,6 +82,8 @@ def test_answers_out_of_scale_unknown_or_missing_are_refused_naming_the_item():
     assert "Q3: 6 is outside its scale 1-5" in problems
     assert "Q4: 2.5 is not a whole number (1-5)" in problems
     assert any(p.startswith("Q5: 'often' is not an answer") for p in problems)
+    with pytest.raises(AnswerError, match="Q1: True is not an answer"):
+        check_answers(sus, dict(answers, Q1=True))
     assert f'Q9: no answer (give one, or "{PREFER_NOT}")' in problems
     tlx = load_instrument("tlx")  # a continuous 0-100 scale takes 42.5, not 101
     ratings = {i.id: 42.5 for i in tlx.all_items}

@@ -275,3 +275,22 @@ def test_between_subject_participants_get_one_condition_each_in_balance(tmp_path
         refused_and_unchanged(folder, lambda: folder.start_trial(
             "experimenter", "P01", next(c for c in CONDITIONS if c != people[0].order[0]), reason="r"),
             "is not one of their group's conditions for P01")
+
+
+def test_the_session_shows_each_participants_order_progress_and_what_is_due(folder):
+    folder.enrol("experimenter", consent=True, consent_form=FORM, group="teachers")
+    folder.enrol("experimenter", consent=False)
+    folder.start_trial("experimenter", "P01")
+    session = folder.session()
+    assert session["running"] == {"participant": "P01", "trial": 1, "condition": "teleoperated",
+                                  "started": "2026-11-29T09:00:04.000+00:00", "recording": "P01/teleoperated.mcap"}
+    folder.end_trial("experimenter", "completed")
+    session = folder.session()
+    assert session["running"] is None and session["conditions"] == list(CONDITIONS)
+    assert session["participants"] == [
+        {"id": "P01", "group": "teachers", "order": ["teleoperated", "supervised", "autonomous"], "consented": True,
+         "done": ["teleoperated"], "next": "supervised",
+         "due": ["qam (expected)", "sus after teleoperated", "ssq after teleoperated [whoever wore the headset]"]},
+        {"id": "P02", "group": "", "order": ["supervised", "autonomous", "teleoperated"], "consented": False,
+         "done": [], "next": "supervised", "due": ["qam (expected)"]}]
+    assert session["balance"].startswith("unbalanced: 2 participants")
