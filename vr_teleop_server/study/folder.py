@@ -1,6 +1,8 @@
 """The study folder: a live study's whole state, so that a crash loses nothing and a restart carries on.
 
     DIR/study.json     the plan it was opened with (name, conditions, design, order, consent form ...)
+    DIR/.secret        the key participant tokens are made from (HMAC of the pseudonym), so that a restarted
+                       server knows the same tokens and a withdrawn participant's stops working
     DIR/events.jsonl   the event log: one JSON object a line (seq, time, who, what, ...), appended and fsynced
                        before an action counts
     DIR/P03/           the participant's recordings (CONDITION.mcap), written by whoever runs the trial
@@ -19,8 +21,11 @@ The server's live study (services, the dashboard) and the CLI call this module; 
 from __future__ import annotations
 
 import fcntl
+import hashlib
+import hmac
 import json
 import os
+import secrets
 import shutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -34,6 +39,7 @@ from .protocol import QuestionnaireEntry, StudyPlan
 
 PLAN_FILE = "study.json"
 LOG_FILE = "events.jsonl"
+SECRET_FILE = ".secret"
 LOCK_FILE = ".lock"  # held (flock) while a process has the folder open
 Outcome = Literal["completed", "aborted", "interrupted"]
 ENDINGS = ("completed", "aborted")
@@ -144,6 +150,7 @@ class StudyFolder:
         self._seq = 0
         self._enrolled = 0  # participants ever enrolled, withdrawn ones too: the next one's design row
         self._lock: int | None = None
+        self._secret = b""  # set by open(): read() makes no tokens
 
     def close(self) -> None:
         if self._lock is not None:
@@ -195,6 +202,7 @@ class StudyFolder:
             _write_atomic(plan_path, json.dumps(plan.to_json(), indent=2) + "\n")
         folder = cls(path, plan, clock)
         folder._lock = lock
+        folder._secret = _secret(path / SECRET_FILE)
         folder._replay()
         if folder.running is not None:
             pid, trial = folder.running
@@ -400,6 +408,24 @@ class StudyFolder:
             raise Refused("an empty note")
         return self.record(who, "note", text=text)
 
+    # ---- participant tokens -------------------------------------------------------------------------------
+
+    def participant_token(self, pid: str) -> str:
+        """The token of the participant's page: admits only their own questionnaires (role participant)."""
+        self._participant(pid)
+        if not self._secret:
+            raise FolderError("participant tokens need the folder opened for writing (StudyFolder.open)")
+        return hmac.new(self._secret, b"participant\0" + pid.encode(), hashlib.sha256).hexdigest()[:32]
+
+    def participant_for_token(self, token: str) -> str | None:
+        """Whose page presents `token`: an enrolled participant's id, or None (a withdrawn one's is refused)."""
+        if not self._secret or not token:
+            return None
+        for pid in self.participants:
+            if hmac.compare_digest(self.participant_token(pid), token):
+                return pid
+        return None
+
     # ---- questionnaires -----------------------------------------------------------------------------------
 
     def due(self, pid: str) -> list[Due]:
@@ -476,6 +502,19 @@ class StudyFolder:
                              for p in self.participants.values()],
             "withdrawn": sorted(self.withdrawn),
         }
+
+
+def _secret(path: Path) -> bytes:
+    """The folder's token key, made once (readable by its owner only)."""
+    if not path.exists():
+        fd = os.open(path.with_name(path.name + ".tmp"), os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as handle:
+            handle.write(secrets.token_hex(32))
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(path.with_name(path.name + ".tmp"), path)
+        _fsync_dir(path.parent)
+    return bytes.fromhex(path.read_text().strip())
 
 
 def _differences(stored: StudyPlan, plan: StudyPlan) -> list[str]:
