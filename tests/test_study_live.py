@@ -180,3 +180,65 @@ def test_serve_refuses_a_study_it_cannot_host_naming_the_problem(tmp_path, setti
     with pytest.raises(ValueError, match=problem):
         TeleopServer(ServerSettings(port=0, **settings))
     assert not (tmp_path / "study").exists()  # nothing made
+
+
+def test_a_kill_9_mid_trial_loses_nothing_and_a_restart_carries_on(tmp_path):
+    """A real `vr-teleop serve --study` process killed with SIGKILL while a trial runs; the same folder again."""
+    from testbed.processes import serve, stop
+    from testbed.server import until
+
+    folder = tmp_path / "study"
+    args = ("--backend", "sim", "--study", str(CLASSROOM), "--study-dir", str(folder), "--record-camera-fps", "0",
+            "--bystander-interval", "0", "--autonomy", "teleoperated")
+
+    def trial_recorded(path: Path) -> bool:
+        try:
+            return any(m.topic == names.STUDY_TRIAL_TOPIC for m in read_recording(path))
+        except Exception:  # nothing flushed yet
+            return False
+
+    async def before() -> tuple[str, list[str], Path]:
+        client = await connect(proc.url)
+        added = await client.call(names.STUDY_PARTICIPANT_ADD_SERVICE,
+                                  {"consent": True, "consent_form": FORM, "group": ""})
+        await client.call(names.STUDY_TRIAL_START_SERVICE, {"participant": added["participant"], "condition": "",
+                                                            "reason": ""})
+        recording = folder / added["participant"] / f"{added['order'][0]}.mcap"
+        # the recorder flushes its chunks every half second: wait until the trial's start is on disk
+        assert await until(lambda: trial_recorded(recording), 60)
+        await client.close()
+        return added["participant"], added["order"], recording
+
+    proc = serve(*args)
+    try:
+        pid, order, recording = asyncio.run(before())
+    finally:
+        proc.kill()  # SIGKILL: no clean-up runs
+        proc.wait(30)
+
+    async def after() -> None:
+        client = await connect(proc.url)
+        session = await client.subscribe(names.STUDY_SESSION_TOPIC, "vr_teleop_msgs/StudySession")
+        state = await session.next()
+        assert state["running_trial"] == 0
+        mine = next(p for p in state["participants"] if p["id"] == pid)
+        assert mine["order"] == order and mine["consented"] and mine["done"] == [] and mine["next"] == order[0]
+        again = await client.call(names.STUDY_TRIAL_START_SERVICE, {"participant": pid, "condition": "",
+                                                                    "reason": ""})
+        assert again["trial"] == 2
+        running = await session.next(lambda m: m["running_trial"] == 2)
+        assert running["running_recording"] == f"{pid}/{order[0]}-2.mcap"  # the interrupted one's is kept
+        await client.call(names.STUDY_TRIAL_END_SERVICE, {"outcome": "completed", "note": ""})
+        await client.close()
+
+    proc = serve(*args)
+    try:
+        asyncio.run(after())
+    finally:
+        stop(proc)
+    log = events(folder)
+    interrupted = [e for e in log if e["what"] == "interrupted"]
+    assert len(interrupted) == 1 and interrupted[0]["participant"] == pid and interrupted[0]["trial"] == 1
+    assert [e["what"] for e in log if e["what"].startswith("trial")] == ["trial_start", "trial_start", "trial_end"]
+    assert trial_recorded(recording)  # the cut recording is kept, readable
+    assert StudyFolder.read(folder).participants[pid].trials[0].outcome == "interrupted"
