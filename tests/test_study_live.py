@@ -242,3 +242,39 @@ def test_a_kill_9_mid_trial_loses_nothing_and_a_restart_carries_on(tmp_path):
     assert [e["what"] for e in log if e["what"].startswith("trial")] == ["trial_start", "trial_start", "trial_end"]
     assert trial_recorded(recording)  # the cut recording is kept, readable
     assert StudyFolder.read(folder).participants[pid].trials[0].outcome == "interrupted"
+
+
+def test_a_task_trial_runs_its_condition_modules_on_the_live_server(module_servers, tmp_path):
+    """The task kind: the condition's perception, decision and motion modules on the server's robot; the
+    Wizard-of-Oz and preempt services of /decision/* work on the live trial and reach the event log."""
+    folder = tmp_path / "toolbox"
+    server = module_servers(backend="sim", study=ROOT / "examples" / "toolbox.yaml", study_dir=folder,
+                            record_camera_fps=0.0, bystander_interval=0.0)
+
+    async def main() -> None:
+        sup = await connect(server.url)
+        added = await sup.call(names.STUDY_PARTICIPANT_ADD_SERVICE,
+                               {"consent": True, "consent_form": "toolbox v1 2026-11", "group": ""})
+        pid = added["participant"]
+        reason = "" if added["order"][0] == "teleoperated" else "the static condition first: the markers are away"
+        await sup.call(names.STUDY_TRIAL_START_SERVICE, {"participant": pid, "condition": "teleoperated",
+                                                         "reason": reason})
+        trial = await sup.subscribe(names.STUDY_TRIAL_TOPIC, "vr_teleop_msgs/TrialState")
+        state = await trial.next(lambda m: m["state"] == "running", timeout=60)
+        assert (state["trial"], state["decision"]) == ("teleoperated", "teleop")
+        # a Wizard-of-Oz command the module refuses says why, in the response
+        with pytest.raises(Refused, match="fly"):
+            await sup.call(names.DECISION_TELEOP_SERVICE, {"object": "nothing", "action": "fly"})
+        await sup.call(names.DECISION_PREEMPT_SERVICE, {})
+        await trial.next(lambda m: m["state"] == "preempted", timeout=60)
+        await sup.call(names.STUDY_TRIAL_END_SERVICE, {"outcome": "aborted", "note": "preempted to test"})
+        await sup.close()
+
+    asyncio.run(main())
+    log = events(folder)
+    start = next(e for e in log if e["what"] == "trial_start")
+    assert start["condition"] == "teleoperated"
+    assert any(e["what"] == "preempt" and e["participant"] == start["participant"] for e in log)
+    assert log[-1]["what"] == "trial_end" and log[-1]["outcome"] == "aborted"
+    topics = {m.topic for m in read_recording(folder / start["recording"])}
+    assert names.STUDY_INTERVENTIONS_TOPIC in topics and names.STUDY_TRIAL_TOPIC in topics
