@@ -264,10 +264,11 @@ MESSAGES: dict[str, str] = {
     ),
     "vr_teleop_msgs/StudySession": (
         "# The live study (latched /study/session): its participants and the running trial (running_trial 0:\n"
-        "# none). balance: a note when the participants do not fill whole balanced sets of orders.\n"
+        "# none). balance: a note when the participants do not fill whole balanced sets of orders. actions and\n"
+        "# objects: a task study's robot actions and parts, for the Wizard-of-Oz commands (/decision/teleop).\n"
         "string study\nstring kind\nstring design\nstring order\nstring[] conditions\n"
         "StudyParticipant[] participants\nstring[] withdrawn\nstring running_participant\nint32 running_trial\n"
-        "string running_condition\nstring running_recording\nstring balance"
+        "string running_condition\nstring running_recording\nstring balance\nstring[] actions\nstring[] objects"
     ),
 }
 

@@ -172,7 +172,9 @@ class LiveStudy:
             "conditions": s["conditions"], "withdrawn": s["withdrawn"], "balance": s["balance"] or "",
             "participants": [{**p, "next": p["next"] or ""} for p in s["participants"]],
             "running_participant": running.get("participant", ""), "running_trial": running.get("trial", 0),
-            "running_condition": running.get("condition", ""), "running_recording": running.get("recording", "")},
+            "running_condition": running.get("condition", ""), "running_recording": running.get("recording", ""),
+            "actions": list(self.host.study.actions) if self.host.kind == "task" else [],
+            "objects": [p.name for p in self.host.study.parts] if self.host.kind == "task" else []},
             latch=True)
 
     def _who(self) -> str:

@@ -106,3 +106,55 @@ def test_the_page_is_served_and_a_wrong_token_is_told(browser, live):
         assert "token" in page.text_content("#message")
     finally:
         page.close()
+
+
+def test_the_experimenter_runs_a_participant_from_the_dashboard_with_the_keyboard(browser, live):
+    """The Study panel as the console: enrol with consent, start the next trial, a note, end it, what is due next;
+    keys and Tab/Enter only, no mouse."""
+    server, folder = live
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        page.goto(f"http://127.0.0.1:{server.port}/#token={SUPERVISOR}&camera=jpeg")
+        page.wait_for_selector("#live-study", state="visible")
+        assert "classroom (classroom, within, latin)" in page.text_content("#study-name")
+        # a refusal is shown, and nothing changes: consent on a form that is not the study's
+        page.focus("#enrol-consent")
+        page.keyboard.press("Space")
+        page.focus("#enrol-form")
+        page.keyboard.type("v0")
+        page.focus("#enrol")
+        page.keyboard.press("Enter")
+        page.wait_for_function("document.getElementById('labels').textContent.includes(\"consent form 'v0'\")")
+        rows = page.locator("#participants tbody tr").count()
+        page.fill("#enrol-form", FORM)
+        page.focus("#enrol")
+        page.keyboard.press("Enter")
+        page.wait_for_function(f"document.querySelectorAll('#participants tbody tr').length === {rows + 1}")
+        link = page.text_content("#enrol-link")
+        pid = link.split("'s questionnaire page")[0]
+        assert f"/participant#token=" in link
+        assert page.input_value("#trial-participant") == pid
+        page.wait_for_function(f"document.getElementById('study-due').textContent.includes('hand the tablet to {pid}')")
+        page.click("header h1")  # focus off the fields: keys are shortcuts
+        page.keyboard.press("s")
+        page.wait_for_function(f"document.getElementById('study-due').textContent.startsWith('running: {pid}')")
+        page.wait_for_function("document.getElementById('trial-badge').textContent.endsWith(': running')")
+        page.keyboard.press("t")  # the note field, focused, without a stray t
+        assert page.evaluate("document.activeElement.id") == "study-note"
+        page.keyboard.type("the participant laughed")
+        page.keyboard.press("Enter")
+        page.wait_for_function("document.getElementById('labels').textContent.includes('note: noted')")
+        page.focus("#trial-end-completed")
+        page.keyboard.press("Enter")
+        page.wait_for_function(f"document.getElementById('study-due').textContent.includes('hand the tablet to {pid}')")
+        assert "sus after" in page.text_content("#study-due") and "tlx after" in page.text_content("#study-due")
+        assert not errors, errors
+    finally:
+        page.close()
+    log = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
+    mine = [e["what"] for e in log if e.get("participant") == pid]
+    assert mine == ["enrol", "consent", "trial_start", "note", "trial_end"]
+    assert next(e for e in log if e["what"] == "note" and e.get("participant") == pid)["text"] == \
+        "the participant laughed"
