@@ -265,6 +265,8 @@ def test_a_task_trial_runs_its_condition_modules_on_the_live_server(module_serve
         # a Wizard-of-Oz command the module refuses says why, in the response
         with pytest.raises(Refused, match="fly"):
             await sup.call(names.DECISION_TELEOP_SERVICE, {"object": "nothing", "action": "fly"})
+        taken = await sup.call(names.DECISION_TELEOP_SERVICE, {"object": "bottom", "action": "pick"})
+        assert "started" in taken["message"]
         await sup.call(names.DECISION_PREEMPT_SERVICE, {})
         await trial.next(lambda m: m["state"] == "preempted", timeout=60)
         await sup.call(names.STUDY_TRIAL_END_SERVICE, {"outcome": "aborted", "note": "preempted to test"})
@@ -274,7 +276,10 @@ def test_a_task_trial_runs_its_condition_modules_on_the_live_server(module_serve
     log = events(folder)
     start = next(e for e in log if e["what"] == "trial_start")
     assert start["condition"] == "teleoperated"
-    assert any(e["what"] == "preempt" and e["participant"] == start["participant"] for e in log)
+    assert any(e["what"] == "preempt" and e["participant"] == start["participant"] for e in log)  # the fact
+    commands = [(e["what"], e.get("action")) for e in log if e["who"].startswith("supervisor:")]  # who gave them
+    assert ("wizard", "pick") in commands and ("preempt_command", None) in commands
+    assert not any(e.get("action") == "fly" for e in log)  # a refused command is not taken
     assert log[-1]["what"] == "trial_end" and log[-1]["outcome"] == "aborted"
     topics = {m.topic for m in read_recording(folder / start["recording"])}
     assert names.STUDY_INTERVENTIONS_TOPIC in topics and names.STUDY_TRIAL_TOPIC in topics

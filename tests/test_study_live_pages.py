@@ -103,7 +103,7 @@ def test_the_page_is_served_and_a_wrong_token_is_told(browser, live):
     try:
         page.goto(f"http://127.0.0.1:{server.port}/participant#token=not-a-token")
         page.wait_for_function("document.getElementById('message').textContent !== ''")
-        assert "token" in page.text_content("#message")
+        assert "not known to the server" in page.text_content("#message")
     finally:
         page.close()
 

@@ -63,6 +63,8 @@ class TrialHost:
     """One trial at a time on the live server: begin(condition, recording) and end(outcome)."""
 
     def __init__(self, study: Any, kind: str, parts: ServerParts) -> None:
+        # hears the /decision/* commands a task trial took: (caller, service, request); LiveStudy logs them
+        self.observer: Callable[[str, str, dict[str, object]], None] | None = None
         self.study = study
         self.kind = kind
         self.parts = parts
@@ -87,7 +89,7 @@ class TrialHost:
                 self.log.begin()
             else:
                 self.runtime = TrialRuntime(p.bus, p.robot, self.study, condition, p.gestures, clock=p.clock,
-                                            owners=p.owners)
+                                            owners=p.owners, observer=self.observer)
                 await self.runtime.prepare()
                 self._task = asyncio.ensure_future(self.runtime.run())
         except BaseException:
@@ -133,6 +135,7 @@ class LiveStudy:
         self.autonomy_level = autonomy_level
         self._subscriptions: list[tuple[str, int]] = []
         self._busy = asyncio.Lock()  # one experimenter action at a time: a start waits for an end's recorder
+        host.observer = self._on_command
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -230,6 +233,13 @@ class LiveStudy:
         except Refused as exc:
             return {"success": False, "message": str(exc)}
         return {"success": True, "message": "noted"}
+
+    def _on_command(self, caller: str, service: str, request: dict[str, object]) -> None:
+        """A Wizard-of-Oz, override or preempt command the trial took, with who gave it."""
+        what = {names.DECISION_TELEOP_SERVICE: "wizard", names.DECISION_OVERRIDE_SERVICE: "override_command",
+                names.DECISION_PREEMPT_SERVICE: "preempt_command"}[service]
+        if self.folder.running is not None:
+            self.folder.record(self.identity(caller), what, **request)
 
     def _on_intervention(self, published: Published) -> None:
         if self.folder.running is None:

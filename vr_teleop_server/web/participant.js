@@ -16,7 +16,11 @@ let sheet = null;      // the questionnaire being filled in
 let screen = 0;        // its block shown
 let answers = {};      // item id -> number or PREFER_NOT
 
-ros.onopen = () => { $("connection").textContent = "connected"; $("connection").className = "badge on"; load(); };
+const UNKNOWN = "This page's link is not known to the server (or the participant withdrew): ask the experimenter " +
+  "for the link again.";
+// a reconnection keeps the screen and its answers: only a page with nothing on it asks what is due
+ros.onopen = () => { $("connection").textContent = "connected"; $("connection").className = "badge on"; if (!sheet) load(); };
+ros.onstatus = (m) => { if (m.level === "error" && /token/.test(m.msg)) say(UNKNOWN, true); };
 ros.onclose = () => { $("connection").textContent = "reconnecting…"; $("connection").className = "badge off"; };
 
 function say(text, bad = false) {
@@ -31,7 +35,7 @@ async function load() {
     answered = r.answered;
     $("title").textContent = `Questionnaire · ${r.participant}`;
   } catch (err) {
-    say(err.message, true);
+    say(/authenticate|token/.test(err.message) ? UNKNOWN : err.message, true);
     return;
   }
   if (due.length === 0) {
