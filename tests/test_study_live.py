@@ -283,3 +283,45 @@ def test_a_task_trial_runs_its_condition_modules_on_the_live_server(module_serve
     assert log[-1]["what"] == "trial_end" and log[-1]["outcome"] == "aborted"
     topics = {m.topic for m in read_recording(folder / start["recording"])}
     assert names.STUDY_INTERVENTIONS_TOPIC in topics and names.STUDY_TRIAL_TOPIC in topics
+
+
+@pytest.mark.parametrize("backend", ["ros", pytest.param("luxai", marks=pytest.mark.slow)])
+def test_a_trial_is_hosted_on_a_real_robots_backend(servers, tmp_path, backend):
+    """The same live trial on `--backend ros` (a ROS 1 QTrobot's rosbridge, testbed/ros1_rosbridge.py) and
+    `--backend luxai` (a QTrobot v3's service hub, testbed/luxai_hub.py): the condition set, recorded, ended."""
+    if backend == "ros":
+        from testbed.ros1_rosbridge import Ros1QTrobot
+
+        robot = Ros1QTrobot()
+        settings = {"robot_url": robot.url}
+    else:
+        from testbed.luxai_hub import FakeQtrobotV3
+
+        robot = FakeQtrobotV3().start()
+        settings = {"robot_url": f"tcp://127.0.0.1:{robot.hub_port}",
+                    "camera_url": f"tcp://127.0.0.1:{robot.camera_port}"}
+    folder = tmp_path / "study"
+    try:
+        server = servers(backend=backend, study=CLASSROOM, study_dir=folder, record_camera_fps=0.0,
+                         bystander_interval=0.0, **settings)
+
+        async def main() -> None:
+            sup = await connect(server.url)
+            added = await sup.call(names.STUDY_PARTICIPANT_ADD_SERVICE,
+                                   {"consent": True, "consent_form": FORM, "group": ""})
+            await sup.call(names.STUDY_TRIAL_START_SERVICE, {"participant": added["participant"], "condition": "",
+                                                             "reason": ""})
+            assert server.server.autonomy.level == added["order"][0]
+            await sup.call(names.STUDY_LABEL_ADD_SERVICE, {"agent": "human", "action": "answer", "start": 0.0,
+                                                           "stop": 0.5})
+            await sup.call(names.STUDY_TRIAL_END_SERVICE, {"outcome": "completed", "note": ""})
+            await sup.close()
+
+        asyncio.run(main())
+        server.stop()
+    finally:
+        robot.stop()
+    start = next(e for e in events(folder) if e["what"] == "trial_start")
+    updates = [m for m in read_recording(folder / start["recording"]) if m.topic == names.STUDY_STATE_UPDATES_TOPIC]
+    assert updates  # the label reached the trial's recording
+    assert events(folder)[-1]["what"] == "trial_end"
