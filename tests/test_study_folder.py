@@ -174,8 +174,13 @@ def test_demographics_only_as_declared_in_bands(folder):
                           "birth_date: not a question of this study")
     refused_and_unchanged(folder, lambda: folder.set_demographics("participant", "P01", {"age_group": "33"}),
                           r"age_group: '33' is not one of its choices \(18-29, 30-44, 45\+\)")
+    refused_and_unchanged(folder, lambda: folder.set_demographics("participant", "P01", {}),
+                          'age_group: no answer .choose one, or "prefer_not_to_answer"')
     folder.set_demographics("participant", "P01", {"age_group": "30-44"})
     assert folder.participants["P01"].demographics == {"age_group": "30-44"}
+    folder.enrol("experimenter", consent=True, consent_form=FORM)
+    folder.set_demographics("participant", "P02", {"age_group": "prefer_not_to_answer"})  # declined, explicitly
+    assert folder.participants["P02"].demographics == {"age_group": "prefer_not_to_answer"}
 
 
 CRASHING = textwrap.dedent("""

@@ -123,8 +123,17 @@ def test_a_participant_token_answers_only_their_own_questionnaires(live):
         due = await page.call(names.STUDY_QUESTIONNAIRE_DUE_SERVICE, {})
         assert due["participant"] == a["participant"]
         listing = json.loads(due["due_json"])
-        assert [d["questionnaire"] for d in listing] == ["qam"]  # QAM's expected phase, before the first trial
-        items = [i["id"] for block in listing[0]["blocks"] for i in block["items"]]
+        # the study file's demographic questions (in bands), then QAM's expected phase, before the first trial
+        assert [d["questionnaire"] for d in listing] == ["demographics", "qam"]
+        questions = {i["id"]: i["choices"] for i in listing[0]["blocks"][0]["items"]}
+        assert "age_group" in questions
+        assert "age_group: '33'" in await refused(page, names.STUDY_QUESTIONNAIRE_SUBMIT_SERVICE, {
+            "questionnaire": "demographics", "condition": "", "answers_json": json.dumps(
+                {**{q: c[0] for q, c in questions.items()}, "age_group": "33"})})
+        await page.call(names.STUDY_QUESTIONNAIRE_SUBMIT_SERVICE, {
+            "questionnaire": "demographics", "condition": "", "answers_json": json.dumps(
+                {**{q: c[0] for q, c in questions.items()}, "age_group": "prefer_not_to_answer"})})
+        items = [i["id"] for block in listing[1]["blocks"] for i in block["items"]]
         answers = {i: 3 for i in items}
         # out of its scale: refused naming the item, nothing taken
         message = await refused(page, names.STUDY_QUESTIONNAIRE_SUBMIT_SERVICE, {
@@ -140,7 +149,7 @@ def test_a_participant_token_answers_only_their_own_questionnaires(live):
         other = await as_role(server, b["token"])
         theirs = await other.call(names.STUDY_QUESTIONNAIRE_DUE_SERVICE, {})
         assert theirs["participant"] == b["participant"]
-        assert [d["questionnaire"] for d in json.loads(theirs["due_json"])] == ["qam"]
+        assert [d["questionnaire"] for d in json.loads(theirs["due_json"])] == ["demographics", "qam"]
 
         # every robot and experimenter service is refused to a participant's page
         for service, args in ((names.AUTONOMY_LEVEL_SERVICE, {"level": "autonomous"}),
@@ -162,6 +171,8 @@ def test_a_participant_token_answers_only_their_own_questionnaires(live):
             await client.close()
 
     asyncio.run(main())
+    given = [e for e in events(folder) if e["what"] == "demographics"]
+    assert len(given) == 1 and given[0]["values"]["age_group"] == "prefer_not_to_answer"
     answered = [e for e in events(folder) if e["what"] == "questionnaire"]
     assert len(answered) == 1 and answered[0]["who"] == f"participant:{answered[0]['participant']}"
 

@@ -49,6 +49,16 @@ def test_a_participant_fills_in_what_is_due_by_touch(browser, live):
         page.goto(f"http://127.0.0.1:{server.port}/participant#token={added['token']}")
         page.wait_for_function("document.getElementById('progress').textContent.includes('page 1 of')")
         assert added["participant"] in page.text_content("#title")
+        # first the study file's demographic questions, in bands: one tap each (or prefer not to answer)
+        assert page.text_content("#block-title") == "About you"
+        questions = page.locator("fieldset.item")
+        for index in range(questions.count()):
+            assert page.is_disabled("#next")
+            button = "button.decline" if index == 0 else "button.choice >> nth=0"
+            questions.nth(index).locator(button).tap()
+        assert page.text_content("#next") == "Send"
+        page.tap("#next")
+        page.wait_for_function("document.getElementById('progress').textContent.includes('Quick Assessment')")
         assert "Quick Assessment Method" in page.text_content("#progress")
         screens = int(page.text_content("#progress").split("page 1 of ")[1].split(" ")[0])
         assert screens > 1  # one block of items per screen
@@ -95,6 +105,8 @@ def test_a_participant_fills_in_what_is_due_by_touch(browser, live):
     answers = next(e for e in given if e["what"] == "questionnaire" and e["participant"] == added["participant"])
     assert answers["questionnaire"] == "qam" and answers["phase"] == "expected"
     assert answers["answers"][out_of_scale] == 40 and answers["answers"][declined] is None
+    about = next(e for e in given if e["what"] == "demographics" and e["participant"] == added["participant"])
+    assert list(about["values"].values())[0] == "prefer_not_to_answer"
 
 
 def test_the_page_is_served_and_a_wrong_token_is_told(browser, live):

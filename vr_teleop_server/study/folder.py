@@ -33,7 +33,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
 
-from ..questionnaires.instrument import AnswerError, check_answers, load_instrument, score
+from ..questionnaires.instrument import PREFER_NOT, AnswerError, check_answers, load_instrument, score
 from .design import balance_note, participant_order
 from .protocol import QuestionnaireEntry, StudyPlan
 
@@ -338,11 +338,14 @@ class StudyFolder:
         questions = {d.id: d for d in self.plan.protocol.demographics}
         problems = []
         for key, value in values.items():
+            if key in questions and value == PREFER_NOT:
+                continue
             if key not in questions:
                 problems.append(f"{key}: not a question of this study "
                                 f"({', '.join(questions) or 'it asks none'})")
             elif value not in questions[key].choices:
                 problems.append(f"{key}: {value!r} is not one of its choices ({', '.join(questions[key].choices)})")
+        problems += [f"{key}: no answer (choose one, or \"{PREFER_NOT}\")" for key in questions if key not in values]
         if problems:
             raise Refused("; ".join(problems))
         self._append(who, "demographics", participant=pid, values=dict(values))

@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 
 SERVICES = (names.STUDY_PARTICIPANT_ADD_SERVICE, names.STUDY_TRIAL_START_SERVICE, names.STUDY_TRIAL_END_SERVICE,
             names.STUDY_NOTE_SERVICE, names.STUDY_QUESTIONNAIRE_DUE_SERVICE, names.STUDY_QUESTIONNAIRE_SUBMIT_SERVICE)
+DEMOGRAPHICS = "demographics"  # the study file's demographic questions, on the page as a questionnaire
 PARTICIPANT_PREFIX = "participant:"  # a participant's connections' operator key (core/access.py)
 
 
@@ -271,6 +272,11 @@ class LiveStudy:
             return {"success": False, "message": str(exc), "participant": "", "due_json": "[]", "answered": 0}
         listing = [{"questionnaire": d.questionnaire, "condition": d.condition or "", "phase": d.phase or "",
                     "who": d.who or "", **_sheet(d.questionnaire)} for d in due]
+        questions = self.folder.plan.protocol.demographics
+        if questions and not self.folder.participants[pid].demographics:  # asked first, once, in bands
+            listing.insert(0, {"questionnaire": DEMOGRAPHICS, "condition": "", "phase": "", "who": "",
+                               "title": "About you", "scale": None, "blocks": [{"title": "About you", "items": [
+                                   {"id": q.id, "text": q.question, "choices": q.choices} for q in questions]}]})
         return {"success": True, "message": f"{len(due)} due", "participant": pid,
                 "due_json": json.dumps(listing), "answered": answered}
 
@@ -281,7 +287,15 @@ class LiveStudy:
                 answers = json.loads(request.answers_json)
             except ValueError as exc:
                 raise Refused(f"answers_json is not JSON ({exc})") from None
-            self.folder.submit(self.identity(Bus.caller()), pid, request.questionnaire, request.condition, answers)
+            if request.questionnaire == DEMOGRAPHICS:
+                if not isinstance(answers, dict):
+                    raise Refused("answers_json must be an object from question id to choice")
+                if self.folder.participants[pid].demographics:
+                    raise Refused(f"{pid} answered the demographic questions already")
+                self.folder.set_demographics(self.identity(Bus.caller()), pid, answers)
+            else:
+                self.folder.submit(self.identity(Bus.caller()), pid, request.questionnaire, request.condition,
+                                   answers)
         except Refused as exc:
             return {"success": False, "message": str(exc)}
         self.publish()

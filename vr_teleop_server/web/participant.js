@@ -62,7 +62,7 @@ function show() {
   $("progress").textContent = `${sheet.title}: page ${screen + 1} of ${sheet.blocks.length} · ` +
     `questionnaire ${answered + 1} of ${total}`;
   $("block-title").textContent = block.title || sheet.title;
-  const anchors = Object.entries(sheet.scale.anchors).map(([k, v]) => `${k}: ${v}`).join(" · ");
+  const anchors = sheet.scale ? Object.entries(sheet.scale.anchors).map(([k, v]) => `${k}: ${v}`).join(" · ") : "";
   $("scale-note").textContent = anchors;
   $("items").replaceChildren(...block.items.map(itemView));
   $("back").hidden = screen === 0;
@@ -82,8 +82,15 @@ function itemView(item) {
   box.append(legend);
   const choices = document.createElement("div");
   choices.className = "choices";
-  const stepped = scale.integer && scale.max !== null && scale.max - scale.min <= 10;
-  if (stepped) {
+  const stepped = !item.choices && scale.integer && scale.max !== null && scale.max - scale.min <= 10;
+  if (item.choices) {  // a demographic question: one of its bands
+    for (const v of item.choices) {
+      const b = Object.assign(document.createElement("button"), {type: "button", className: "choice", textContent: v});
+      b.setAttribute("aria-pressed", String(answers[item.id] === v));
+      b.onclick = () => { answers[item.id] = v; mark(box, b); };
+      choices.append(b);
+    }
+  } else if (stepped) {
     if (item.left) choices.append(Object.assign(document.createElement("span"), {className: "anchor", textContent: item.left}));
     for (let v = scale.min; v <= scale.max; v++) {
       const b = document.createElement("button");
