@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from client_protocol import names
@@ -280,7 +281,9 @@ class TeleopServer:
         s, study = self.settings, self.study_file
         assert s.study_dir is not None and self.robot is not None
         kind = study.kind
-        folder = StudyFolder.open(s.study_dir, plan_of(study), who="server")
+        clock = self.clock  # the log's times on the server's clock: a pilot at --speed max logs simulated times
+        folder = StudyFolder.open(s.study_dir, plan_of(study), who="server",
+                                  clock=lambda: datetime.fromtimestamp(clock.time(), UTC))
         autonomy = self.autonomy
         parts = ServerParts(self.bus, self.robot, self.registry, self.owners,
                             self.luxai.gestures if self.luxai is not None else None,
