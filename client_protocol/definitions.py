@@ -267,6 +267,19 @@ MESSAGES: dict[str, str] = {
         "# credentials (coturn's time-limited ones: username EXPIRY:OPERATOR_KEY, credential base64 HMAC-SHA1).\n"
         "string[] urls\nstring username\nstring credential"
     ),
+    "vr_teleop_msgs/StudyParticipant": (
+        "# One participant of the live study: pseudonym, group, order of conditions, whether they consented, the\n"
+        "# conditions done (ended completed or aborted), the next in their order (empty: none) and what is due.\n"
+        "string id\nstring group\nstring[] order\nbool consented\nstring[] done\nstring next\nstring[] due"
+    ),
+    "vr_teleop_msgs/StudySession": (
+        "# The live study (latched /study/session): its participants and the running trial (running_trial 0:\n"
+        "# none). balance: a note when the participants do not fill whole balanced sets of orders. actions and\n"
+        "# objects: a task study's robot actions and parts, for the Wizard-of-Oz commands (/decision/teleop).\n"
+        "string study\nstring kind\nstring design\nstring order\nstring[] conditions\n"
+        "StudyParticipant[] participants\nstring[] withdrawn\nstring running_participant\nint32 running_trial\n"
+        "string running_condition\nstring running_recording\nstring balance\nstring[] actions\nstring[] objects"
+    ),
 }
 
 SERVICES: dict[str, str] = {
@@ -397,6 +410,36 @@ SERVICES: dict[str, str] = {
         "# operator, valid until expires (s since 1970; 0 when there is no TURN). Ask again for each new peer\n"
         "# connection. A refusal answers success false with the reason in message (ice_servers then empty).\n"
         "---\nbool success\nstring message\nIceServer[] ice_servers\nfloat64 expires"
+    ),
+    "vr_teleop_msgs/AddParticipant": (
+        "# Enrol a participant (supervisor): a pseudonym (P01 ...) and their order of conditions. consent: given\n"
+        "# now, on consent_form (the study file's version). token: their participant page's token.\n"
+        "bool consent\nstring consent_form\nstring group\n---\nbool success\nstring message\nstring participant\n"
+        "string[] order\nstring token"
+    ),
+    "vr_teleop_msgs/StartTrial": (
+        "# Start a participant's trial (supervisor): condition empty is the next in their order; another one is a\n"
+        "# deviation and needs a reason, which is logged. trial: the participant's trial number.\n"
+        "string participant\nstring condition\nstring reason\n---\nbool success\nstring message\nint32 trial"
+    ),
+    "vr_teleop_msgs/EndTrial": (
+        "# End the running trial (supervisor): outcome completed or aborted, and an optional note.\n"
+        "string outcome\nstring note\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/StudyNote": (
+        "# A note for the study's event log (supervisor), tied to the running trial if there is one.\n"
+        "string text\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/SubmitQuestionnaire": (
+        "# A participant's answers (the participant role, for themselves): answers_json is a JSON object from\n"
+        "# item ids (the sheet's columns: SUS's Q1 to Q10) to answers, or \"prefer_not_to_answer\". condition:\n"
+        "# the one it follows (empty before the first or after the last).\n"
+        "string questionnaire\nstring condition\nstring answers_json\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/QuestionnairesDue": (
+        "# What the calling participant should fill in now (the participant role): due_json, a JSON list of\n"
+        "# {questionnaire, condition, phase, title, scale, items}; progress: questionnaires given so far.\n"
+        "---\nbool success\nstring message\nstring participant\nstring due_json\nint32 answered"
     ),
     "vr_teleop_msgs/Clock": (
         "# NTP-style clock exchange: the client's send time in (any clock, echoed), the server's wall-clock\n"

@@ -345,9 +345,9 @@ def config_motivation() -> str:
 
 
 def config_godspeed() -> str:
-    from vr_teleop_server.questionnaires.godspeed import GodspeedDefinition
+    from vr_teleop_server.questionnaires.instrument import Instrument
 
-    return model_section("a Godspeed items file", GodspeedDefinition)
+    return model_section("a questionnaire file", Instrument)
 
 
 GENERATORS: dict[str, Callable[[], str]] = {

@@ -209,13 +209,13 @@ def test_the_configuration_page_has_every_key_of_every_file(site):
     from menus.commands import COMMANDS
     from menus.model import MenuFile
     from vr_teleop_server.features.motivation import MotivationConfig
-    from vr_teleop_server.questionnaires.godspeed import GodspeedDefinition
+    from vr_teleop_server.questionnaires.instrument import Instrument
     from vr_teleop_server.study.studyfile import ClassroomStudy, Study
     from vr_teleop_server.teleop import TeleopSettings
 
     page = read_page(site, "reference/configuration")
     text = "".join(page.sections.values())
-    for model in (TeleopSettings, MenuFile, Study, ClassroomStudy, MotivationConfig, GodspeedDefinition):
+    for model in (TeleopSettings, MenuFile, Study, ClassroomStudy, MotivationConfig, Instrument):
         for key in model_keys(model):
             assert re.search(rf"\b{key}\b", text), f"{model.__name__}: {key} missing from the configuration page"
     for command, args in COMMANDS.items():

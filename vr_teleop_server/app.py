@@ -5,7 +5,8 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-from typing import Any
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
 
 from client_protocol import names
 from client_protocol.registry import TypeRegistry
@@ -40,6 +41,9 @@ from .robot.backends import BACKENDS
 from .robot.interface import Robot
 from .settings import ServerSettings
 
+if TYPE_CHECKING:
+    from .study.live import LiveStudy
+
 log = logging.getLogger(__name__)
 
 
@@ -69,7 +73,21 @@ class TeleopServer:
         # Data files are checked before anything starts, so that a bad one stops `serve` with its name.
         tokens = tokens_from({"operator": settings.operator_token, "supervisor": settings.supervisor_token,
                               "spectator": settings.spectator_token})
-        self.access = AccessPolicy(tokens)
+        self.study_file = None
+        if (settings.study is None) != (settings.study_dir is None):
+            raise ValueError("--study FILE and --study-dir DIR go together: the study file says what to run, the "
+                             "folder keeps its state")
+        if settings.study is not None and not BACKENDS[settings.backend].module:
+            raise ValueError(f"--study runs its trials on a robot: give --backend sim, ros or luxai, not "
+                             f"{settings.backend!r}")
+        if settings.study is not None:  # the study tools' libraries (scipy) only when a study is hosted
+            from .study.studyfile import load_study
+            self.study_file = load_study(settings.study)
+            if self.study_file.consent_form is None:
+                raise ValueError(f"{settings.study}: the study file declares no consent_form (the version of the "
+                                 "consent form participants sign); a study with people needs one")
+        self.live_study: LiveStudy | None = None
+        self.access = AccessPolicy(tokens, participants=self._participant_of)
         if self.access.open and not is_loopback(settings.host) and not settings.insecure:
             raise ValueError(f"refusing to serve {settings.host} without tokens: anyone on the network could drive "
                              "the robot. Give --operator-token/--supervisor-token (or --generate-tokens), or pass "
@@ -98,6 +116,19 @@ class TeleopServer:
         self.sessions.pop(session.name, None)
         if self.recorder is not None:
             self.recorder.on_connection(session.name, "disconnect", session.peer)
+
+    def _participant_of(self, token: str) -> str | None:
+        """A live study's participant page's token: whose it is."""
+        return self.live_study.folder.participant_for_token(token) if self.live_study is not None else None
+
+    def _who(self, owner: str) -> str:
+        """Who called, for the study's event log: `supervisor:KEY`, or a participant's `participant:P03`."""
+        session = self.sessions.get(owner)
+        if session is None:
+            return owner
+        if session.role == "participant":
+            return session.operator
+        return f"{session.role or ('supervisor' if self.access.open else 'anonymous')}:{session.operator}"
 
     def _role(self, owner: str) -> Role | None:
         session = self.sessions.get(owner)
@@ -233,6 +264,8 @@ class TeleopServer:
             self.bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)
             await self._start_robot()
             self._start_media()
+            if self.study_file is not None:
+                self._start_study()
             self._publish_description()  # after the robot: its own limits may have narrowed the model's
             self._start(Avatar(self.bus, self.rosapi, self.robot))
             await self.transport.start()
@@ -254,6 +287,28 @@ class TeleopServer:
         if self.robot is not None:
             await self.robot.aclose()
         self.recorder = None
+
+    def _start_study(self) -> None:
+        """`serve --study FILE --study-dir DIR`: the folder opened (a trial a crash cut marked interrupted)."""
+        from .study.folder import StudyFolder
+        from .study.live import LiveStudy, ServerParts, TrialHost
+        from .study.protocol import plan_of
+
+        s, study = self.settings, self.study_file
+        assert s.study_dir is not None and self.robot is not None
+        kind = study.kind
+        clock = self.clock  # the log's times on the server's clock: a pilot at --speed max logs simulated times
+        folder = StudyFolder.open(s.study_dir, plan_of(study), who="server",
+                                  clock=lambda: datetime.fromtimestamp(clock.time(), UTC))
+        autonomy = self.autonomy
+        parts = ServerParts(self.bus, self.robot, self.registry, self.owners,
+                            self.luxai.gestures if self.luxai is not None else None,
+                            (lambda level: autonomy.set_level(level, "study")) if autonomy is not None else None,
+                            camera_fps=s.record_camera_fps, clock=self.clock)
+        self.live_study = LiveStudy(self.bus, folder, TrialHost(study, kind, parts), self._who,
+                                    autonomy_level=lambda: autonomy.level if autonomy is not None else None)
+        self._start(self.live_study)
+        log.info("hosting the live study %s in %s", folder.plan.study, s.study_dir)
 
     def _start_media(self) -> None:
         """WebRTC (media/): the camera as video, the robot's audio out, the operator's voice in, telemetry."""

@@ -86,6 +86,13 @@ class ServerSettings(CoreSettings):
         None, description="record every message of the session, both ways, per client, to an MCAP file")
     record_camera_fps: Annotated[float, Cli("recording", metavar="FPS")] = Field(
         2.0, ge=0, le=120, description="camera frames a second kept in the recording; 0 keeps none")
+    study: Annotated[Path | None, Cli("study", metavar="FILE")] = Field(
+        None, description="host a live study with people (a study file with a consent_form): participants, "
+                          "their trials on this robot and their questionnaires, through the /study/* services; "
+                          "needs --study-dir")
+    study_dir: Annotated[Path | None, Cli("study", metavar="DIR")] = Field(
+        None, description="the live study's folder, its whole state (participants, event log, recordings, "
+                          "answers): a restart with the same folder carries on")
     operator_token: Annotated[str | None, Cli("access")] = Field(
         None, description="token of the operator role (or $VR_TELEOP_OPERATOR_TOKEN)")
     supervisor_token: Annotated[str | None, Cli("access")] = Field(

@@ -36,6 +36,7 @@ GROUPS = {  # `serve --help`'s groups: title, description
     "files": ("data files", None),
     "media": ("WebRTC media", None),
     "recording": ("recording", None),
+    "study": ("a live study", "participants, trials and questionnaires on this server (docs: the studies guide)"),
     "access": ("roles, tokens and TLS", None),
     "teleop": ("explicit control", "the flags override --teleop-config's values"),
 }

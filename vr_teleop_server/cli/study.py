@@ -12,6 +12,7 @@ import math
 import sys
 from pathlib import Path
 
+from . import study_pilot, study_report, study_withdraw
 from .metrics import summary
 from .replay import speed as parse_speed
 from ..tools.distributed import Workers, WorkersError, add_arguments, positive
@@ -58,6 +59,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="a directory every worker sees at this path (a network share): the workers write the "
                         "recordings there and none is sent back (instead of --record-dir)")
     r.set_defaults(func=run)
+    study_withdraw.register(sub)
+    study_pilot.register(sub)
+    study_report.register(sub)
 
 
 def _speed(text: str) -> float:

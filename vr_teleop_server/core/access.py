@@ -6,6 +6,10 @@ read-only services). Tokens are given with `serve --operator-token/--supervisor-
 environment (VR_TELEOP_OPERATOR_TOKEN, ...), or `--generate-tokens`; a client presents one with the rosbridge
 `auth` op (the token in `mac`) before anything else. Without tokens the server is open: every client is a
 supervisor, and serve binds to loopback only unless told `--insecure`.
+
+A live study (`serve --study`) adds the participant role: each participant's page has a token of its own (from
+/study/participants/add), known to the study folder, which admits only that participant's questionnaires, with
+tokens or without.
 """
 
 from __future__ import annotations
@@ -15,14 +19,15 @@ import hmac
 import ipaddress
 import os
 import secrets
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Literal
 from urllib.parse import parse_qs, urlsplit
 
 from client_protocol import names
 
-Role = Literal["operator", "supervisor", "spectator"]
-ROLES: tuple[Role, ...] = ("operator", "supervisor", "spectator")
+Role = Literal["operator", "supervisor", "spectator", "participant"]
+ROLES: tuple[Role, ...] = ("operator", "supervisor", "spectator")  # the roles given by serve's token flags
 ENV = {role: f"VR_TELEOP_{role.upper()}_TOKEN" for role in ROLES}
 # What a spectator may call: services that only read.
 READ_ONLY_SERVICES_PREFIXES = ("/rosapi/",)
@@ -32,7 +37,11 @@ READ_ONLY_SERVICES = {names.GESTURE_LIST_SERVICE, names.MEDIA_OFFER_SERVICE, nam
                       names.WHOAMI_SERVICE, names.FILE_SERVER_SERVICE}
 # What only a supervisor may do on top of an operator.
 SUPERVISOR_ONLY_SERVICES = {names.MOTIVATION_SET_SERVICE, names.MOTIVATION_RESET_SERVICE, names.CLIP_ADD_SERVICE,
-                            names.CLIP_REMOVE_SERVICE}
+                            names.CLIP_REMOVE_SERVICE, names.STUDY_PARTICIPANT_ADD_SERVICE,
+                            names.STUDY_TRIAL_START_SERVICE, names.STUDY_TRIAL_END_SERVICE, names.STUDY_NOTE_SERVICE}
+# All a participant's page may call: their own questionnaires.
+PARTICIPANT_SERVICES = {names.STUDY_QUESTIONNAIRE_DUE_SERVICE, names.STUDY_QUESTIONNAIRE_SUBMIT_SERVICE}
+PARTICIPANT_OPS = {"auth", "status", "fragment", "set_level"}
 READ_OPS = {"subscribe", "unsubscribe", "set_level", "status", "fragment", "auth"}
 
 
@@ -54,6 +63,11 @@ TIME_STYLES = ("ros1", "ros2")
 @dataclass(frozen=True)
 class AccessPolicy:
     tokens: dict[str, Role]  # token -> role; empty: open access
+    # a live study's participant tokens: token -> participant id, or None (study/folder.py makes them)
+    participants: Callable[[str], str | None] | None = field(default=None, compare=False)
+
+    def participant(self, token: str) -> str | None:
+        return self.participants(token) if self.participants is not None and token else None
 
     @property
     def open(self) -> bool:
@@ -63,11 +77,14 @@ class AccessPolicy:
         for known, role in self.tokens.items():
             if hmac.compare_digest(known.encode(), token.encode()):
                 return role
-        return None
+        return "participant" if self.participant(token) is not None else None
 
-    @staticmethod
-    def operator_key(token: str) -> str:
-        """A stable name for everyone presenting `token`, which does not reveal it (a hash prefix)."""
+    def operator_key(self, token: str) -> str:
+        """A stable name for everyone presenting `token`, which does not reveal it (a hash prefix); a participant's
+        is `participant:P03`, which the study's services read."""
+        pid = self.participant(token)
+        if pid is not None:
+            return f"participant:{pid}"
         return "op-" + hashlib.sha256(b"vr-teleop operator\0" + token.encode()).hexdigest()[:12] if token else ""
 
     def login(self, path: str, authorization: str | None) -> Login:
@@ -101,6 +118,11 @@ class AccessPolicy:
 
     def check(self, role: Role | None, op: str, target: str = "") -> None:
         """Raises AccessDenied saying what the role may not do."""
+        if role == "participant":
+            if op in PARTICIPANT_OPS or (op == "call_service" and target in PARTICIPANT_SERVICES):
+                return
+            raise AccessDenied(f"role participant may not {op.replace('_', ' ')}{' ' + target if target else ''}: a "
+                               "participant's page only fills in their own questionnaires")
         if self.open:
             return
         if role is None:

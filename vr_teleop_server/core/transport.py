@@ -29,7 +29,8 @@ from .settings import CoreSettings
 log = logging.getLogger(__name__)
 Ping = Callable[[], Awaitable[float]]  # one WebSocket ping: its round trip in seconds
 WEB_ROOT = Path(__file__).parent.parent / "web"
-PAGES = {"": "index.html", "/operator": "operator.html"}  # the dashboard, and the headset's page
+PAGES = {"": "index.html", "/operator": "operator.html",  # the dashboard, and the headset's page
+         "/participant": "participant.html"}  # a live study's participant: their questionnaires
 
 
 class WebSocketTransport:

@@ -1,14 +1,13 @@
-"""Loading questionnaire definitions (items, groups, keys) from the package's data files or a user's YAML."""
+"""Where the packaged instrument files are, and how a scorer's own view of an instrument is built and checked."""
 
 from __future__ import annotations
 
 from importlib import resources
-from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 
-from client_protocol.files import load_model_file
+from client_protocol.files import describe_problems
 
 DATA_PACKAGE = "vr_teleop_server.questionnaires"
 
@@ -24,10 +23,9 @@ def data_file(*parts: str):
     return resources.files(DATA_PACKAGE).joinpath("data", *parts)
 
 
-def load_definition(model: type[ModelT], default_name: str, path: str | Path | None = None) -> ModelT:
-    """Validate a YAML definition: the packaged `default_name`, or the user's file at `path`."""
-    if path is None:
-        shown, source = f"package data {default_name}", data_file(default_name)
-    else:
-        shown, source = str(path), Path(path)
-    return load_model_file(model, source, shown=shown, error=DefinitionError)
+def view(model: type[ModelT], data: dict[str, Any], shown: str) -> ModelT:
+    """A scorer's view of an instrument (SUS needs ten items ...); what it refuses names the file."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise DefinitionError(f"{shown}: {describe_problems(exc)}") from None

@@ -20,7 +20,8 @@ import numpy as np
 from pydantic import BaseModel, model_validator
 
 from . import tables
-from .definitions import load_definition
+from .definitions import view
+from .instrument import Instrument, load_instrument, load_instrument_file, score, source_name
 from .sheets import Sheet, SheetSpec, ValueColumn, split_rows
 from .stats import Describe, cronbach_alpha, describe
 
@@ -44,6 +45,9 @@ class GodspeedSeries(BaseModel):
 
 
 class GodspeedDefinition(BaseModel):
+    """Godspeed's view of its instrument file: series (subscales) of semantic differentials."""
+
+    instrument: Instrument
     scale: GodspeedScale
     series: list[GodspeedSeries]
 
@@ -73,19 +77,19 @@ class GodspeedDefinition(BaseModel):
 
 def load_godspeed_definition(path: str | Path | None = None) -> GodspeedDefinition:
     """The packaged items, or a user's item file (e.g. a translation with some anchors swapped)."""
-    return load_definition(GodspeedDefinition, "godspeed.yaml", path)
+    name = "godspeed" if path is None else path
+    instrument = load_instrument("godspeed") if path is None else load_instrument_file(path)
+    return view(GodspeedDefinition, dict(
+        instrument=instrument, scale=dict(min=instrument.scale.min, max=instrument.scale.max),
+        series=[dict(id=s.id, name=s.name, items=[dict(id=i.id, left=i.left, right=i.right, reverse=i.reverse)
+                                                  for i in instrument.members(s)])
+                for s in instrument.subscales]), source_name(name))
 
 
 def series_means(answers: Mapping[str, float | None], definition: GodspeedDefinition) -> dict[str, float | None]:
-    """Each series' mean of keyed answers; None for a series with a missing item."""
-    means: dict[str, float | None] = {}
-    for series in definition.series:
-        values = [answers.get(item.id) for item in series.items]
-        if any(v is None for v in values):
-            means[series.id] = None
-        else:
-            means[series.id] = sum(definition.keyed(i, v) for i, v in zip(series.items, values)) / len(values)
-    return means
+    """Each series' mean of keyed answers (the instrument's scoring rule); None for a series with a missing item."""
+    scores = score(definition.instrument, answers)
+    return {s.id: scores[f"{definition.instrument.id}.{s.id}"] for s in definition.series}
 
 
 class GodspeedRespondent(BaseModel):

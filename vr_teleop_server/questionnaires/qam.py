@@ -21,7 +21,8 @@ from typing import Literal
 from pydantic import BaseModel, model_validator
 
 from . import tables
-from .definitions import load_definition
+from .definitions import DefinitionError, view
+from .instrument import load_instrument, load_instrument_file, source_name
 from .sheets import AnswerRow, Sheet, SheetSpec, ValueColumn, split_rows
 from .stats import DEFAULT_MIN_NONZERO, Describe, PairedTest, describe, wilcoxon_paired
 
@@ -95,7 +96,22 @@ class QAMDefinition(BaseModel):
 
 
 def load_qam_definition(path: str | Path | None = None) -> QAMDefinition:
-    return load_definition(QAMDefinition, "qam.yaml", path)
+    """QAM's view of its instrument file: parameter N is item PN, the actor groups are its subscales."""
+    name = "qam" if path is None else path
+    instrument = load_instrument("qam") if path is None else load_instrument_file(path)
+    parameters = []
+    for group in instrument.subscales:
+        for item in instrument.members(group):
+            if not item.id.startswith("P") or not item.id[1:].isdigit():
+                raise DefinitionError(f"{source_name(name)}: item {item.id}: QAM's items are P1, P2, ...")
+            scale = None if item.scale is None else dict(min=item.scale.min, max=item.scale.max,
+                                                         unit=item.scale.unit or "")
+            parameters.append(dict(id=int(item.id[1:]), group=group.id, name=item.text or item.id,
+                                   short=item.short or item.text or item.id, scale=scale))
+    return view(QAMDefinition, dict(
+        likert=dict(min=instrument.scale.min, max=instrument.scale.max, labels=instrument.scale.anchors),
+        groups=[dict(id=g.id, name=g.name, long_name=g.long_name) for g in instrument.subscales],
+        parameters=parameters), source_name(name))
 
 
 class QAMParameterResult(BaseModel):

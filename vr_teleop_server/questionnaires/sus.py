@@ -15,7 +15,8 @@ from typing import Literal
 from pydantic import BaseModel, model_validator
 
 from . import tables
-from .definitions import load_definition
+from .definitions import view
+from .instrument import Instrument, load_instrument, score, source_name
 from .sheets import Sheet, SheetSpec, ValueColumn, split_rows
 from .stats import Describe, describe
 
@@ -34,6 +35,9 @@ class SUSItem(BaseModel):
 
 
 class SUSDefinition(BaseModel):
+    """SUS's view of its instrument file (data/sus.yaml): ten items, positively or negatively worded."""
+
+    instrument: Instrument
     scale: SUSScale
     items: list[SUSItem]
 
@@ -51,20 +55,24 @@ class SUSDefinition(BaseModel):
 
 
 def load_sus_definition() -> SUSDefinition:
-    return load_definition(SUSDefinition, "sus.yaml")
+    instrument = load_instrument("sus")
+    scale = instrument.scale
+    return view(SUSDefinition, dict(
+        instrument=instrument,
+        scale=dict(min=scale.min, max=scale.max, low=scale.anchors.get(int(scale.min), ""),
+                   high=scale.anchors.get(int(scale.max), "")),
+        items=[dict(id=i.id, positive=not i.reverse, text=i.text or "") for i in instrument.all_items]),
+        source_name("sus"))
 
 
 def sus_score(answers: Mapping[str, float], definition: SUSDefinition | None = None) -> float:
     """Brooke's rule on one complete questionnaire (answers by item id, 1-5)."""
     definition = definition or load_sus_definition()
     low, high = definition.scale.min, definition.scale.max
-    total = 0.0
     for item in definition.items:
-        value = answers[item.id]
-        if not low <= value <= high:
-            raise ValueError(f"{item.id}: {value} is outside {low}-{high}")
-        total += (value - low) if item.positive else (high - value)
-    return total * 100.0 / (len(definition.items) * (high - low))  # = 2.5 x sum for 10 items on 1-5
+        if not low <= answers[item.id] <= high:
+            raise ValueError(f"{item.id}: {answers[item.id]} is outside {low}-{high}")
+    return score(definition.instrument, answers)["sus"]  # type: ignore[return-value]  # complete: never None
 
 
 class SUSRespondent(BaseModel):

@@ -18,7 +18,8 @@ from typing import Literal
 from pydantic import BaseModel, model_validator
 
 from . import tables
-from .definitions import load_definition
+from .definitions import view
+from .instrument import load_instrument, source_name
 from .sheets import AnswerRow, Sheet, SheetSpec, ValueColumn, split_rows
 from .stats import Describe, describe
 
@@ -80,7 +81,12 @@ class TLXDefinition(BaseModel):
 
 
 def load_tlx_definition() -> TLXDefinition:
-    return load_definition(TLXDefinition, "tlx.yaml")
+    """NASA-TLX's view of data/tlx.yaml: its items are the six subscales a respondent rates."""
+    instrument = load_instrument("tlx")
+    return view(TLXDefinition, dict(
+        scale=dict(min=instrument.scale.min, max=instrument.scale.max),
+        subscales=[dict(id=i.id, label=i.text, low=i.left, high=i.right) for i in instrument.all_items],
+        weight_prefix=instrument.weights.column_prefix if instrument.weights else "w_"), source_name("tlx"))
 
 
 def raw_tlx(ratings: Mapping[str, float]) -> float:

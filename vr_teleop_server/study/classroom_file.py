@@ -14,6 +14,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from sim.pupils import PUPILS
 
+from .protocol import ProtocolFields
+
 _STRICT = ConfigDict(extra="forbid", frozen=True)
 Level = Literal["teleoperated", "supervised", "autonomous"]
 PUPIL_NAMES = tuple(p.name for p in PUPILS)
@@ -83,8 +85,9 @@ class Condition(BaseModel):
     description: str = ""
 
 
-class ClassroomStudy(BaseModel):
-    """A lesson (`lesson_s` simulated seconds) compared across autonomy levels (the conditions)."""
+class ClassroomStudy(ProtocolFields):
+    """A lesson (`lesson_s` simulated seconds) compared across autonomy levels (the conditions); the design and
+    questionnaires for its participants: ProtocolFields."""
 
     model_config = _STRICT
     kind: Literal["classroom"]

@@ -9,6 +9,7 @@ the decision module reports the trial completed, preempted or failed (T1), with 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from simclock import WALL, Clock
@@ -36,7 +37,9 @@ class TrialResult:
 class TrialRuntime:
     def __init__(self, bus: Bus, robot: Robot, study: Study, trial: str,
                  gestures: GestureLibrary | None = None, clock: Clock = WALL,
-                 owners: Ownership | None = None) -> None:
+                 owners: Ownership | None = None,
+                 observer: Callable[[str, str, dict[str, object]], None] | None = None) -> None:
+        """`observer(caller, service, request)`: hears each Wizard-of-Oz, override and preempt command taken."""
         if trial not in study.trials:
             raise ValueError(f"study {study.study!r} has no trial {trial!r}; trials: {', '.join(study.trials)}")
         self.bus = bus
@@ -58,7 +61,7 @@ class TrialRuntime:
                                     static=self.static_perception)
         self.ctx = DecisionContext(study, self.log, self.actions, frozenset(spec.stalls))
         self.decision = MODULES[spec.decision](self.ctx)
-        self.host = DecisionHost(bus, self.decision)
+        self.host = DecisionHost(bus, self.decision, observer)
 
     async def prepare(self, sight_timeout: float = 10.0) -> None:
         self.log.attach()

@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from client_protocol.files import load_model_file, read_document
 
 from .classroom_file import ClassroomStudy
+from .protocol import ProtocolFields
 
 _STRICT = ConfigDict(extra="forbid", frozen=True)
 
@@ -147,8 +148,9 @@ class Trial(BaseModel):
     overrides: list[Override] = []
 
 
-class Study(BaseModel):
-    """A task study (examples/toolbox.yaml): a robot and a human share a task, compared on fluency metrics."""
+class Study(ProtocolFields):
+    """A task study (examples/toolbox.yaml): a robot and a human share a task, compared on fluency metrics.
+    Its trials are the conditions participants meet (the design and questionnaires: ProtocolFields)."""
 
     model_config = _STRICT
     kind: Literal["task"] = "task"

@@ -503,6 +503,79 @@ function preempt() {
     .then((r) => studyLog(`preempt: ${r.message}`, r.success ? "warning" : "error"))
     .catch((err) => studyLog(`preempt refused: ${err.message}`, "error"));
 }
+// ---- the live study (serve --study): the experimenter's console over /study/session and the /study/* services ----
+let session = null;
+let enrolled = null;  // the participant just enrolled: selected once the session lists them
+function studyCall(service, args, what) {
+  return ros.callService(service, args)
+    .then((r) => { studyLog(`${what}: ${r.message}`); return r; })
+    .catch((err) => { studyLog(`${what} refused: ${err.message}`, "error"); return null; });
+}
+function options(select, values, first = null) {
+  const keep = select.value;
+  select.replaceChildren(...(first ? [new Option(first, "")] : []), ...values.map((v) => new Option(v, v)));
+  if ([...select.options].some((o) => o.value === keep)) select.value = keep;
+}
+ros.subscribe(names.STUDY_SESSION_TOPIC, "vr_teleop_msgs/StudySession", (s) => {
+  session = s;
+  $("live-study").hidden = false;
+  $("study-name").textContent = `${s.study} (${s.kind}, ${s.design}, ${s.order})${s.balance ? " · " + s.balance : ""}`;
+  $("participants").tBodies[0].replaceChildren(...s.participants.map((p) => {
+    const row = document.createElement("tr");
+    const running = s.running_participant === p.id ? ` (running: ${s.running_condition})` : "";
+    for (const text of [p.id + (p.consented ? "" : " (no consent)"), p.order.join(", "), p.done.join(", ") || "–",
+                        (p.next || "all done") + running, p.due.join(", ") || "–"]) {
+      row.append(Object.assign(document.createElement("td"), {textContent: text}));
+    }
+    return row;
+  }));
+  options($("trial-participant"), s.participants.map((p) => p.id));
+  if (enrolled && s.participants.some((p) => p.id === enrolled)) { $("trial-participant").value = enrolled; enrolled = null; }
+  const next = s.participants.find((p) => p.id === $("trial-participant").value && p.next && !s.running_trial);
+  if (!$("trial-participant").value && s.participants.length) $("trial-participant").value = s.participants.at(-1).id;
+  options($("trial-condition"), s.conditions, "next in their order");
+  const due = s.participants.filter((p) => p.due.length);
+  $("study-due").textContent = s.running_trial
+    ? `running: ${s.running_participant}, ${s.running_condition} (trial ${s.running_trial})`
+    : due.length ? due.map((p) => `hand the tablet to ${p.id}: ${p.due.join(", ")}`).join(" · ")
+      : (next ? `next: ${next.id}, ${next.next}` : "nothing due");
+  $("woz").hidden = !s.actions.length;
+  options($("woz-object"), s.objects);
+  if ($("woz-actions").childElementCount !== s.actions.length) {
+    $("woz-actions").replaceChildren(...s.actions.map((action) => {
+      const b = Object.assign(document.createElement("button"), {textContent: action, type: "button"});
+      b.onclick = () => studyCall(names.DECISION_TELEOP_SERVICE, {object: $("woz-object").value, action}, `wizard ${action}`);
+      return b;
+    }));
+  }
+});
+$("enrol").onclick = () => studyCall(names.STUDY_PARTICIPANT_ADD_SERVICE, {
+  consent: $("enrol-consent").checked, consent_form: $("enrol-form").value.trim(), group: $("enrol-group").value.trim(),
+}, "enrol").then((r) => {
+  if (!r) return;
+  enrolled = r.participant;
+  if ([...$("trial-participant").options].some((o) => o.value === enrolled)) $("trial-participant").value = enrolled;
+  const link = `${location.origin}/participant#token=${r.token}`;
+  $("enrol-link").textContent = `${r.participant}'s questionnaire page (open it on the tablet): ${link}`;
+  $("enrol-consent").checked = false;
+});
+function startTrial() {
+  studyCall(names.STUDY_TRIAL_START_SERVICE, {participant: $("trial-participant").value,
+    condition: $("trial-condition").value, reason: $("trial-reason").value.trim()}, "start")
+    .then((r) => { if (r) $("trial-reason").value = ""; });
+}
+function endTrial(outcome) {
+  studyCall(names.STUDY_TRIAL_END_SERVICE, {outcome, note: $("trial-end-note").value.trim()}, `end (${outcome})`)
+    .then((r) => { if (r) $("trial-end-note").value = ""; });
+}
+function sendNote() {
+  studyCall(names.STUDY_NOTE_SERVICE, {text: $("study-note").value}, "note").then((r) => { if (r) $("study-note").value = ""; });
+}
+$("trial-start").onclick = startTrial;
+$("trial-end-completed").onclick = () => endTrial("completed");
+$("trial-end-aborted").onclick = () => endTrial("aborted");
+$("study-note-send").onclick = sendNote;
+$("study-note").addEventListener("keydown", (event) => { if (event.key === "Enter") { event.preventDefault(); sendNote(); } });
 $("label-start").onclick = () => label("human_action_start");
 $("label-stop").onclick = () => label("human_action_stop");
 $("label-intervention").onclick = () => label("intervention");
@@ -511,9 +584,11 @@ $("override-failed").onclick = () => override(false);
 $("preempt").onclick = preempt;
 const KEYS = {h: () => label("human_action_start"), j: () => label("human_action_stop"), i: () => label("intervention"),
               o: () => override(true), f: () => override(false),
-              a: () => decide("accept"), r: () => decide("reject"), n: () => decide("forbid")};
+              a: () => decide("accept"), r: () => decide("reject"), n: () => decide("forbid"),
+              s: () => { if (session) startTrial(); }, t: () => { if (session) $("study-note").focus(); }};
 document.addEventListener("keydown", (event) => {
   if (event.key === "Escape") { estop(); return; }
-  if (event.target.tagName === "INPUT" || event.ctrlKey || event.metaKey || event.altKey) return;
-  KEYS[event.key.toLowerCase()]?.();
+  if (["INPUT", "SELECT", "TEXTAREA"].includes(event.target.tagName) || event.ctrlKey || event.metaKey || event.altKey) return;
+  const key = event.key.toLowerCase();
+  if (KEYS[key]) { event.preventDefault(); KEYS[key](); }
 });

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from client_protocol import names
@@ -116,9 +117,16 @@ class Decision:
 class DecisionHost:
     """Provides the decision services on the bus and forwards them to the trial's module."""
 
-    def __init__(self, bus: Bus, module: Decision) -> None:
+    def __init__(self, bus: Bus, module: Decision,
+                 observer: Callable[[str, str, dict[str, object]], None] | None = None) -> None:
+        """`observer(caller, service, request)` hears each command the module took (a live study logs them)."""
         self.bus = bus
         self.module = module
+        self.observer = observer
+
+    def _took(self, service: str, request: dict[str, object]) -> None:
+        if self.observer is not None:
+            self.observer(Bus.caller(), service, request)
 
     def start(self) -> None:
         self.bus.provide(names.DECISION_TELEOP_SERVICE, "vr_teleop_msgs/DecisionCommand", self._teleop)
@@ -137,14 +145,17 @@ class DecisionHost:
     async def _teleop(self, req: object) -> dict[str, object]:
         self._check_running()
         message = await self.module.teleop(req.object.strip(), req.action.strip())  # type: ignore[attr-defined]
+        self._took(names.DECISION_TELEOP_SERVICE, {"object": req.object.strip(), "action": req.action.strip()})  # type: ignore[attr-defined]
         return {"success": True, "message": message}
 
     async def _preempt(self, _req: object) -> dict[str, object]:
         self._check_running()
         await self.module.preempt()
+        self._took(names.DECISION_PREEMPT_SERVICE, {})
         return {"success": True, "message": "trial preempted; the robot holds"}
 
     async def _override(self, req: object) -> dict[str, object]:
         self._check_running()
         message = await self.module.override(req.succeeded, req.note)  # type: ignore[attr-defined]
+        self._took(names.DECISION_OVERRIDE_SERVICE, {"succeeded": req.succeeded, "note": req.note})  # type: ignore[attr-defined]
         return {"success": True, "message": message}
