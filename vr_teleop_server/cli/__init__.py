@@ -22,6 +22,7 @@ SUBCOMMANDS: dict[str, str] = {
     "metrics": "vr_teleop_server.cli.metrics",
     "study": "vr_teleop_server.cli.study",
     "cert": "vr_teleop_server.cli.cert",
+    "examples": "vr_teleop_server.cli.examples",
 }
 
 
