@@ -12,9 +12,6 @@ from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-from rich.console import Console
-from rich.table import Table
-
 
 @dataclass(frozen=True)
 class Example:
@@ -69,12 +66,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_list(_args: argparse.Namespace) -> int:
-    table = Table(box=None, pad_edge=False, show_edge=False)
-    for column in ("example", "kind", "what", "use"):
-        table.add_column(column, overflow="fold")
+    width = max(len(e.name) for e in EXAMPLES)
     for e in EXAMPLES:
-        table.add_row(e.name, e.kind, e.what, e.use)
-    Console(width=max(Console().width, 120)).print(table)
+        print(f"{e.name:<{width}}  {e.kind:<5}  {e.what}\n{'':<{width}}         {e.use}")
     print("\nvr-teleop examples copy DIR: editable copies of them all in DIR")
     return 0
 
