@@ -73,7 +73,8 @@ def test_timeout_at_max_speed_ends_the_trial_with_a_sentence_and_exit_code_2(tmp
     assert ("vr-teleop study: trial teleoperated stopped by --timeout: not finished after 8 simulated s; its "
             "recording study-recordings/teleoperated.mcap holds what happened until then") in done.stderr
     assert "nothing to follow live" in done.stdout  # at --speed max, and why
-    assert any(m.topic == "/study/state_updates" for m in read_recording(tmp_path / "study-recordings" / "teleoperated.mcap"))
+    recording = tmp_path / "study-recordings" / "teleoperated.mcap"
+    assert any(m.topic == "/study/state_updates" for m in read_recording(recording))
 
 
 def test_a_real_time_study_is_followed_on_its_dashboard_and_its_timeout_is_a_sentence(tmp_path):
@@ -135,6 +136,11 @@ def test_a_cut_off_recording_is_named_and_ends_non_zero_unless_allowed(nod, tmp_
     assert "exit code 3 (--allow-truncated accepts it)" in done.stderr
     allowed = vr_teleop("replay", str(cut), "--speed", "max", "--quiet", "--allow-truncated", cwd=tmp_path)
     assert allowed.returncode == 0 and "cut off after 2.37 s" in allowed.stderr
+    batch = vr_teleop("replay", str(nod), str(cut), "--speed", "max", "--quiet", "--no-camera", cwd=tmp_path)
+    assert batch.returncode == 3, batch.stderr  # a batch names it too, and is replayed whole
+    assert "cut.mcap: cut off: the recording was not closed" in batch.stderr
+    assert "1 recording was cut off" in batch.stderr
+    assert str(cut) in batch.stdout and str(nod) in batch.stdout
     stub = tmp_path / "stub.mcap"
     stub.write_bytes(data[:2000])  # not one whole block of messages
     done = vr_teleop("replay", str(stub), "--speed", "max", "--quiet", cwd=tmp_path)
@@ -185,5 +191,5 @@ def test_physics_falling_behind_is_said_once_then_counted(caplog):
             "stand-in physics is 50 ms behind real time (the machine is overloaded)"]
         physics._last_warn = time.monotonic() - WARN_EVERY_S  # a minute on
         Physics._warn_behind(physics, 0.07, resync=False)
-    assert caplog.records[-1].getMessage().startswith("stand-in physics fell behind real time 4 times in the last 60 s, "
-                                                      "by up to 120 ms")
+    assert caplog.records[-1].getMessage().startswith(
+        "stand-in physics fell behind real time 4 times in the last 60 s, by up to 120 ms")

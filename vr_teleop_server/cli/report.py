@@ -41,8 +41,8 @@ def replay_summary(result: dict[str, Any], plot: Path | None = None, console: Co
     elif simulated and not lat["max"]:
         latency = f"0 ms over {lat['n']} poses: simulated clock, no network (the server's time is not counted)"
     else:
-        latency = f"median {_n(lat['p50'], ' ms')}, 99% under {_n(lat['p99'], ' ms')}, max {_n(lat['max'], ' ms')} " \
-                  f"({lat['n']} poses)"
+        latency = (f"median {_n(lat['p50'], ' ms')}, 99% under {_n(lat['p99'], ' ms')}, "
+                   f"max {_n(lat['max'], ' ms')} ({lat['n']} poses)")
     table.add_row("pose to command", latency)
     err = result["tracking_error_deg"]
     if err["n"] == 0:
@@ -51,8 +51,8 @@ def replay_summary(result: dict[str, Any], plot: Path | None = None, console: Co
         tracking = (f"0° over {err['n']} commands: the server computed exactly what the offline mapping does "
                     "(on a simulated clock no timing differs)")
     else:
-        tracking = f"mean {_n(err['mean'], '°', 2)}, 99% under {_n(err['p99'], '°', 2)}, max {_n(err['max'], '°', 2)} " \
-                   f"({err['n']} commands, against the offline mapping)"
+        tracking = (f"mean {_n(err['mean'], '°', 2)}, 99% under {_n(err['p99'], '°', 2)}, "
+                    f"max {_n(err['max'], '°', 2)} ({err['n']} commands, against the offline mapping)")
     table.add_row("tracking error", tracking)
     received, expected = result["commands_received"], result["commands_expected"]
     parts = sorted(set(received) | set(expected))

@@ -92,15 +92,17 @@ def people_seed(seed: int, trial: str) -> int:
 async def run_trial(study: Study, trial: str, *, record: Path | None = None, timeout: float = 900.0,
                     settings: ServerSettings | None = None, progress: Callable[[float, int], None] | None = None,
                     progress_every_s: float = 5.0, seed: int | None = None, clock: Clock = WALL,
-                    on_server: Callable[[TeleopServer], None] | None = None) -> TrialReport:
+                    on_server: Callable[[TeleopServer], None] | None = None, port: int = 0) -> TrialReport:
     """Runs one trial on a server of its own; `progress(elapsed_s, actions_done)` hears how it goes, every
     `progress_every_s` while it runs and once at its end; `on_server` hears of the server once it listens.
-    `clock`: the running loop's (simclock.run) when simulated. `timeout` is on that clock: TrialTimedOut."""
+    `clock`: the running loop's (simclock.run) when simulated. `timeout` is on that clock: TrialTimedOut. `port`:
+    the server's (0: any free one)."""
     spec = study.trials[trial]
     seed = study.seed if seed is None else seed
     base = settings or ServerSettings(port=0, backend="sim")
     # the trial's decision module is the robot's autonomy here: the server's own stays off
-    update = {"port": base.port, "backend": "sim", "record": record, "record_camera_fps": 0.0, "autonomy": "teleoperated"}
+    update = {"port": port, "backend": "sim", "record": record, "record_camera_fps": 0.0,
+              "autonomy": "teleoperated"}
     if clock.simulated and spec.perception == "aruco":  # every frame drawn is searched: none drawn in vain
         update["camera_fps"] = ARUCO_RATE_HZ
     server = TeleopServer(base.model_copy(update=update), clock)
@@ -193,7 +195,6 @@ def run_job(job: TrialJob) -> TrialDone:
               file=sys.stderr, flush=True)
 
     on_server = listening if job.progress and not job.simulated else None
-    settings = ServerSettings(port=job.port, backend="sim")
     with tempfile.TemporaryDirectory(prefix="vr-teleop-trial-") as tmp:
         directory = job.record_dir or Path(tmp)
         record = directory / job.record_name
@@ -204,7 +205,7 @@ def run_job(job: TrialJob) -> TrialDone:
                                 timeout=job.timeout, progress=progress if job.progress else None,
                                 port=job.port, on_server=on_server)
         else:
-            lesson = run_trial(job.study, job.trial, record=record, timeout=job.timeout, settings=settings,
+            lesson = run_trial(job.study, job.trial, record=record, timeout=job.timeout, port=job.port,
                                progress=progress if job.progress else None, seed=job.seed, clock=clock,
                                on_server=on_server)
         report = run_on_clock(lesson, clock)
