@@ -21,7 +21,9 @@ from sim.physics import WARN_EVERY_S, Physics
 from testbed.processes import free_port
 from vr_teleop_server.recording.format import NotARecording, check_recording, read_recording
 
-pytestmark = pytest.mark.slow  # commands run as processes: a few seconds each, trials and replays on the stand-in
+# Commands run as processes: a few seconds each idle, trials and replays on the stand-in; minutes on a loaded machine,
+# where the timeout only catches a hang.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
