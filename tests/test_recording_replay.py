@@ -157,7 +157,7 @@ def replay_server(module_servers):
 
 def replay(file: Path, url: str, *extra: str) -> dict:
     proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(file), "--server", url,
-                           "--quiet", *extra], capture_output=True, text=True, timeout=180, cwd=ROOT)
+                           "--quiet", "--json", "-", *extra], capture_output=True, text=True, timeout=180, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout)
 
@@ -221,4 +221,4 @@ def test_replay_says_what_is_wrong_with_its_input(tmp_path):
     (tmp_path / "empty.mcap").write_bytes(b"")
     proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(tmp_path / "empty.mcap")],
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
-    assert proc.returncode == 2 and "no messages" in proc.stderr
+    assert proc.returncode == 2 and "empty.mcap: not an MCAP file (an empty file)" in proc.stderr
