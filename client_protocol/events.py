@@ -17,13 +17,13 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 
-class EventLevel(str, enum.Enum):
+class EventLevel(enum.StrEnum):
     INFO = "info"
     WARNING = "warning"
     DANGER = "danger"
 
 
-class EventKind(str, enum.Enum):
+class EventKind(enum.StrEnum):
     # explicit control (source teleop)
     ENGAGE = "engage"
     RELEASE = "release"

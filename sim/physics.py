@@ -27,6 +27,7 @@ from .thermal import ThermalModel
 
 log = logging.getLogger(__name__)
 _RAD_PER_DEG = math.pi / 180.0  # what np.radians multiplies by
+WARN_EVERY_S = 60.0  # "physics is behind" at most this often, with a count of the times since
 
 State = tuple[tuple[float, ...], ...]  # (positions, velocities, setpoints, efforts, (sim time,))
 
@@ -113,6 +114,8 @@ class Physics:
         self._step_cost = 0.0
         self._rtf_window: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
         self._last_warn = -math.inf
+        self._behind = 0  # times behind since the last warning, and by how much at worst (s)
+        self._worst_lag = 0.0
 
     # ---- commands ------------------------------------------------------------------------------------------------
     def set_targets(self, targets: Mapping[str, float]) -> dict[str, float]:
@@ -297,8 +300,17 @@ class Physics:
                 self.thermal.update(d.actuator_force[self._act], every * self.dt)
 
     def _warn_behind(self, lag: float, *, resync: bool) -> None:
+        """The first time at once, then at most once a WARN_EVERY_S with how often and how far since: a busy
+        machine falls behind again and again, and one line a minute says so."""
         now = time.monotonic()
-        if now - self._last_warn >= 5.0:
-            self._last_warn = now
+        self._behind += 1
+        self._worst_lag = max(self._worst_lag, lag)
+        if now - self._last_warn < WARN_EVERY_S:
+            return
+        if self._behind == 1:
             log.warning("stand-in physics is %.0f ms behind real time%s (the machine is overloaded)",
                         lag * 1e3, "; dropping the backlog" if resync else "")
+        else:
+            log.warning("stand-in physics fell behind real time %d times in the last %.0f s, by up to %.0f ms "
+                        "(the machine is overloaded)", self._behind, now - self._last_warn, self._worst_lag * 1e3)
+        self._last_warn, self._behind, self._worst_lag = now, 0, 0.0

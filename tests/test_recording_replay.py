@@ -156,10 +156,12 @@ def replay_server(module_servers):
 
 
 def replay(file: Path, url: str, *extra: str) -> dict:
+    """The replay's report: the file of its --report, or the JSON alone on stdout (`--json -`)."""
+    to = ["--json", "-"] if "--report" not in extra else []
     proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(file), "--server", url,
-                           "--quiet", *extra], capture_output=True, text=True, timeout=180, cwd=ROOT)
+                           "--quiet", *to, *extra], capture_output=True, text=True, timeout=180, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
-    return json.loads(proc.stdout)
+    return json.loads(proc.stdout if to else Path(extra[extra.index("--report") + 1]).read_text())
 
 
 def test_replaying_a_synthesised_wave_reports_latency_tracking_and_camera(tmp_path, replay_server):
@@ -221,4 +223,4 @@ def test_replay_says_what_is_wrong_with_its_input(tmp_path):
     (tmp_path / "empty.mcap").write_bytes(b"")
     proc = subprocess.run([sys.executable, "-m", "vr_teleop_server.cli", "replay", str(tmp_path / "empty.mcap")],
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
-    assert proc.returncode == 2 and "no messages" in proc.stderr
+    assert proc.returncode == 2 and "empty.mcap: not an MCAP file (an empty file)" in proc.stderr

@@ -110,7 +110,7 @@ def own_messages(path: Path) -> int:
 
 def test_replay_speed_max_with_a_server_sends_as_fast_as_it_takes_them_and_without_one_serves_its_own(
         nod, server):
-    proc = cli("replay", str(nod), "--server", server.url, "--speed", "max", "--quiet", "--no-camera")
+    proc = cli("replay", str(nod), "--server", server.url, "--speed", "max", "--quiet", "--no-camera", "--json", "-")
     assert proc.returncode == 0, proc.stderr
     against = json.loads(proc.stdout)
     assert against["speed_requested"] == "max" and against["clock"] == "wall" and against["server"] == server.url
@@ -118,7 +118,7 @@ def test_replay_speed_max_with_a_server_sends_as_fast_as_it_takes_them_and_witho
     # hold late in a short session): that its tracking differs is expected, that it took everything is not.
     assert against["calls_answered"] == against["calls_sent"] and against["errors"]["count"] == 0
     assert against["messages_sent"] == own_messages(nod)
-    proc = cli("replay", str(nod), "--speed", "max", "--quiet", "--no-camera")
+    proc = cli("replay", str(nod), "--speed", "max", "--quiet", "--no-camera", "--json", "-")
     assert proc.returncode == 0, proc.stderr
     own = json.loads(proc.stdout)
     assert own["server"].startswith("in-process") and own["clock"] == "simulated" and own["speed_served"] > 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import importlib.metadata
 import os
@@ -22,6 +23,7 @@ SUBCOMMANDS: dict[str, str] = {
     "metrics": "vr_teleop_server.cli.metrics",
     "study": "vr_teleop_server.cli.study",
     "cert": "vr_teleop_server.cli.cert",
+    "examples": "vr_teleop_server.cli.examples",
 }
 
 
@@ -46,9 +48,38 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    return {name: sub for action in parser._actions if isinstance(action, argparse._SubParsersAction)
+            for name, sub in action.choices.items()}
+
+
+def check_options(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+    """A mistyped option is answered by the subcommand it was given to, with its usage and the nearest option
+    (argparse alone reports it at the top level, with the top-level usage). Exits as argparse does (code 2)."""
+    current = parser
+    for token in argv:
+        if token == "--":
+            return
+        subcommands = _subcommands(current)
+        if token in subcommands:
+            current = subcommands[token]
+            continue
+        if not token.startswith("-") or token == "-" or token[1:2].isdigit():
+            continue  # a value, or a negative number
+        name = token.split("=", 1)[0]
+        known = [o for action in current._actions for o in action.option_strings]
+        if any(o.startswith(name) for o in known) if name.startswith("--") else name in known:
+            continue  # an option, or a prefix argparse expands
+        near = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        hint = f"; did you mean {near[0]}?" if near else f"; its options are listed by {current.prog} --help"
+        current.error(f"unrecognized option {name}{hint}")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    args = build_parser(argv[0] if argv else None).parse_args(argv)
+    parser = build_parser(argv[0] if argv else None)
+    check_options(parser, argv)
+    args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:  # output piped into `head` and the like: not an error of ours

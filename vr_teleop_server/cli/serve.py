@@ -108,8 +108,18 @@ def run(args: argparse.Namespace) -> int:
     # Process-wide logging only once the arguments are good: a refused command line leaves the caller's alone.
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("websockets").setLevel(max(logging.WARNING, logging.getLogger().level))  # we log our own
+    quiet_third_parties()
     short_slice()  # the loop's wake-ups preempt media work (core/scheduling.py)
     return asyncio.run(_serve(settings))
+
+
+THIRD_PARTY_NOTICES = ("OpenGL",)  # start-up notices (OpenGL_accelerate loaded) nobody acts on: --log-level debug
+
+
+def quiet_third_parties() -> None:
+    """Third-party libraries' info lines only at --log-level debug."""
+    for name in THIRD_PARTY_NOTICES:
+        logging.getLogger(name).setLevel(max(logging.WARNING, logging.getLogger().level))
 
 
 def _teleop_settings(args: argparse.Namespace) -> TeleopSettings:

@@ -10,18 +10,21 @@ import dataclasses
 import json
 import math
 import sys
+from importlib import resources
 from pathlib import Path
 
 from . import study_pilot, study_report, study_withdraw
+from .examples import STUDIES, study_file
 from .metrics import summary
 from .replay import speed as parse_speed
 from ..tools.distributed import Workers, WorkersError, add_arguments, positive
 from ..tools.distributed import run_all as run_everywhere
 from ..tools.study_runner import TrialJob, TrialReport, run_job, stats_table, summarise, table
+from ..tools.timeout import TrialTimedOut
 from ..study.classroom_file import ClassroomStudy
 from ..study.metrics.classroom import classroom_summary
 from ..study.network import profiles
-from ..study.studyfile import StudyFileError, load_study
+from ..study.studyfile import Study, StudyFileError, load_study
 from ..tools.classroom_runner import classroom_stats_table, classroom_table, summarise_classroom
 
 
@@ -33,7 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run trials of a study file on the MuJoCo stand-in, each with its own server, session "
                     "recording and simulated participant, operator and experimenter; print the metrics, and for "
                     "--all a table shaped like the framework paper's Table III.")
-    r.add_argument("file", type=Path, metavar="FILE", help="the study file (YAML)")
+    r.add_argument("file", type=Path, metavar="FILE", nargs="?",
+                   help="the study file (YAML); or --example NAME for a packaged one")
+    r.add_argument("--example", choices=sorted(STUDIES), default=None,
+                   help="a packaged example study instead of FILE (vr-teleop examples copy DIR: editable copies)")
     which = r.add_mutually_exclusive_group(required=True)
     which.add_argument("--trial", "--condition", dest="trial", metavar="NAME",
                        help="the trial (a classroom study's condition) to run")
@@ -43,7 +49,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.add_argument("--json", type=Path, metavar="OUT",
                    help="write every trial's metrics as JSON here ('-' for stdout, which then holds only the JSON)")
     r.add_argument("--timeout", type=float, default=900.0, metavar="S",
-                   help="give up on a trial after S seconds (simulated seconds at --speed max)")
+                   help="stop a trial that has not ended after S seconds (simulated seconds at --speed max): "
+                        "exit code 2")
+    r.add_argument("--port", type=int, default=0, metavar="PORT",
+                   help="at real time, each trial's server (and its dashboard, to follow the trial live) listens "
+                        "on this port (default: any free one; the address is printed)")
     r.add_argument("--speed", type=_speed, default=1.0, metavar="max",
                    help="1 (default): in real time; max: on a simulated clock, as fast as the work allows")
     r.add_argument("--repeat", type=positive, default=None, metavar="N",
@@ -62,6 +72,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     study_withdraw.register(sub)
     study_pilot.register(sub)
     study_report.register(sub)
+
+
+TASK_S_PER_PART = 8.5  # a task study's trial at real time, per part: the toolbox's six parts take 47 to 53 s
+
+
+def _plan(study: Study | ClassroomStudy, jobs: list[TrialJob], simulated: bool, workers: Workers) -> str:
+    """What is about to run and how long it takes at this speed; at --speed max, why there is nothing to watch."""
+    each = study.lesson_s if isinstance(study, ClassroomStudy) else len(study.parts) * TASK_S_PER_PART
+    trials = f"{len(jobs)} trial{'' if len(jobs) == 1 else 's'}"
+    where = "" if workers.in_process else f" on {workers.describe()}"
+    total = each * len(jobs)
+    if not simulated:
+        each_one = f" ({_duration(each)} a trial)" if len(jobs) > 1 else ""
+        return (f"running {trials}{where} in real time: about {_duration(total)}{each_one}; "
+                "--speed max runs them on a simulated clock, usually several times faster")
+    return (f"running {trials}{where} at --speed max: {_duration(total)} of trials on a simulated clock, as fast as "
+            "this machine allows. There is nothing to follow live: each trial's server runs inside this process "
+            "with no network port (run without --speed max to watch a trial on the dashboard)")
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
 
 
 def _speed(text: str) -> float:
@@ -83,8 +115,17 @@ def _profiles(text: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if (args.file is None) == (args.example is None):
+        print("vr-teleop study run: error: give a study FILE or --example NAME (one of "
+              f"{', '.join(sorted(STUDIES))}), not {'both' if args.file else 'neither'}", file=sys.stderr)
+        return 2
     try:
-        study = load_study(args.file)
+        if args.example is not None:
+            with resources.as_file(study_file(args.example)) as path:
+                study = load_study(path)
+            args.file = Path(f"--example {args.example}")
+        else:
+            study = load_study(args.file)
     except StudyFileError as exc:
         print(f"vr-teleop study: error: {exc}", file=sys.stderr)
         return 2
@@ -114,15 +155,17 @@ def run(args: argparse.Namespace) -> int:
     written_to = None if sent_back else record_dir if workers.in_process else record_dir.resolve()
     networks = args.network or [None]
     jobs = [TrialJob(study, name, seed, "", written_to, args.timeout, simulated, progress=workers.in_process,
-                     network=network)
+                     network=network, port=args.port)
             for name in names for network in networks for seed in seeds]
     jobs = [dataclasses.replace(job, record_name=f"{job.name}-seed{job.seed}.mcap" if args.repeat is not None
                                 else f"{job.name}.mcap") for job in jobs]
     groups = list(dict.fromkeys(job.name for job in jobs))  # conditions (x network profiles), in order
     done: dict[str, TrialReport] = {}
-    if not workers.in_process:
-        print(f"running {len(jobs)} trial{'' if len(jobs) == 1 else 's'} on {workers.describe()}", file=notes,
-              flush=True)
+    if args.port and (simulated or len(jobs) > 1 and not workers.in_process):
+        print("vr-teleop study: error: --port is for trials run one after another at real time (their servers "
+              "then take the port in turn)", file=sys.stderr)
+        return 2
+    print(_plan(study, jobs, simulated, workers), file=notes, flush=True)
     try:
         for job, result in run_everywhere(run_job, jobs, workers, name=lambda job: job.key,
                                             progress=not workers.in_process, unit="trial"):
@@ -146,6 +189,9 @@ def run(args: argparse.Namespace) -> int:
                       flush=True)
             for refusal in report.refusals:
                 print(f"  operator command refused: {refusal}", file=notes)
+    except TrialTimedOut as exc:
+        print(f"vr-teleop study: {exc}", file=sys.stderr)
+        return 2
     except WorkersError as exc:
         print(f"vr-teleop study: error: {exc}", file=sys.stderr)
         return 1

@@ -25,7 +25,7 @@ from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 
@@ -47,9 +47,58 @@ class Recorded:
         return self.metadata.get("sender") or self.metadata.get("client", "")
 
 
-def read_recording(path: Path) -> Iterator[Recorded]:
-    """Every message in log order; a file cut short (a crash) yields what it holds up to its last whole chunk."""
+MCAP_MAGIC = b"\x89MCAP0\r\n"  # the first and last 8 bytes of every MCAP file (its spec's "Magic")
+SESSION_METADATA = "vr_teleop.session"  # a metadata record: what the file should hold ("duration_s": synth's)
+
+
+class NotARecording(ValueError):
+    """A file that is not MCAP at all (a recording of ours is)."""
+
+
+@dataclass(frozen=True)
+class RecordingCheck:
+    """`closed`: the file ends as a finished MCAP file does (its summary and closing magic); a writer that was
+    killed or a copy that was cut short leaves it open. `planned_s`: the session's length when the writer knew it
+    beforehand (synth writes it), None otherwise."""
+    closed: bool
+    planned_s: float | None
+
+
+def check_recording(path: Path) -> RecordingCheck:
+    """Whether a file is an MCAP file, and a closed one; NotARecording names a foreign or empty file."""
     with path.open("rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+        if head != MCAP_MAGIC:
+            what = "an empty file" if not head else "it does not begin as MCAP files do"
+            raise NotARecording(f"{path}: not an MCAP file ({what}); give a recording of `vr-teleop serve "
+                                "--record` or `vr-teleop synth`")
+        size = f.seek(0, 2)
+        f.seek(max(size - len(MCAP_MAGIC), len(MCAP_MAGIC)))
+        closed = size > 2 * len(MCAP_MAGIC) and f.read() == MCAP_MAGIC
+        f.seek(0)
+        return RecordingCheck(closed, _planned_s(f))
+
+
+def _planned_s(f: Any) -> float | None:
+    """The session metadata's duration: written first, so only the records before the first message are read."""
+    try:
+        for record in StreamReader(f, skip_magic=False, emit_chunks=True).records:
+            if isinstance(record, Metadata) and record.name == SESSION_METADATA:
+                return float(record.metadata["duration_s"])
+            if isinstance(record, (Message, Chunk)):
+                return None
+    except Exception:  # noqa: BLE001 (a torn file fails however the parser meets it: no metadata then)
+        return None
+    return None
+
+
+def read_recording(path: Path) -> Iterator[Recorded]:
+    """Every message in log order; a file cut short (a crash) yields what it holds up to its last whole chunk.
+    NotARecording for a file that is not MCAP."""
+    with path.open("rb") as f:
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            check_recording(path)  # raises, naming the problem
+        f.seek(0)
         try:
             reader = make_reader(f)
             summary = reader.get_summary()

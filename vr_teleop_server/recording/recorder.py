@@ -50,6 +50,10 @@ class Recorder:
         self._task: asyncio.Task[None] | None = None
         self.messages = 0
 
+    def write_metadata(self, name: str, values: dict[str, str]) -> None:
+        """A metadata record (recording/format.py SESSION_METADATA: what the file should hold), before messages."""
+        self._writer.add_metadata(name, values)
+
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
         if self.bus is not None:

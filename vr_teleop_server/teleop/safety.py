@@ -74,7 +74,7 @@ class VelocityRamp:
         return self.start_fraction + (1.0 - self.start_fraction) * progress
 
 
-class DeadManMode(str, enum.Enum):
+class DeadManMode(enum.StrEnum):
     HOLD = "hold"  # the arm follows only while the grip is held; on release it stays where it is
     TOGGLE = "toggle"  # each press of the grip starts or stops following
 
@@ -129,7 +129,7 @@ class DeadMan:
         return self._following
 
 
-class WatchdogState(str, enum.Enum):
+class WatchdogState(enum.StrEnum):
     RELEASED = "released"  # not engaged: teleop sends nothing
     ACTIVE = "active"  # engaged and head poses are fresh
     STALLED = "stalled"  # engaged, but head poses stopped for longer than the timeout: holding

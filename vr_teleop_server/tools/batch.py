@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from .distributed import Workers, WorkersError, run_all
+from ..recording.format import check_recording
 from .replay import Step, load_steps, report, run_simulated
 
 
@@ -115,9 +116,13 @@ def run_batch(args: Any) -> int:
     if args.json is not None or args.plot is not None:
         return fail("--json and --plot are for one recording; a batch writes --summary OUT (OUT.csv, OUT.json)", 2)
     try:
+        cut_off = [path for path in args.file if not check_recording(path).closed]
         jobs = load_jobs(args.file, args.client, camera=not args.no_camera)
     except (OSError, ValueError) as exc:
         return fail(str(exc), 2)
+    for path in cut_off:
+        print(f"vr-teleop replay: {path}: cut off: the recording was not closed; replaying what is there",
+              file=sys.stderr)
     try:
         results = replay_all(jobs, Workers.from_args(args), progress=not args.quiet)
     except WorkersError as exc:
@@ -126,4 +131,8 @@ def run_batch(args: Any) -> int:
     if args.summary is not None:
         for path in write_summary(results, args.summary):
             print(f"wrote {path}")
+    if cut_off and not args.allow_truncated:
+        print(f"vr-teleop replay: {len(cut_off)} recording{'s were' if len(cut_off) > 1 else ' was'} cut off: exit "
+              "code 3 (--allow-truncated accepts them)", file=sys.stderr)
+        return 3
     return 0

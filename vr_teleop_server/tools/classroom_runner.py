@@ -25,6 +25,7 @@ from ..study.classroom import Pupils, Teacher
 from ..study.classroom_file import ClassroomStudy
 from ..study.metrics.classroom import CLASSROOM_METRICS, ClassroomResult, classroom_metrics, read_classroom
 from ..study.network import ImpairedConnection, profiles
+from .timeout import TrialTimedOut
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +55,10 @@ def menu_check(server: TeleopServer, study: ClassroomStudy) -> None:
 
 async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | None = None, seed: int | None = None,
                      clock: Clock = WALL, network: str | None = None, timeout: float = 900.0,
-                     progress: Callable[[float, int], None] | None = None) -> ClassroomReport:
+                     progress: Callable[[float, int], None] | None = None, port: int = 0,
+                     on_server: Callable[[TeleopServer], None] | None = None) -> ClassroomReport:
+    """`timeout` (on `clock`) shorter than the lesson stops it there: TrialTimedOut. `on_server` hears of the
+    lesson's server once it listens (on `port`, 0: any free one)."""
     level = study.conditions[condition].autonomy
     seed = study.seed if seed is None else seed
     if network is not None and not clock.simulated:
@@ -62,11 +66,13 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
                          "behind the WAN emulator (docs/guides/deployment.md)")
     with tempfile.TemporaryDirectory(prefix="vr-teleop-lesson-") as tmp:
         record = record or Path(tmp) / "lesson.mcap"
-        settings = ServerSettings(port=0, backend="sim", record=record, record_camera_fps=0.0, autonomy=level,
+        settings = ServerSettings(port=port, backend="sim", record=record, record_camera_fps=0.0, autonomy=level,
                                   bystander_interval=0, camera_fps=study.camera_fps, gesture_dir=Path(tmp) / "g",
                                   audio_dir=Path(tmp) / "a")
         server = TeleopServer(settings, clock)
         await server.start()
+        if on_server is not None:
+            on_server(server)
         refusals: list[str] = []
         try:
             if server.autonomy is not None:
@@ -92,9 +98,11 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
                 started = clock.monotonic()
                 acting = asyncio.ensure_future(pupils.run())
                 try:
-                    end = started + study.lesson_s
+                    end = started + min(study.lesson_s, timeout)
+                    every = 1.0  # a first progress line within the first second, then every 5 s
                     while (left := end - clock.monotonic()) > 1e-6:
-                        await asyncio.sleep(min(5.0, left))
+                        await asyncio.sleep(min(every, left))
+                        every = 5.0
                         if progress is not None:
                             progress(clock.monotonic() - started, teacher.heard)
                         if acting.done():
@@ -104,6 +112,9 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
                     await asyncio.gather(acting, return_exceptions=True)
                     await teacher.close()
                 refusals = teacher.refusals
+                if timeout < study.lesson_s:
+                    raise TrialTimedOut(condition if network is None else f"{condition}@{network}", timeout,
+                                        clock.simulated, record if record.parent != Path(tmp) else None)
             finally:
                 await teacher_client.close()
                 await pupils_client.close()

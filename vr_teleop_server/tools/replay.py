@@ -81,7 +81,7 @@ def load_steps(path: Path, client: str | None = None) -> tuple[list[Step], str]:
     """The operator's messages and calls, in time order, and which client they came from."""
     messages = list(read_recording(path))
     if not messages:
-        raise ValueError(f"{path}: no messages (not a recording, or empty)")
+        raise ValueError(f"{path}: an MCAP file without messages: nothing to replay")
     if client is None:
         counts: dict[str, int] = defaultdict(int)
         for m in messages:

@@ -41,8 +41,14 @@ from ..study.runtime import TrialRuntime
 from ..study.classroom_file import ClassroomStudy
 from ..study.studyfile import Study
 from .classroom_runner import ClassroomReport, run_lesson
+from .timeout import TrialTimedOut
 
 log = logging.getLogger(__name__)
+
+
+def dashboard_address(server: TeleopServer) -> str:
+    """Where a person follows a trial server live: its dashboard's page (the Study panel)."""
+    return server.url.replace("ws", "http", 1) + "/"
 
 
 @dataclass(frozen=True)
@@ -85,19 +91,24 @@ def people_seed(seed: int, trial: str) -> int:
 
 async def run_trial(study: Study, trial: str, *, record: Path | None = None, timeout: float = 900.0,
                     settings: ServerSettings | None = None, progress: Callable[[float, int], None] | None = None,
-                    progress_every_s: float = 5.0, seed: int | None = None, clock: Clock = WALL) -> TrialReport:
+                    progress_every_s: float = 5.0, seed: int | None = None, clock: Clock = WALL,
+                    on_server: Callable[[TeleopServer], None] | None = None, port: int = 0) -> TrialReport:
     """Runs one trial on a server of its own; `progress(elapsed_s, actions_done)` hears how it goes, every
-    `progress_every_s` while it runs and once at its end. `clock`: the running loop's (simclock.run) when
-    simulated. `timeout` is on that clock."""
+    `progress_every_s` while it runs and once at its end; `on_server` hears of the server once it listens.
+    `clock`: the running loop's (simclock.run) when simulated. `timeout` is on that clock: TrialTimedOut. `port`:
+    the server's (0: any free one)."""
     spec = study.trials[trial]
     seed = study.seed if seed is None else seed
     base = settings or ServerSettings(port=0, backend="sim")
     # the trial's decision module is the robot's autonomy here: the server's own stays off
-    update = {"port": 0, "backend": "sim", "record": record, "record_camera_fps": 0.0, "autonomy": "teleoperated"}
+    update = {"port": port, "backend": "sim", "record": record, "record_camera_fps": 0.0,
+              "autonomy": "teleoperated"}
     if clock.simulated and spec.perception == "aruco":  # every frame drawn is searched: none drawn in vain
         update["camera_fps"] = ARUCO_RATE_HZ
     server = TeleopServer(base.model_copy(update=update), clock)
     await server.start()
+    if on_server is not None:
+        on_server(server)
     try:
         assert server.robot is not None and server.luxai is not None
         runtime = TrialRuntime(server.bus, server.robot, study, trial, server.luxai.gestures, clock=clock,
@@ -113,6 +124,8 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
                 if progress is not None else None
             try:
                 result = await asyncio.wait_for(runtime.run(), timeout)
+            except TimeoutError:
+                raise TrialTimedOut(trial, timeout, clock.simulated, record) from None
             finally:
                 await cancel_and_wait(reporting)
                 acting.cancel()
@@ -145,6 +158,7 @@ class TrialJob:
     simulated: bool = True
     progress: bool = False  # progress lines on stderr while it runs (in this process only)
     network: str | None = None  # a classroom lesson's network profile (netem/profiles.yaml), simulated clock only
+    port: int = 0  # the trial server's port at real time (0: any free one)
 
     @property
     def name(self) -> str:
@@ -176,6 +190,11 @@ def run_job(job: TrialJob) -> TrialDone:
         print(f"  {job.name}: {elapsed:5.1f} s, {done} {what[0] if done == 1 else what[1]} {what[2]}",
               file=sys.stderr, flush=True)
 
+    def listening(server: TeleopServer) -> None:
+        print(f"  {job.name}: follow it live on the dashboard at {dashboard_address(server)} (Study panel)",
+              file=sys.stderr, flush=True)
+
+    on_server = listening if job.progress and not job.simulated else None
     with tempfile.TemporaryDirectory(prefix="vr-teleop-trial-") as tmp:
         directory = job.record_dir or Path(tmp)
         record = directory / job.record_name
@@ -183,10 +202,12 @@ def run_job(job: TrialJob) -> TrialDone:
         wall, cpu = time.perf_counter(), _cpu_seconds()
         if isinstance(job.study, ClassroomStudy):
             lesson = run_lesson(job.study, job.trial, record=record, seed=job.seed, clock=clock, network=job.network,
-                                timeout=job.timeout, progress=progress if job.progress else None)
+                                timeout=job.timeout, progress=progress if job.progress else None,
+                                port=job.port, on_server=on_server)
         else:
-            lesson = run_trial(job.study, job.trial, record=record, timeout=job.timeout,
-                               progress=progress if job.progress else None, seed=job.seed, clock=clock)
+            lesson = run_trial(job.study, job.trial, record=record, timeout=job.timeout, port=job.port,
+                               progress=progress if job.progress else None, seed=job.seed, clock=clock,
+                               on_server=on_server)
         report = run_on_clock(lesson, clock)
         wall, cpu = time.perf_counter() - wall, _cpu_seconds() - cpu
         data = record.read_bytes() if job.record_dir is None else None
@@ -200,8 +221,10 @@ def _cpu_seconds() -> float:
 
 
 async def _report_progress(runtime: TrialRuntime, progress: Callable[[float, int], None], every_s: float) -> None:
+    first = True
     while True:
-        await asyncio.sleep(every_s)
+        await asyncio.sleep(min(1.0, every_s) if first else every_s)  # a first line within the first second
+        first = False
         if runtime.log.started:
             counts = runtime.log.snapshot().counts
             progress(runtime.log.now(), counts.human_actions + counts.robot_actions - counts.unfinished)

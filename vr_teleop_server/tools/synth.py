@@ -30,6 +30,7 @@ from robot_models import load_qtrobot
 from ..core.bus import SERVER_NODE, Bus
 from ..robot.gestures import GestureLibrary, packaged_gesture_dir
 from ..features.menu_service import MenuService
+from ..recording.format import SESSION_METADATA
 from ..recording.recorder import Recorder
 
 RATE = 90.0
@@ -266,6 +267,7 @@ def write(session: Session, out: Path, seed: int = 0, start_ns: int = 1_700_000_
     rng = np.random.default_rng(seed + 1)
     recorder = Recorder(out, TypeRegistry(), camera_fps=0)
     n = int(session.duration * RATE)
+    recorder.write_metadata(SESSION_METADATA, {"duration_s": f"{(n - 1) / RATE:.3f}"})  # names a cut-off copy
     calls = sorted(session.calls)
     call_index = 0
     for i in range(n):

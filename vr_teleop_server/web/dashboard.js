@@ -235,7 +235,6 @@ ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
 });
 
 // ---- Wizard-of-Oz buttons, from the same menu data as the headset's --------------------------------------------
-let sayItem = null;
 function select(id, args = "") {
   return ros.call(names.MENU_SELECT_SERVICE, {id, args})
     .then((r) => logLine($("events"), `${id}: ${r.message}`))
@@ -263,7 +262,6 @@ ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (message) => {
       const key = item.command && `${item.command} ${canonicalArgs(item.args)}`;
       if (item.command && !shown.has(key)) {
         shown.add(key);
-        if (item.command === "say" && !sayItem) sayItem = item.id;
         const b = el("button", {textContent: item.label, title: item.id});
         b.dataset.item = item.id;
         b.onclick = () => select(item.id);
@@ -276,11 +274,17 @@ ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (message) => {
   }
   $("menus").replaceChildren(...sections);
 });
+// Free text is no menu item: it goes to the speech service as it is, and the recording holds it as said text,
+// never under a sentence's id the teacher did not choose.
 $("say-form").onsubmit = (event) => {
   event.preventDefault();
   const text = $("say-text").value.trim();
-  if (text && sayItem) select(sayItem, JSON.stringify({text}));
   $("say-text").value = "";
+  if (!text) return;
+  const quoted = JSON.stringify(text);
+  ros.call(names.SPEECH_SAY_SERVICE, {message: text})
+    .then((r) => logLine($("events"), r.status ? `said ${quoted}` : `stopped while saying ${quoted}`))
+    .catch((err) => logLine($("events"), `say ${quoted}: ${err.message}`, "error"));
 };
 
 // ---- languages and voices from home -----------------------------------------------------------------------------
