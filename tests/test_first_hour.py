@@ -25,6 +25,7 @@ from vr_teleop_server.recording.format import NotARecording, check_recording, re
 # where the timeout only catches a hang.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
+ROOT = Path(__file__).resolve().parent.parent
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
 
@@ -41,13 +42,15 @@ def test_examples_are_listed_and_copied_from_the_installed_package(tmp_path):
     for name in ("toolbox.yaml", "classroom.yaml", "menus", "qam_paper_table1.csv", "fluency_example.csv"):
         assert name in listed.stdout
     copied = vr_teleop("examples", "copy", "mine", cwd=tmp_path)
-    assert copied.returncode == 0 and "copied 10 files into mine" in copied.stdout
+    packaged_menus = sorted(p.name for p in (ROOT / "menus" / "data").iterdir() if p.is_file())
+    files = 5 + len(packaged_menus)  # the two studies, the three sheets and the menus
+    assert copied.returncode == 0 and f"copied {files} files into mine" in copied.stdout
     assert (tmp_path / "mine" / "toolbox.yaml").read_text().startswith("# The HRI framework's example study")
-    assert sorted(p.name for p in (tmp_path / "mine" / "menus").iterdir()) == [
-        "emotion.yaml", "motion.yaml", "sentences.txt", "speech.yaml", "status.yaml"]
+    assert sorted(p.name for p in (tmp_path / "mine" / "menus").iterdir()) == packaged_menus
+    assert {"emotion.yaml", "speech.yaml", "sentences.en.txt"} <= set(packaged_menus)
     (tmp_path / "mine" / "toolbox.yaml").write_text("# edited\n")
     again = vr_teleop("examples", "copy", "mine", cwd=tmp_path)  # an edited copy is kept, and said so
-    assert again.returncode == 0 and "kept 10 files already there (--force overwrites them)" in again.stderr
+    assert again.returncode == 0 and f"kept {files} files already there (--force overwrites them)" in again.stderr
     assert (tmp_path / "mine" / "toolbox.yaml").read_text() == "# edited\n"
 
 
