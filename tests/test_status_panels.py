@@ -122,3 +122,39 @@ def test_the_motivation_panel_raises_and_lowers_a_variable_and_closes_when_picke
         assert page.errors == []
     finally:
         close_page(page)
+
+
+def test_the_dashboard_shows_the_same_panels_and_its_buttons_change_motivation(browser, sim_server, watch):
+    motivation = watch("/vr_teleop/status/motivation", "vr_teleop_msgs/Motivation")
+    motors = watch("/vr_teleop/status/motors", "vr_teleop_msgs/MotorsStatus")
+    assert wait_for(lambda: motivation.latest.get("name") and motors.latest.get("name"), 30)
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        page.goto(f"http://127.0.0.1:{sim_server.port}/#camera=jpeg")
+        page.wait_for_function("window.dashboard?.panels?.motors && window.dashboard.panels.motivation"
+                               " && document.querySelectorAll('#motivation-controls button.raise').length === 4",
+                               timeout=SLOW)
+        shown = page.evaluate("window.dashboard.panels.motors")
+        assert motors.any(lambda m: m["header"] == shown["header"] and m["position"] == shown["position"])
+        n = len(shown["name"])
+        for i, fraction in enumerate(shown["position_normalized"]):  # the canvas drew what the topic said
+            if not 0.15 < fraction < 0.85:
+                continue
+            bar = page.evaluate(f"(async () => (await import('/status_panels.js')).motorBar(1024, {n}, {i}))()")
+            (fx, fy), (ex, ey) = bar_points(bar, fraction)
+            pixel = ("Array.from(document.getElementById('motors-panel').getContext('2d')"
+                     ".getImageData(%d, %d, 1, 1).data)")
+            assert is_fill(page.evaluate(pixel % (fx, fy))) and is_empty(page.evaluate(pixel % (ex, ey)))
+        curiosity = motivation.latest["name"].index("curiosity")
+        before = motivation.latest["value"][curiosity]
+        page.locator("#motivation-controls button.lower").nth(curiosity).click()  # a tenth of 0..90 down
+        assert wait_for(lambda: motivation.latest["value"][curiosity] <= before - 8.5, 30), motivation.latest
+        page.wait_for_function(f"window.dashboard.panels.motivation.value[{curiosity}] <= {before - 8.5}",
+                               timeout=SLOW)
+        SHOTS.mkdir(exist_ok=True)
+        page.locator("#status-panels").screenshot(path=str(SHOTS / "dashboard.png"))
+        assert errors == []
+    finally:
+        page.close()

@@ -8,7 +8,6 @@ import {COLORS, FONT, fitText, roundRect} from "./operator/panels.js";
 export const PANEL_SIZE = {width: 1024, height: 1024};
 export const PANELS = ["motors", "motivation"];
 const TREND_WINDOW_MS = 5000;   // a variable's trend: its change over the last five seconds
-const BAR = {x: 330, w: 380};   // where the bars sit in a row
 
 /** How each motivation variable moved lately: rising, falling or steady (from the values the topic brought). */
 export class Trends {
@@ -68,12 +67,13 @@ function bar(ctx, x, y, w, h, fraction, color, marks = []) {
   for (const m of marks) ctx.fillRect(x + w * m - 2, y - 6, 4, h + 12);
 }
 
-/** Where motor i's bar is on a panel of `height` with n motors (its row's text is centred on y + h / 2). */
-export function motorBar(height, n, i) {
-  const top = 110, rowH = Math.min(80, (height - top - 80) / Math.max(1, n));
-  const size = Math.min(36, rowH * 0.55);
-  const y = top + rowH * (i + 0.5) + 10;
-  return {x: BAR.x, y: y - size * 0.35, w: BAR.w, h: size * 0.7, top, size, row: y};
+/** Where motor i's bar is on a panel of `width` x `height` with n motors: each motor is two lines, its name,
+ * temperature, mode and state above, its position in its range as a bar the panel's width below. */
+export function motorBar(height, n, i, width = PANEL_SIZE.width) {
+  const top = 150, rowH = Math.min(110, (height - top - 70) / Math.max(1, n));
+  const size = Math.min(36, rowH * 0.36);
+  const row = top + rowH * i + size * 0.6;
+  return {x: 40, y: row + size * 0.75, w: width - 80, h: size * 0.6, size, row};
 }
 
 /** Where variable i's bar is on a motivation panel of `width`. */
@@ -82,11 +82,12 @@ export function motivationBar(width, i) {
   return {x: 50, y: y + 84, w: width - 100, h: 44, row: y};
 }
 
-/** msg: the newest MotorsStatus (null before the first); clamped: the joints the teleop state calls clamped. */
-export function drawMotors(canvas, msg, clamped, t) {
+/** msg: the newest MotorsStatus (null before the first); clamped: the joints the teleop state calls clamped; hint:
+ * the line at the bottom (how the panel is worked where it is shown). */
+export function drawMotors(canvas, msg, clamped, t, hint) {
   const ctx = canvas.getContext("2d");
   const {width, height} = canvas;
-  frame(ctx, width, height, t("panel.motors"), t("panel.close_hint"));
+  frame(ctx, width, height, t("panel.motors"), hint);
   if (!msg) {
     ctx.fillStyle = COLORS.muted;
     ctx.font = `500 36px ${FONT}`;
@@ -94,37 +95,42 @@ export function drawMotors(canvas, msg, clamped, t) {
     return;
   }
   const n = msg.name.length;
-  const {top, size} = motorBar(height, n, 0);
-  ctx.font = `500 ${Math.round(size * 0.8)}px ${FONT}`;
+  ctx.font = `500 28px ${FONT}`;
   ctx.fillStyle = COLORS.muted;
-  const columns = [[t("panel.joint"), 40], [t("panel.position"), BAR.x], [t("panel.temperature"), BAR.x + BAR.w + 24],
-                   [t("panel.mode"), BAR.x + BAR.w + 150], [t("panel.condition"), BAR.x + BAR.w + 270]];
-  for (const [word, x] of columns) ctx.fillText(word, x, top - 10);
+  ctx.fillText(fitText(ctx, t("panel.motors_legend"), width - 80), 40, 104);
+  const modes = {on: t("panel.mode_on"), off: t("panel.mode_off"), brake: t("panel.mode_brake")};
+  const conditions = {clamped: t("panel.clamped"), holding: t("panel.holding"), free: t("panel.free")};
   msg.name.forEach((name, i) => {
-    const b = motorBar(height, n, i), y = b.row;
+    const b = motorBar(height, n, i, width), y = b.row;
     const condition = motorCondition(msg.mode[i], clamped.has(name));
     const fault = msg.fault?.[i];
-    ctx.font = `600 ${size}px ${FONT}`;
+    ctx.font = `600 ${b.size}px ${FONT}`;
+    ctx.textAlign = "right";  // from the right: temperature, mode, state (or the fault the motor reports)
+    ctx.fillStyle = {clamped: COLORS.warning, holding: COLORS.ok, free: COLORS.muted}[condition];
+    if (fault) ctx.fillStyle = COLORS.error;
+    const state = fault || conditions[condition];
+    ctx.fillText(state, width - 40, y);
+    const right = width - 40 - ctx.measureText(state).width - 30;
+    ctx.fillStyle = msg.mode[i] === "on" ? COLORS.info : COLORS.warning;
+    const mode = modes[msg.mode[i]] ?? msg.mode[i];
+    ctx.fillText(mode, right, y);
+    const temperature = `${msg.temperature[i].toFixed(0)} °C`;
+    const right2 = right - ctx.measureText(mode).width - 30;
+    ctx.fillStyle = COLORS.info;
+    ctx.fillText(temperature, right2, y);
+    ctx.textAlign = "left";
     ctx.fillStyle = fault ? COLORS.error : COLORS.info;
-    ctx.fillText(fitText(ctx, name, BAR.x - 60), 40, y);
+    ctx.fillText(fitText(ctx, name, right2 - ctx.measureText(temperature).width - 70), 40, y);
     const color = condition === "clamped" ? COLORS.warning : fault ? COLORS.error : "#2f80ed";
     bar(ctx, b.x, b.y, b.w, b.h, msg.position_normalized[i], color);
-    ctx.fillStyle = COLORS.info;
-    ctx.fillText(`${msg.temperature[i].toFixed(0)} °C`, BAR.x + BAR.w + 24, y);
-    ctx.fillStyle = msg.mode[i] === "on" ? COLORS.info : COLORS.warning;
-    const modes = {on: t("panel.mode_on"), off: t("panel.mode_off"), brake: t("panel.mode_brake")};
-    ctx.fillText(modes[msg.mode[i]] ?? msg.mode[i], BAR.x + BAR.w + 150, y);
-    ctx.fillStyle = {clamped: COLORS.warning, holding: COLORS.ok, free: COLORS.muted}[condition];
-    const conditions = {clamped: t("panel.clamped"), holding: t("panel.holding"), free: t("panel.free")};
-    ctx.fillText(fitText(ctx, fault || conditions[condition], width - (BAR.x + BAR.w + 290)), BAR.x + BAR.w + 270, y);
   });
 }
 
 /** msg: the newest Motivation; trends: a Trends; selected: the row the controls act on (-1: none). */
-export function drawMotivation(canvas, msg, trends, selected, t) {
+export function drawMotivation(canvas, msg, trends, selected, t, hint) {
   const ctx = canvas.getContext("2d");
   const {width, height} = canvas;
-  frame(ctx, width, height, t("panel.motivation"), t("panel.motivation_hint"));
+  frame(ctx, width, height, t("panel.motivation"), hint);
   if (!msg) {
     ctx.fillStyle = COLORS.muted;
     ctx.font = `500 36px ${FONT}`;

@@ -326,9 +326,10 @@ function showPanel(which) {
 }
 
 function drawStatus() {
-  if (state.statusPanel === "motors") drawMotors(statusCanvas, state.motors, state.lastClamped, t);
-  else if (state.statusPanel === "motivation") {
-    drawMotivation(statusCanvas, state.motivation, trends, state.panelRow, t);
+  if (state.statusPanel === "motors") {
+    drawMotors(statusCanvas, state.motors, state.lastClamped, t, t("panel.close_hint"));
+  } else if (state.statusPanel === "motivation") {
+    drawMotivation(statusCanvas, state.motivation, trends, state.panelRow, t, t("panel.motivation_hint"));
   }
   statusTexture.needsUpdate = true;
 }
