@@ -5,6 +5,8 @@ or by picking the item again."""
 
 from __future__ import annotations
 
+import json
+import subprocess
 from pathlib import Path
 
 from support import wait_for
@@ -12,6 +14,7 @@ from test_operator_page import SLOW, choose_in_menu, close_page, enter_vr, frame
 
 __all__ = ["iwer"]  # the fixture, shared with test_operator_page.py
 SHOTS = Path("/tmp/status_panels")
+WEB = Path(__file__).resolve().parent.parent / "vr_teleop_server" / "web"
 BLUE_FILL = (47, 128, 237)  # a bar's fill (#2f80ed); its empty part is a dark grey
 
 
@@ -158,3 +161,32 @@ def test_the_dashboard_shows_the_same_panels_and_its_buttons_change_motivation(b
         assert errors == []
     finally:
         page.close()
+
+
+def test_the_trend_and_a_motors_state_under_node(tmp_path):
+    """The panels' pure parts, run by Node on the page's own module: a variable's trend over the last five seconds
+    (a change under a thousandth of its range is steady) and what a motor's row says."""
+    script = tmp_path / "check.mjs"
+    script.write_text(f"""
+import {{Trends, motorCondition, motivationStep}} from {json.dumps(str(WEB / 'status_panels.js'))};
+const trends = new Trends(), out = {{}};
+const msg = (f, c, p) => ({{name: ["frustration", "curiosity", "pain"], value: [f, c, p]}});
+trends.add(msg(9, 70, 0), 0);
+out.one = trends.trend("frustration", 90);
+trends.add(msg(8.9, 70.05, 0), 1000);
+out.two = [trends.trend("frustration", 90), trends.trend("curiosity", 90), trends.trend("pain", 20)];
+for (let k = 2; k <= 9; k++) trends.add(msg(8.9, 70.05 + (k === 9 ? 0.5 : 0), 0), k * 1000);
+out.later = [trends.trend("frustration", 90), trends.trend("curiosity", 90)];
+out.states = [motorCondition("on", false), motorCondition("brake", false), motorCondition("off", false),
+              motorCondition("off", true)];
+out.step = motivationStep({{min: [-10], max: [10]}}, 0);
+console.log(JSON.stringify(out));
+""")
+    result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["one"] == 0  # one value: no trend yet
+    assert out["two"] == [-1, 0, 0]  # 0.1 of 90 falls; 0.05 of 90 (under 0.09) is steady
+    assert out["later"] == [0, 1]  # the fall is older than five seconds; curiosity just rose by 0.5
+    assert out["states"] == ["holding", "holding", "free", "clamped"]
+    assert out["step"] == 2
