@@ -408,7 +408,7 @@ function pressMenuButton(hand, letter) {
 
 async function runItem(item) {
   let which = null;
-  try { which = item.command === "show_status" ? JSON.parse(item.args || "{}").which : null; } catch { /* below */ }
+  try { which = item.command === "show_status" ? JSON.parse(item.args || "{}").which : null; } catch { /* the server names bad args */ }
   if (PANELS.includes(which)) showPanel(which);
   state.footer = {text: `${item.label}…`, level: "ok"};
   menuDirty = true;
