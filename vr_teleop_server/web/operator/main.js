@@ -408,7 +408,9 @@ function pressMenuButton(hand, letter) {
 
 async function runItem(item) {
   let which = null;
-  try { which = item.command === "show_status" ? JSON.parse(item.args || "{}").which : null; } catch { /* the server names bad args */ }
+  try {
+    which = item.command === "show_status" ? JSON.parse(item.args || "{}").which : null;
+  } catch { /* args that are not JSON: the server's reply names them */ }
   if (PANELS.includes(which)) showPanel(which);
   state.footer = {text: `${item.label}…`, level: "ok"};
   menuDirty = true;
