@@ -8,6 +8,7 @@ import {CODEC_NAMES, IceErrors, RenderTimes, ServerClock, cameraMode, chooseVide
         webRtcMissing} from "./webrtc.js";
 import {AutonomyModel, attentionInImage, attentionText, outcomeText} from "./autonomy.js";
 import {language, t, translateMenus, translatePage} from "./i18n.js";
+import {Trends, drawMotivation, drawMotors, motivationStep} from "./status_panels.js";
 
 const $ = (id) => document.getElementById(id);
 const el = (tag, props = {}, ...children) => {
@@ -220,16 +221,34 @@ ros.subscribe(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", (h) 
   if (h.has_temperature) rows.push(["temperature", `${h.temperature_c.toFixed(0)} °C`]);
   $("status").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {textContent: k}), el("dd", {textContent: v})]));
 });
-const motivation = new Map();
-ros.subscribe(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", (m) => {
-  m.name.forEach((name, i) => {
-    if (!motivation.has(name)) motivation.set(name, gauge($("motivation"), name, m.min[i], m.max[i]));
-    const g = motivation.get(name);
-    g.set(m.value[i]);
-    g.row.classList.toggle("high", m.level[i] === "high");
-    g.row.classList.toggle("low", m.level[i] === "low");
-  });
+// The headset's status panels (status_panels.js), both shown, live at their topics' rate; the motivation
+// variables raised and lowered by a tenth of their range with the buttons under the panel (a supervisor's right).
+const trends = new Trends();
+const panels = {motors: null, motivation: null};
+ros.subscribe(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", (m) => {
+  panels.motors = m;
+  drawMotors($("motors-panel"), m, clamped, t, "");
 });
+ros.subscribe(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", (m) => {
+  panels.motivation = m;
+  trends.add(m, performance.now());
+  drawMotivation($("motivation-panel"), m, trends, -1, t, "");
+  const controls = $("motivation-controls");
+  if (controls.dataset.names === m.name.join(",")) return;
+  controls.dataset.names = m.name.join(",");
+  controls.replaceChildren(...m.name.flatMap((name) => [
+    el("span", {textContent: name}),
+    ...[-1, 1].map((sign) => el("button", {
+      textContent: sign < 0 ? `− ${t("panel.lower")}` : `+ ${t("panel.raise")}`,
+      className: sign < 0 ? "lower" : "raise",
+      onclick: () => {
+        const now = panels.motivation, i = now.name.indexOf(name);
+        ros.call(names.MOTIVATION_INCREMENT_SERVICE, {name, value: sign * motivationStep(now, i)})
+          .catch((err) => logLine($("events"), `${name}: ${err.message}`, "error"));
+      }})),
+  ]));
+});
+Object.assign(window.dashboard, {panels});
 ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
   logLine($("events"), `${e.source}: ${e.kind}${e.detail ? " " + e.detail : ""}`, e.level);
 });

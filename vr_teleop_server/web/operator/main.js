@@ -17,6 +17,8 @@ import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, wi
 import {OperatorAutonomy} from "./autonomy.js";
 import {Comfort, COMMAND as COMFORT_COMMAND, optionFromAddress} from "./comfort.js";
 import {t, translateMenus, translatePage} from "../i18n.js";
+import {PANELS, PANEL_SIZE, Trends, drawMotivation, drawMotors, motivationBar, motivationStep, motorBar}
+  from "../status_panels.js";
 
 const TOPICS = {
   head: names.HEAD_POSE_TOPIC, left: names.CONTROLLER_POSE_TOPICS.left, right: names.CONTROLLER_POSE_TOPICS.right,
@@ -64,6 +66,9 @@ const state = {
   lastClamped: new Set(),
   motorFaults: {},                     // motor -> what it reports wrong (a real robot's joints error stream)
   voice: null,                         // {activity, direction_deg} while the robot's microphone hears a voice
+  statusPanel: null,                   // the status panel open over the reduced view: "motors", "motivation"
+  motors: null, motivation: null,      // the newest /vr_teleop/status/motors and /vr_teleop/status/motivation
+  panelRow: 0,                         // the motivation variable the controls act on
 };
 
 // ---- the scene ----------------------------------------------------------------------------------------------------
@@ -166,6 +171,18 @@ menuMesh.position.set(0, 0.04, -0.85);
 menuMesh.renderOrder = 11;
 menuMesh.visible = false;
 headLocked.add(menuMesh);
+// A status panel (../status_panels.js), head-locked right of the camera view, which shrinks and moves left for it
+// (the paper's layout: the view keeps running beside the panel).
+const statusCanvas = canvas(PANEL_SIZE.width, PANEL_SIZE.height);
+const statusTexture = textTexture(statusCanvas);
+const statusMesh = new THREE.Mesh(new THREE.PlaneGeometry(0.56, 0.56),
+                                  new THREE.MeshBasicMaterial({map: statusTexture, transparent: true,
+                                                               toneMapped: false, depthTest: false}));
+statusMesh.position.set(0.34, 0.06, -1.0);
+statusMesh.renderOrder = 9;
+statusMesh.visible = false;
+headLocked.add(statusMesh);
+const REDUCED_VIEW = {scale: 0.5, x: -0.72};  // the camera panel beside an open status panel (metres at 2 m)
 
 // The controllers, as small blocks where the hands are.
 const hands = [0, 1].map((i) => {
@@ -260,6 +277,7 @@ ros.subscribe(names.TELEOP_STATE_TOPIC, "vr_teleop_msgs/TeleopState", (s) => {
   if (state.me && [...clamped].some((j) => !state.lastClamped.has(j))) pulse(0.5, 50);
   state.lastClamped = clamped;
   state.teleop = s;
+  if (state.statusPanel === "motors") statusDirty = true;
 }, {throttle_rate: 100, queue_length: 1});
 ros.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", (js) => {
   js.name.forEach((name, i) => {
@@ -286,6 +304,64 @@ ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
   }
   menuDirty = true;
 });
+
+// ---- the status panels (motors, motivation), live at their topics' rate -------------------------------------------
+const trends = new Trends();
+let statusDirty = false;
+ros.subscribe(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", (m) => {
+  state.motors = m;
+  if (state.statusPanel === "motors") statusDirty = true;
+});
+ros.subscribe(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", (m) => {
+  state.motivation = m;
+  trends.add(m, performance.now());
+  if (state.statusPanel === "motivation") statusDirty = true;
+});
+
+function showPanel(which) {
+  state.statusPanel = state.statusPanel === which ? null : which;  // picking the item again closes it
+  if (state.statusPanel) nav.close();  // the panel in view, not the menu over it
+  statusDirty = true;
+  menuDirty = true;
+}
+
+function drawStatus() {
+  if (state.statusPanel === "motors") {
+    drawMotors(statusCanvas, state.motors, state.lastClamped, t, t("panel.close_hint"));
+  } else if (state.statusPanel === "motivation") {
+    drawMotivation(statusCanvas, state.motivation, trends, state.panelRow, t, t("panel.motivation_hint"));
+  }
+  statusTexture.needsUpdate = true;
+}
+
+// The motivation panel's controls: the left stick (or the arrow keys) up and down chooses a variable, left and
+// right lower and raise it by a tenth of its range through /vr_teleop/motivation/increment; once per push.
+let panelStickOut = false;
+function panelStick(x, y) {
+  if (Math.hypot(x, y) < 0.3) { panelStickOut = false; return; }
+  if (panelStickOut || Math.hypot(x, y) < 0.8) return;
+  panelStickOut = true;
+  if (Math.abs(y) > Math.abs(x)) panelMove(y > 0 ? -1 : 1);
+  else changeMotivation(x > 0 ? 1 : -1);
+}
+
+function panelMove(delta) {
+  const n = state.motivation?.name.length ?? 0;
+  if (!n) return;
+  state.panelRow = (state.panelRow + delta + n) % n;
+  statusDirty = true;
+}
+
+async function changeMotivation(sign) {
+  const m = state.motivation;
+  if (!m) return;
+  const i = Math.min(state.panelRow, m.name.length - 1);
+  try {
+    await ros.call(names.MOTIVATION_INCREMENT_SERVICE, {name: m.name[i], value: sign * motivationStep(m, i)});
+  } catch (err) {
+    say(`${m.name[i]}: ${err.message}`, "error");
+  }
+}
 
 // ---- menus ----------------------------------------------------------------------------------------------------------
 const nav = new MenuNavigator();
@@ -316,6 +392,10 @@ const toggles = {
 };
 
 function pressMenuButton(hand, letter) {
+  if (letter === "B" && state.statusPanel && !nav.open) {  // B closes an open status panel
+    showPanel(state.statusPanel);
+    return;
+  }
   const menu = nav.menuFor(hand, letter);
   if (!menu) {
     if (!nav.tree) say("the menus have not arrived from the server yet", "warning");
@@ -327,6 +407,11 @@ function pressMenuButton(hand, letter) {
 }
 
 async function runItem(item) {
+  let which = null;
+  try {
+    which = item.command === "show_status" ? JSON.parse(item.args || "{}").which : null;
+  } catch { /* args that are not JSON: the server's reply names them */ }
+  if (PANELS.includes(which)) showPanel(which);
   state.footer = {text: `${item.label}…`, level: "ok"};
   menuDirty = true;
   try {
@@ -452,6 +537,7 @@ const actions = {
   stick: (hand, x, y, now) => {
     const menu = nav.menu;
     if (menu && (menu.controller === hand || menu.controller === "any")) pointInMenu(x, y, now);
+    else if (!nav.open && state.statusPanel === "motivation" && hand === "left") panelStick(x, y);
   },
   // the hands' own (hands.js): the menus' ring, back one level, the ray as thumbstick, their Joy
   openMenus: () => { nav.press(HAND_MENU_ID); state.footer = null; menuDirty = true; },
@@ -562,7 +648,9 @@ function placePanels() {
   panelAnchor.rotation.set(zero.pitch - THREE.MathUtils.degToRad(look.pitch),
                            zero.yaw + THREE.MathUtils.degToRad(look.yaw), 0, "YXZ");
   panel.material.map = cameraSource.texture;  // the source changes: placeholder, WebRTC video or JPEG
-  panel.scale.y = 1 / cameraSource.aspect;
+  const reduced = state.statusPanel ? REDUCED_VIEW : {scale: 1, x: 0};
+  panel.scale.set(reduced.scale, reduced.scale / cameraSource.aspect, 1);
+  panel.position.x = reduced.x;
   headLocked.position.copy(head.position);
   headLocked.quaternion.copy(head.quaternion);
   hud.visible = !!state.xr;  // the flat view has the page's own HUD
@@ -574,6 +662,10 @@ function placePanels() {
     $("menu-title").textContent = nav.open ? nav.title : "";
     menuDirty = false;
   }
+  statusMesh.visible = !!state.statusPanel;
+  statusMesh.position.y = state.xr ? 0.06 : 0.1;
+  if (statusDirty && state.statusPanel) drawStatus();
+  statusDirty = false;
 }
 
 function menuHint() {
@@ -721,13 +813,24 @@ renderer.setAnimationLoop((time, frame) => {
 
 function readPixels(requests) {
   const gl = renderer.getContext();
-  const size = 64;
-  const eyes = state.xr ? Math.max(1, renderer.xr.getCamera().cameras.length) : 1;  // the left eye's centre
-  const x = Math.floor(gl.drawingBufferWidth / (2 * eyes) - size / 2);
-  const y = Math.floor(gl.drawingBufferHeight / 2 - size / 2);
-  const data = new Uint8Array(size * size * 4);
-  gl.readPixels(x, y, size, size, gl.RGBA, gl.UNSIGNED_BYTE, data);
-  for (const resolve of requests) resolve(Array.from(data));
+  const eye = state.xr ? renderer.xr.getCamera().cameras[0]?.viewport : null;  // the left eye's, in the XR layer
+  const [x0, y0, w, h] = eye ? [eye.x, eye.y, eye.z, eye.w] : [0, 0, gl.drawingBufferWidth, gl.drawingBufferHeight];
+  for (const {resolve, at, size} of requests) {  // at: {u, v} in the left eye (0, 0 bottom left), else its centre
+    const {u, v} = at ?? {u: 0.5, v: 0.5};
+    const x = Math.floor(x0 + u * w - size / 2);
+    const y = Math.floor(y0 + v * h - size / 2);
+    const data = new Uint8Array(size * size * 4);
+    gl.readPixels(x, y, size, size, gl.RGBA, gl.UNSIGNED_BYTE, data);
+    resolve(Array.from(data));
+  }
+}
+
+/** Where a point of the status panel (fx, fy from 0, 0 top left to 1, 1 of its canvas) is in the left eye's view,
+ * as readPixels takes it. */
+function statusPoint(fx, fy) {
+  const eye = state.xr ? renderer.xr.getCamera().cameras[0] : camera;
+  const p = statusMesh.localToWorld(new THREE.Vector3((fx - 0.5) * 0.56, (0.5 - fy) * 0.56, 0)).project(eye);
+  return {u: (p.x + 1) / 2, v: (p.y + 1) / 2};
 }
 
 // ---- entering VR ----------------------------------------------------------------------------------------------
@@ -803,6 +906,10 @@ window.addEventListener("keydown", (e) => {
   if (e.key === "Escape") estop();
   else if (["X", "Y", "A", "B"].includes(key)) pressMenuButton(null, key);
   else if (ARROWS[e.key] && nav.open) { arrows(e.key, true); menuDirty = true; }
+  else if (ARROWS[e.key] && state.statusPanel === "motivation") {
+    if (e.key === "ArrowUp" || e.key === "ArrowDown") panelMove(e.key === "ArrowUp" ? -1 : 1);
+    else changeMotivation(e.key === "ArrowRight" ? 1 : -1);
+  }
   else if (e.key === "Tab" && nav.open) { nav.step(e.shiftKey ? -1 : 1); menuDirty = true; }
   else if (e.key === "Enter" && nav.open) selectInMenu();
   else if (e.key === "Backspace" && nav.open) { nav.back(); menuDirty = true; }
@@ -844,6 +951,7 @@ $("estop").addEventListener("click", estop);
 window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
   hands: handActions, comfort,
-  readPixels: () => new Promise((resolve) => pixelRequests.push(resolve)),
+  readPixels: (at = null, size = 64) => new Promise((resolve) => pixelRequests.push({resolve, at, size})),
+  statusCanvas, statusPoint, statusPanels: {motorBar, motivationBar},
 };
 window.operator.panel = panelAnchor;  // the camera panel's anchor: its rotation is where the panel hangs
