@@ -146,9 +146,14 @@ class Headset:
         self.head_poses_sent = 0
 
     def start(self) -> Headset:
+        """Starts streaming, and returns once the first head pose is handed to the connection: roslibpy sends in
+        the order handed, so a call made next (an engage) reaches the server after a head pose, as a headset's
+        does. (Engaging ahead of the first pose is refused; a server may still take it if the pose overtakes the
+        call's task, and a recording of that replays as a refusal.)"""
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
+        self.send_head_poses(1)
         return self
 
     def stop(self) -> None:

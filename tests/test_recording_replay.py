@@ -16,7 +16,9 @@ import pytest
 from mcap.reader import make_reader
 
 from support import Headset, RawClient, call, engage, patient_teleop, unity_yaw_pitch, wait_for
+from client_protocol import names
 from vr_teleop_server.tools import synth
+from vr_teleop_server.tools.replay import ENGAGE_LAGS, load_steps
 from vr_teleop_server.recording.format import read_recording
 
 pytestmark = pytest.mark.slow  # recorded sessions replayed in real time
@@ -205,9 +207,13 @@ def test_a_recorded_session_replays_against_another_server(servers, tmp_path, re
     report = replay(path, replay_server.url, "--speed", "2", "--no-camera")
     assert report["client"].startswith("/rosbridge_websocket/client_")
     assert report["calls_sent"] >= 2 and report["menu"]["selected"] == report["menu"]["acknowledged"] == 1
-    # the recording holds every pose the headset sent after engaging (a count, whatever the machine's load): the
-    # offline mapping of them expects a head command each, and the server sends them
-    assert report["commands_expected"].get("head", 0) >= 180, report
+    # the recording holds every pose the headset sent after engaging (a count, whatever the machine's load); the
+    # offline mapping expects a head command for each, but for the few the replay server's engage may have been
+    # overtaken by (it runs calls as tasks: replay.ENGAGE_LAGS at most), and the server sends them
+    steps, _client = load_steps(path)
+    engaged = next(i for i, s in enumerate(steps) if s.topic == names.ENGAGE_SERVICE)
+    poses = sum(1 for s in steps[engaged:] if s.topic == names.HEAD_POSE_TOPIC)
+    assert poses >= 180 and poses - ENGAGE_LAGS <= report["commands_expected"].get("head", 0) <= poses, report
     assert report["commands_received"].get("head", 0) > 100, report
     # The head only, and on average: the operator's steps of 20-40 degrees run into the head's velocity cap, which
     # the server integrates over its own step times, so a loaded machine drifts those moments by a degree or two
