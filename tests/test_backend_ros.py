@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import socket
 import threading
 import time
 
@@ -14,6 +13,7 @@ import pytest
 import roslibpy
 from testbed.media_client import MediaPeer, Rosbridge, Tone
 from testbed.server import until
+from testbed.processes import free_port
 from support import (
     Headset,
     RunningServer,
@@ -31,12 +31,6 @@ from support import (
 from client_protocol import names
 
 pytestmark = pytest.mark.slow  # a robot-side server, dropped and back
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def robot_side(servers: ServerFactory, port: int) -> RunningServer:

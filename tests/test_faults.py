@@ -13,18 +13,16 @@ import gc
 import json
 import os
 import random
-import socket
 import subprocess
-import sys
 import threading
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 import psutil
 import pytest
 from support import RawClient, wait_for
+from testbed import processes
 from testbed.churn import drain, owner_counts, visitor
 from websockets.asyncio.client import connect
 from websockets.sync.client import connect as sync_connect
@@ -33,7 +31,6 @@ from client_protocol import names
 
 pytestmark = pytest.mark.slow  # a minute of churn, stalled clients, memory traced
 
-ROOT = Path(__file__).resolve().parent.parent
 MIB = 1024 * 1024
 CHURN_SECONDS = float(os.environ.get("CHURN_SECONDS", "60"))  # the issue asks for a minute
 
@@ -230,14 +227,9 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
 
 
 def _serve_sim() -> tuple[subprocess.Popen, str]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port), "--backend",
-                             "sim", "--bystander-interval", "0", "--log-level", "warning"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    assert "listening" in proc.stdout.readline()
-    return proc, f"ws://127.0.0.1:{port}"
+    proc = processes.serve("--backend", "sim", "--bystander-interval", "0", log_level="warning",
+                           stderr=subprocess.PIPE)
+    return proc, proc.url
 
 
 def _render_worker(server: subprocess.Popen) -> psutil.Process:

@@ -3,10 +3,6 @@ MuJoCo stand-in."""
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import asyncio
 import math
 import time

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import sys
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -15,7 +13,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from support import Headset, RawClient, call, engage, patient_teleop, unity_yaw_pitch, wait_for
+from testbed import processes
+
+from support import Headset, Pace, RawClient, call, engage, patient_teleop, unity_yaw_pitch, wait_for
 from client_protocol import names
 from vr_teleop_server.tools import synth
 from vr_teleop_server.tools.replay import ENGAGE_LAGS, load_steps
@@ -26,18 +26,9 @@ pytestmark = pytest.mark.slow  # recorded sessions replayed in real time
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def serve(*args: str) -> tuple[subprocess.Popen, str]:
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port),
-                             "--log-level", "warning", *args], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    assert "listening" in proc.stdout.readline()
-    return proc, f"ws://127.0.0.1:{port}"
+    proc = processes.serve(*args, log_level="warning")
+    return proc, proc.url
 
 
 def head_pose(seq: int) -> dict:
@@ -53,9 +44,10 @@ def test_a_server_killed_mid_session_leaves_a_readable_recording(tmp_path):
     sent = 270  # three seconds of a 90 Hz headset
     try:
         client.send({"op": "call_service", "id": "t", "service": "/rosapi/get_time"})
+        pace = Pace(90)
         for seq in range(sent):
             client.send(head_pose(seq))
-            time.sleep(1 / 90)
+            pace.wait()
         # The recorder closes its chunk every FLUSH_S on its own: wait (on the file, the timeout only catches a
         # recorder that never flushes) until the last pose is on disk, then kill the server without warning.
         assert wait_for(lambda: _last_seq(path) == sent - 1, 60), "the periodic flush never wrote the last pose"
