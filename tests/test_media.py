@@ -18,6 +18,7 @@ import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
 from testbed.media_client import MediaPeer, Rosbridge, Tone
+from testbed.server import until
 from support import RunningServer
 from test_frame_ring import holds_ring
 
@@ -60,16 +61,6 @@ async def telemetry_of(ros: Rosbridge, predicate, timeout: float = 30.0, webrtc:
             if predicate(entry):
                 return entry
     raise AssertionError(f"no telemetry entry matched; last: {last}")
-
-
-async def until(predicate, timeout: float = 10.0) -> bool:
-    """wait_for without blocking this loop (the client's peers and sockets live on it)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if await asyncio.to_thread(predicate):
-            return True
-        await asyncio.sleep(0.05)
-    return False
 
 
 def gray(frame) -> np.ndarray:
@@ -127,7 +118,7 @@ async def test_the_server_sends_the_first_codec_of_the_offer_it_shares(media_ser
         finally:
             await peer.close()
             await ros.close()
-        assert await until(lambda: not media_server.server.media.peers, 10)
+        assert await until(lambda: not media_server.server.media.peers, 10, blocking=True)
 
 
 async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer) -> None:
@@ -347,8 +338,8 @@ async def test_a_peer_that_vanishes_is_torn_down(media_server: RunningServer) ->
     media = media_server.server.media
     assert media_server.call(lambda: len(media.peers)) == 1
     ros.ws.transport.abort()  # no close frame, no RTCP BYE, no DTLS close: the client is simply gone
-    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
-    assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10, blocking=True)
+    assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5, blocking=True)
     await peer.close()
 
 
@@ -367,8 +358,8 @@ async def test_a_peer_whose_packets_stop_is_torn_down_and_the_connection_may_off
         ice = peer.pc.getTransceivers()[0].receiver.transport.transport
         for protocol in list(ice._connection._protocols):  # the client's UDP sockets close: it is gone
             protocol.transport.close()
-        assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30)
-        assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5)
+        assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30, blocking=True)
+        assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5, blocking=True)
         again = MediaPeer()
         reply = await again.negotiate(ros)  # the same rosbridge connection, still up
         assert reply["values"]["success"], reply
@@ -439,14 +430,14 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
     for _ in range(2):  # warm-up: the executors' threads, the TTS, the camera's first start
         await cycle(True)
     media = media_server.server.media
-    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10, blocking=True)
     baseline = _resources(media_server)
     for i in range(50):
         await cycle(i % 10 == 0)
-    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10, blocking=True)
     created = media_server.call(lambda: media.peers_created)
     assert created >= 52
-    assert await until(lambda: _resources(media_server)["tasks"] <= baseline["tasks"], 10)
+    assert await until(lambda: _resources(media_server)["tasks"] <= baseline["tasks"], 10, blocking=True)
     after = _resources(media_server)
     assert after["peers"] == 0 and after["peer_objects"] <= baseline["peer_objects"], (baseline, after)
     assert after["threads"] <= baseline["threads"], (baseline, after)
@@ -470,7 +461,7 @@ async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_
         # One compression per frame: the encoder reads the renderer's raw frames, and no JPEG is made for it.
         assert holds_ring(pid) and server.call(lambda: server.server.robot.latest_frame().jpeg) == b""
         encoder.kill()
-        assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 20)
+        assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 20, blocking=True)
         count = peer.video_count
         await peer.wait_video(10)
         assert peer.video_count >= count + 10
@@ -498,7 +489,8 @@ async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: Ru
         await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
                                                  fci=pack_remb_fci(300_000, [ssrc])))
         low = await telemetry_of(ros, lambda c: c["client"] == entry["client"] and c["rtc_target_bitrate"] == 300_000)
-        await until(lambda: media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000, 10)
+        assert await until(lambda: media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000, 10,
+                           blocking=True)
         assert media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000
         count = peer.video_count
         await peer.wait_video(10)  # still decodable after the rebuild (it starts with a keyframe)
@@ -546,7 +538,7 @@ async def test_the_camera_asks_the_viewer_for_no_playout_delay(media_server: Run
         await pc.setRemoteDescription(RTCSessionDescription(answer["sdp"], answer["type"]))
         transport = pc.getTransceivers()[0].receiver.transport
         recording = transport._rtp_header_extensions_map = Recording()  # aiortc's parser, wrapped to see all
-        assert await until(lambda: len(recording.seen) >= 20, 30), "no video packets"
+        assert await until(lambda: len(recording.seen) >= 20, 30, blocking=True), "no video packets"
         delays = [packet.get(5) for packet in recording.seen]
         assert set(delays) == ({b"\x00\x00\x00"} if offered else {None})
         await pc.close()
