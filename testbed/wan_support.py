@@ -29,6 +29,7 @@ import numpy as np
 from client_protocol import names
 from netem import Emulator
 from testbed.processes import environment
+from testbed.waiting import wait_for
 from vr_teleop_server.tools.replay import Collected, PoseRoad, Step, expected_commands, run_replay
 
 PORT = 9090  # the namespace is ours alone: a fixed port is free
@@ -91,15 +92,12 @@ class Observer:
         env = environment()
         self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
                                stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while time.monotonic() < deadline:
+        def ready_or_gone() -> bool:
             self._out.seek(0)
-            if self._out.readline().strip() == '"ready"':
-                return
-            if self._proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise RuntimeError("the observer could not subscribe")
+            return self._out.readline().strip() == '"ready"' or self._proc.poll() is not None
+
+        if not wait_for(ready_or_gone, READY_TIMEOUT_S) or self._proc.poll() is not None:
+            raise RuntimeError("the observer could not subscribe")
 
     def stop(self) -> Observed:
         time.sleep(0.5)  # the last frames
