@@ -18,7 +18,7 @@ import pytest
 from aiortc import RTCPeerConnection, RTCSessionDescription
 
 from testbed.media_client import MediaPeer, Rosbridge, Tone
-from testbed.server import until
+from testbed.server import Pace, until
 from support import RunningServer
 from test_frame_ring import holds_ring
 
@@ -158,13 +158,13 @@ async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer)
 async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -> None:
     ros, peer = await connected(media_server.url, video=False)
     try:
-        while len(peer.audio_frames) < 25:  # half a second of the robot being silent
-            await asyncio.sleep(0.05)
+        assert await until(lambda: len(peer.audio_frames) >= 25, 30)  # half a second of the robot being silent
         quiet = np.concatenate([f for _, f in peer.audio_frames[-25:]]).astype(np.float32)
         said_at = time.monotonic()
         reply = await ros.call("/qt_robot/speech/say", {"message": "Hello children, shall we count to ten together?"})
         assert reply["values"]["status"] is True
-        await asyncio.sleep(0.5)  # the tail still in the jitter buffer
+        heard = len(peer.audio_frames)  # the tail still in the jitter buffer: half a second more of the stream
+        assert await until(lambda: len(peer.audio_frames) >= heard + 25, 30)
         spoken = np.concatenate([f for t, f in peer.audio_frames if t >= said_at]).astype(np.float32)
         rms_quiet = float(np.sqrt(np.mean(quiet ** 2)))
         window = 4800  # 50 ms of 48 kHz stereo-interleaved samples
@@ -183,12 +183,10 @@ async def test_the_classroom_microphone_hears_the_bystanders(servers) -> None:
     try:
         ros, peer = await connected(server.url, video=False)
         try:
-            deadline = time.monotonic() + 30
-            loud = 0
-            while loud < 10 and time.monotonic() < deadline:  # nobody made the robot speak: these are bystanders
-                await asyncio.sleep(0.2)
-                loud = sum(float(np.sqrt(np.mean(f.astype(np.float32) ** 2))) > 300 for _, f in peer.audio_frames)
-            assert loud >= 10, "no bystander was heard in the robot's audio"
+            def loud() -> int:  # nobody made the robot speak: these are bystanders
+                return sum(float(np.sqrt(np.mean(f.astype(np.float32) ** 2))) > 300 for _, f in peer.audio_frames)
+
+            assert await until(lambda: loud() >= 10, 30, interval=0.2), "no bystander was heard in the robot's audio"
         finally:
             await peer.close()
             await ros.close()
@@ -242,11 +240,12 @@ async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer
         assert 0 <= later["camera_frame_age"] < 5 and later["rtc_target_bitrate"] >= 150_000
         # Head poses from this client: their rate and age.
         async def head() -> None:
+            pace = Pace(50)
             while True:
                 await ros.publish("/vr/head/pose", "geometry_msgs/PoseStamped", {
                     "header": {"frame_id": "unity_left_handed"}, "pose": {"position": {"x": 0.0, "y": 1.6, "z": 0.0},
                                                               "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}})
-                await asyncio.sleep(0.02)
+                await pace.tick()
 
         headset = asyncio.ensure_future(head())
         try:
@@ -383,12 +382,14 @@ async def test_access_rules_are_the_cameras(servers, tmp_path: Path) -> None:
         await stranger.close()
         # A spectator watches and listens; its microphone is neither played nor logged.
         spectator = await Rosbridge.open(server.url, token="spec-token")
-        peer = MediaPeer(mic=Tone())
+        tone = Tone()
+        peer = MediaPeer(mic=tone)
         reply = await peer.negotiate(spectator)
         assert reply["values"]["success"], reply
         await peer.wait_video(3)
         entry = await telemetry_of(spectator, lambda c: c["role"] == "spectator" and c["rtc_frames_sent"] > 0)
-        await asyncio.sleep(1.0)
+        sent = tone.frames_sent  # a second more of its microphone, which the robot must not play
+        assert await until(lambda: tone.frames_sent >= sent + 50, 30)
         assert server.call(lambda: server.server.robot.voice_level) == 0.0
         assert not operator_wavs(tmp_path, entry["client"]), "a spectator's microphone was logged"
         await peer.close()
@@ -422,8 +423,7 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
         if watch:
             await peer.wait_video(1)
         else:
-            while peer.pc.connectionState != "connected":
-                await asyncio.sleep(0.02)
+            assert await until(lambda: peer.pc.connectionState == "connected", 30)
         await peer.close()
         await ros.close()
 
