@@ -23,6 +23,7 @@ import psutil
 import pytest
 from support import RawClient, wait_for
 from testbed import processes
+from testbed.server import Pace
 from testbed.churn import drain, owner_counts, visitor
 from websockets.asyncio.client import connect
 from websockets.sync.client import connect as sync_connect
@@ -113,9 +114,10 @@ def test_a_client_that_stops_reading_costs_bounded_memory_and_slows_nobody(serve
     base = traced_now()
     start = time.monotonic()
     half = 0
-    for i in range(count):  # paced at about 800 messages a second
+    pace = Pace(800)  # about 800 messages a second
+    for i in range(count):
         publisher.send({"op": "publish", "topic": topic, "msg": {"data": f"{i:06d}{body}"}})
-        time.sleep(max(0.0, start + i / 800 - time.monotonic()))
+        pace.wait()
         if i == count // 2:  # by now the socket's buffers and the stalled client's queue are full
             half = traced_now() - base
     sent_s = time.monotonic() - start
@@ -196,6 +198,7 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
         reader = asyncio.create_task(drain(ws))
         seq = 0
         start = time.monotonic()
+        pace = Pace(90)  # a headset's rate
         engaged = False
         while True:
             await ws.send(head(seq))
@@ -211,7 +214,7 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
                 await reader
                 return dropped
             assert time.monotonic() - start < 20, f"the head never followed: {targets[-5:]}"
-            await asyncio.sleep(max(0.0, start + seq / 90 - time.monotonic()))
+            await pace.tick()
 
     dropped = asyncio.run(operate())
     time.sleep(1.5)
