@@ -310,7 +310,7 @@ def test_every_primitive_runs_on_the_stand_in_and_reports_its_start_and_stop(ser
 
     async def command(client: Client, rt: TrialRuntime) -> None:
         await client.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", seen.append)
-        await asyncio.sleep(0.2)
+        await client.sync()  # the subscription is the server's before the first command
         for action in extra:
             await client.call("/decision/teleop", {"object": "bottom", "action": action})
             assert await until(lambda a=action: rt.log.happened("robot", f"{a}_bottom", "stop"), 20)
