@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import roslibpy
 from testbed.media_client import MediaPeer, Rosbridge, Tone
-from testbed.server import until
+from testbed.server import Pace, until
 from testbed.processes import free_port
 from support import (
     Headset,
@@ -138,13 +138,14 @@ class RespeakerApp:
         return self
 
     def _run(self) -> None:
-        n, start, sample = 1024, time.monotonic(), 0
+        n, sample = 1024, 0
+        pace = Pace(16000 / n)  # a live microphone's rate
         while not self._stop.is_set():
             t = (sample + np.arange(n)) / 16000
             pcm = (np.sin(2 * np.pi * self.frequency * t) * (0.4 * 32767 if self.loud else 0)).astype("<i2")
             self.topic.publish(roslibpy.Message({"data": base64.b64encode(pcm.tobytes()).decode()}))
             sample += n
-            time.sleep(max(0.0, start + sample / 16000 - time.monotonic()))
+            pace.wait()
 
     def stop(self) -> None:
         self._stop.set()
