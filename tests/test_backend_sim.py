@@ -169,7 +169,7 @@ async def test_gesture_plays_its_waypoints_in_time_without_blocking_the_loop(rob
 
     async def ticker():
         while True:
-            await asyncio.sleep(0.01)
+            await asyncio.sleep(0.01)  # another task taking turns on the loop: what the test looks for
             events.append("tick")
 
     robot.set_joint_targets = recorded
@@ -201,7 +201,7 @@ async def test_gesture_reports_clamps_stop_and_motors_off(robot):
 
     long = Gesture("slow", (Waypoint(0.0, {"HeadYaw": 0.0}), Waypoint(3.0, {"HeadYaw": -50.0})))
     task = asyncio.create_task(robot.play_gesture(long))
-    await asyncio.sleep(0.3)
+    assert await until(lambda: robot.standin.targets()["HeadYaw"] == 0.0, 30)  # its first waypoint is out (from 60)
     robot.stop_gesture()
     result = await asyncio.wait_for(task, 1.0)
     assert result.stopped and not result.completed and result.waypoints_sent == 1
