@@ -27,8 +27,12 @@ IGNORED_LINKS = ("node_modules", "vr_teleop_server/web/vendor")  # what `make` w
 
 
 def clone(into: Path) -> Path:
+    """A clone at this checkout's HEAD (a worktree's own branch, whatever the repository's HEAD is)."""
     target = into / "clone"
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                          check=True).stdout.strip()
     subprocess.run(["git", "clone", "--quiet", "--no-hardlinks", str(ROOT), str(target)], check=True)
+    subprocess.run(["git", "checkout", "--quiet", "--detach", head], cwd=target, check=True)
     return target
 
 
