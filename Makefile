@@ -7,7 +7,7 @@ HOST   ?= 127.0.0.1
 PORT   ?= 9090
 export MUJOCO_GL ?= egl
 
-.PHONY: run test bench schema docs docs-serve screenshots clean
+.PHONY: run test check test-runs bench schema docs docs-serve screenshots clean
 
 run: $(STAMP)
 	$(VENV)/bin/vr-teleop serve --host $(HOST) --port $(PORT)
@@ -17,6 +17,15 @@ run: $(STAMP)
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+
+# The quick loop while working: everything but the browser, network-namespace and slow tests (at most 5 minutes).
+check: $(STAMP)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow and not browser and not netns"
+
+# The whole suite RUNS times in a row on a fresh clone of HEAD, each run's result and time reported.
+RUNS ?= 5
+test-runs: $(STAMP)
+	$(PY) scripts/suite_runs.py --runs $(RUNS) --workers $(TEST_WORKERS) --python $(PY)
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py

@@ -38,7 +38,6 @@ import math
 import os
 import shutil
 import statistics
-import subprocess
 import sys
 import threading
 import time
@@ -50,7 +49,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from testbed.pages import INSTALL_HEADSET, IWER, READY  # noqa: E402
-from testbed.processes import free_port  # noqa: E402
+from testbed.processes import serve, stop  # noqa: E402
 
 PACED_FRAMES = """(() => {
   const period = 1000 / %(rate)s;
@@ -96,25 +95,12 @@ def percentile(values: list[float], p: float) -> float:
 
 class Server:
     def __init__(self) -> None:
-        self.port = free_port()
-        env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-        self.proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(self.port),
-                                      "--log-level", "warning"], stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                                     env=env)
-        for line in self.proc.stdout:
-            if "listening on" in line:
-                break
-        else:
-            raise RuntimeError("vr-teleop serve did not start")
+        self.proc = serve(log_level="warning")
+        self.port = self.proc.port
         threading.Thread(target=lambda: [None for _ in self.proc.stdout], daemon=True).start()
 
     def stop(self) -> None:
-        self.proc.terminate()
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
+        stop(self.proc)
 
 
 class Counter:

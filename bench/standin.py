@@ -19,10 +19,13 @@ import statistics
 import sys
 import threading
 import time
+from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import testbed  # noqa: E402,F401 (first: it sets MUJOCO_GL before MuJoCo is imported)
 from sim import StandIn  # noqa: E402
+from testbed import processes  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -191,19 +194,12 @@ def served(seconds: float, width: int, height: int, fps: float) -> int:
     import asyncio
     import json
     import signal
-    import socket
-    import subprocess
 
     import psutil
     from websockets.asyncio.client import connect
 
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port),
-                             "--log-level", "warning", "--camera-size", f"{width}x{height}", "--camera-fps", str(fps)],
-                            stdout=subprocess.PIPE, text=True)
-    proc.stdout.readline()
+    proc = processes.serve("--camera-size", f"{width}x{height}", "--camera-fps", str(fps), log_level="warning")
+    port = proc.port
     server = psutil.Process(proc.pid)
 
     states: list[float] = []

@@ -28,7 +28,6 @@ import argparse
 import asyncio
 import json
 import math
-import os
 import subprocess
 import sys
 import tempfile
@@ -44,6 +43,7 @@ sys.path.insert(0, str(ROOT))
 from client_protocol import names  # noqa: E402
 from netem import Emulator, available, cleanup_leftovers, load_profiles  # noqa: E402
 from testbed.pages import operator_in_namespace  # noqa: E402
+from testbed.processes import environment  # noqa: E402
 
 PORT = 9090
 AMPLITUDE_DEG = 30.0
@@ -63,8 +63,7 @@ MOTION = f"""(() => {{ const t0 = performance.now(), a = {math.radians(AMPLITUDE
 
 def serve(net: Emulator) -> subprocess.Popen:
     """The server with the stand-in in the server namespace, once it listens."""
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    env = environment()
     log = tempfile.NamedTemporaryFile("w+", prefix="view-stability-", suffix=".log", delete=False)
     proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host", net.server_ip,
                                 "--port", str(PORT), "--insecure", "--backend", "sim", "--log-level", "warning",

@@ -54,6 +54,10 @@ class Camera:
         self.face = Expression(self.cond, clock.monotonic, initial_emotion)
         self.subscribers = 0
         self.jpeg_subscribers = 0  # of the subscribers, those that want JPEG (the others read the ring)
+        # Viewer changes counted, and the last count the render thread decided on: once it has seen the last change
+        # with nobody watching, no camera frame is in flight (wait_stopped).
+        self._viewer_changes = 0
+        self._viewer_changes_seen = 0
         self._snapshots: collections.deque[tuple[str, int, int, Future]] = collections.deque()
         self._frame_requests: collections.deque[tuple[SceneState, Stamps, Future]] = \
             collections.deque()  # simulated clock: frames the clock asks for, drawn by the render thread
@@ -86,6 +90,7 @@ class Camera:
         with self.cond:
             self.subscribers += 1
             self.jpeg_subscribers += bool(jpeg)
+            self._viewer_changes += 1
             self.cond.notify_all()
 
     def remove_viewer(self, jpeg: bool) -> None:
@@ -93,7 +98,16 @@ class Camera:
             self.subscribers = max(0, self.subscribers - 1)
             if jpeg:
                 self.jpeg_subscribers = max(0, self.jpeg_subscribers - 1)
+            self._viewer_changes += 1
             self.cond.notify_all()
+
+    def wait_stopped(self, timeout: float) -> bool:
+        """Blocks until nobody watches and the render thread has acknowledged it: the frame it was drawing, if
+        any, has been handed out, and no other comes until a viewer is added. False on timeout."""
+        with self.cond:
+            return self.cond.wait_for(lambda: self.subscribers == 0 and (
+                self._viewer_changes_seen == self._viewer_changes or self.error is not None
+                or self.stop.is_set()), timeout)
 
     def add_frame_listener(self, callback: Callable[[CameraFrame], None]) -> None:
         with self.frame_cond:
@@ -179,6 +193,10 @@ class Camera:
                     camera_due = self.subscribers > 0 and now >= next_frame and not simulated
                     requests = list(self._frame_requests)
                     self._frame_requests.clear()
+                    if not requests and self._viewer_changes_seen != self._viewer_changes:
+                        # the acknowledgement wait_stopped waits for: the last frame decided on is handed out
+                        self._viewer_changes_seen = self._viewer_changes
+                        self.cond.notify_all()
                     if not (face_due or camera_due or self._snapshots or requests):
                         waits = [next_face_tick - now if talking else 1.0]
                         if self.subscribers > 0:

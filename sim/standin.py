@@ -194,6 +194,12 @@ class StandIn:
     def stop_camera(self, jpeg: bool = True) -> None:
         self.camera.remove_viewer(jpeg)
 
+    def wait_camera_stopped(self, timeout: float = 30.0) -> bool:
+        """Block until nobody watches and the render thread has acknowledged it: a frame it had in flight has
+        been handed out, and none comes until the camera is started again (for tests and tools; not for the event
+        loop). False on timeout."""
+        return self.camera.wait_stopped(timeout)
+
     @property
     def frame_ring(self) -> FrameRing:
         """The shared memory the camera's raw frames go to (closed once the renderer has stopped)."""

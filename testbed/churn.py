@@ -49,7 +49,7 @@ async def visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict
                 await ws.send(json.dumps(frame))
             for i in range(rng.randrange(1, 20)):
                 await ws.send(json.dumps({"op": "publish", "topic": "/churn/shared", "msg": {"data": str(i)}}))
-            await asyncio.sleep(rng.uniform(0.0, 0.3))
+            await asyncio.sleep(rng.uniform(0.0, 0.3))  # a visitor's random stay: churn is real time
             if rng.random() < 0.5:
                 ws.transport.abort()  # gone without a closing handshake
                 stats["aborted"] += 1

@@ -16,6 +16,7 @@ from aiortc import MediaStreamTrack, RTCConfiguration, RTCIceServer, RTCPeerConn
 from aiortc.mediastreams import MediaStreamError
 
 from client_protocol import pose_frame
+from testbed.waiting import Pace, until
 from vr_teleop_server.client import Client, connect
 
 
@@ -102,16 +103,20 @@ class Tone(MediaStreamTrack):
         self.frequency = frequency
         self.amplitude = amplitude
         self._pts = 0
-        self._start: float | None = None
+        self._pace: Pace | None = None
+
+    @property
+    def frames_sent(self) -> int:
+        """The 20 ms frames handed to the peer so far."""
+        return self._pts // 960
 
     async def recv(self) -> av.AudioFrame:
         if self.readyState != "live":
             raise MediaStreamError
-        if self._start is None:
-            self._start = time.monotonic()
-        wait = self._start + self._pts / 48000 - time.monotonic()
-        if wait > 0:
-            await asyncio.sleep(wait)
+        if self._pace is None:
+            self._pace = Pace(48000 / 960)  # 20 ms frames, the first at once
+        else:
+            await self._pace.tick()
         t = (self._pts + np.arange(960)) / 48000
         samples = (self.amplitude * 32767 * np.sin(2 * np.pi * self.frequency * t)).astype(np.int16)
         frame = av.AudioFrame.from_ndarray(samples.reshape(1, -1), format="s16", layout="mono")
@@ -238,11 +243,8 @@ class PoseSender:
                 self.sent_at.setdefault(topic, []).append((time.monotonic(), frame))
 
     async def wait_open(self, timeout: float = 30.0) -> None:
-        deadline = time.monotonic() + timeout
-        while not self.open:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"the poses channel did not open (state {self.channel.readyState})")
-            await asyncio.sleep(0.02)
+        if not await until(lambda: self.open, timeout):
+            raise TimeoutError(f"the poses channel did not open (state {self.channel.readyState})")
 
 
 def _pose_frame(msgs: dict[str, dict[str, Any]]) -> bytes:
@@ -359,11 +361,8 @@ class MediaPeer:
 
     async def wait_video(self, count: int, timeout: float = 30.0) -> None:
         target = self.video_count + count
-        deadline = time.monotonic() + timeout
-        while self.video_count < target:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{self.video_count} video frames, waited for {target}")
-            await asyncio.sleep(0.02)
+        if not await until(lambda: self.video_count >= target, timeout):
+            raise TimeoutError(f"{self.video_count} video frames, waited for {target}")
 
     async def close(self) -> None:
         await self.pc.close()
@@ -412,7 +411,7 @@ class LinkShaper:
             self.sent += 1
             delay = next_at - loop.time()
             if delay > 0:
-                await asyncio.sleep(delay)
+                await asyncio.sleep(delay)  # the link's rate: a packet takes its size's time to go out
 
     def close(self) -> None:
         self.task.cancel()

@@ -34,6 +34,7 @@ import websockets
 from pydantic import ValidationError
 
 from client_protocol.definitions import MESSAGES
+from testbed.waiting import Pace
 from client_protocol.registry import TypeRegistry, describe_validation_error
 
 # The packages a QTrobot's ROS 1 knows that the backend meets (our own vr_teleop_msgs are not on a robot).
@@ -139,8 +140,9 @@ class Ros1QTrobot:
         self._loop.run_until_complete(main())
 
     async def _heartbeat(self) -> None:
+        pace = Pace(JOINT_STATE_HZ, catch_up=False)  # the robot's own rate
         while True:
-            await asyncio.sleep(1 / JOINT_STATE_HZ)
+            await pace.tick()
             if self.beating:
                 names = sorted(self.positions)
                 self._deliver("/qt_robot/joints/state", {

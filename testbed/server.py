@@ -1,39 +1,47 @@
-"""A real server on a free port, served from a thread of its own (its own event loop), so that blocking clients and a
-bench's measuring code can talk to it and look inside it from the caller's thread; and `wait_for`, polling a
-condition with a deadline (`until` the same from a coroutine). Used by the tests (tests/support.py's ServerFactory builds on it) and by the benches that
-look inside a running server (bench/suite.py's churn, bench/autonomy.py, bench/media.py)."""
+"""The harness's servers, one API for the three ways a test or a bench runs one, each on a free port, with the
+tests' defaults (`server_settings`):
+- `in_loop(...)`: in the caller's event loop (an async test, a simulated clock's run);
+- `RunningServer(settings)` / `ServerFactory`: in a thread of its own (its own loop), so that blocking clients and
+  a bench's measuring code can talk to it and look inside it from the caller's thread;
+- `processes.serve(...)`: `vr-teleop serve` as a process of its own (a kill, a signal, the command line itself).
+And waiting: `wait_for` polls a condition with a deadline, `until` the same from a coroutine; `Pace` paces a
+real-time source (a headset's 90 Hz). A check that nothing happens waits for an event the design guarantees after
+which it would have happened (a later message, an acknowledgement, a sequence number), never for a time window."""
 
 from __future__ import annotations
 
 import asyncio
 import threading
-import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Any
 
+from simclock import WALL, Clock
+from testbed.waiting import Pace, until, wait_for  # noqa: F401 (the harness's one import)
 from vr_teleop_server.app import TeleopServer
 from vr_teleop_server.settings import ServerSettings
 
 
-def wait_for(predicate: Callable[[], Any], timeout: float = 5.0) -> bool:
-    """Polls `predicate` until it is true or `timeout` seconds pass."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
+def server_settings(settings: ServerSettings | None = None, **overrides: Any) -> ServerSettings:
+    """The tests' server: on loopback and a free port (0) unless given, with no robot unless a backend is given,
+    and teleoperated unless it asks for autonomy: autonomy's attention would keep the stand-in's camera rendering
+    for face detection and move the head in every test (tests/test_autonomy*.py ask)."""
+    if settings is None:
+        settings = ServerSettings(**{"port": 0, "backend": "none", **overrides})
+    elif overrides:
+        settings = settings.model_copy(update=overrides)
+    if "autonomy" not in settings.model_fields_set:
+        settings = settings.model_copy(update={"autonomy": "teleoperated"})
+    return settings
 
 
-async def until(predicate: Callable[[], Any], timeout: float, interval: float = 0.02) -> bool:
-    """wait_for without blocking the running loop (a peer, a headset or a robot may live on it): polls `predicate`
-    every `interval` seconds of the loop until it is true or `timeout` seconds pass, then tries it a last time."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        await asyncio.sleep(interval)
-    return bool(predicate())
+@asynccontextmanager
+async def in_loop(settings: ServerSettings | None = None, clock: Clock | None = None,
+                  **overrides: Any) -> AsyncIterator[TeleopServer]:
+    """A server in the caller's event loop (server_settings' defaults), started, and stopped on leaving."""
+    async with TeleopServer(server_settings(settings, **overrides), clock or WALL) as server:
+        yield server
 
 
 START_TIMEOUT_S = 90
@@ -44,10 +52,7 @@ class RunningServer:
     can talk to it from the test's thread."""
 
     def __init__(self, settings: ServerSettings) -> None:
-        if "autonomy" not in settings.model_fields_set:
-            # Tests run teleoperated unless they ask for autonomy: its attention would keep the stand-in's camera
-            # rendering for face detection and move the head in every test (tests/test_autonomy*.py ask).
-            settings = settings.model_copy(update={"autonomy": "teleoperated"})
+        settings = server_settings(settings)
         self.settings = settings
         self.loop = asyncio.new_event_loop()
         self.server: TeleopServer | None = None
@@ -105,3 +110,24 @@ class RunningServer:
 
     def __exit__(self, *_exc: object) -> None:
         self.stop()
+
+
+class ServerFactory:
+    """Servers in threads for the tests (conftest's `servers` and `module_servers`) and the benches: settings from
+    keywords (server_settings'), gestures and audio logs in a directory of the server's own unless given; every
+    server it made is stopped by `stop_all`, a test's own `stop` first or not."""
+
+    def __init__(self, tmp: Callable[[str], Path]) -> None:
+        self._tmp = tmp  # makes a fresh temporary directory for a server
+        self.made: list[RunningServer] = []
+
+    def __call__(self, **overrides: Any) -> RunningServer:
+        tmp = self._tmp("server")
+        server = RunningServer(server_settings(**{"gesture_dir": tmp / "gestures", "audio_dir": tmp / "audio",
+                                                **overrides}))
+        self.made.append(server)
+        return server
+
+    def stop_all(self) -> None:
+        for server in reversed(self.made):
+            server.stop()

@@ -28,6 +28,8 @@ import numpy as np
 
 from client_protocol import names
 from netem import Emulator
+from testbed.processes import environment
+from testbed.waiting import wait_for
 from vr_teleop_server.tools.replay import Collected, PoseRoad, Step, expected_commands, run_replay
 
 PORT = 9090  # the namespace is ours alone: a fixed port is free
@@ -45,8 +47,7 @@ def serve(net: Emulator, *extra: str, start_timeout: float = 120.0, env: dict[st
     """Starts the server in the server namespace and returns its URL once it listens (the emulator stops it);
     `env`: more environment (SSL_CERT_FILE to trust a self-signed relay)."""
     log = tempfile.NamedTemporaryFile("w+", prefix="wan-serve-", suffix=".log", delete=False)
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
-           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])), **(env or {})}
+    env = environment(**(env or {}))
     proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host", net.server_ip,
                                 "--port", str(PORT), "--insecure", "--backend", "sim", "--log-level", "warning",
                                 *extra], stdout=subprocess.PIPE, stderr=log, text=True, env=env, cwd=ROOT)
@@ -88,18 +89,15 @@ class Observer:
     def __init__(self, net: Emulator, url: str, poses: bool = False) -> None:
         self.got = Observed()
         self._out = tempfile.NamedTemporaryFile("w+", prefix="wan-observer-", suffix=".jsonl", delete=False)
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+        env = environment()
         self._proc = net.popen("server", [sys.executable, __file__, url, "1" if poses else "0"],
                                stdout=self._out, stdin=subprocess.PIPE, env=env, cwd=ROOT)
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while time.monotonic() < deadline:
+        def ready_or_gone() -> bool:
             self._out.seek(0)
-            if self._out.readline().strip() == '"ready"':
-                return
-            if self._proc.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise RuntimeError("the observer could not subscribe")
+            return self._out.readline().strip() == '"ready"' or self._proc.poll() is not None
+
+        if not wait_for(ready_or_gone, READY_TIMEOUT_S) or self._proc.poll() is not None:
+            raise RuntimeError("the observer could not subscribe")
 
     def stop(self) -> Observed:
         time.sleep(0.5)  # the last frames

@@ -1,22 +1,20 @@
-"""Shared fixtures: servers on free ports and raw WebSocket clients (see support.py)."""
+"""Shared fixtures: servers on free ports (testbed/server.py) and raw WebSocket clients (see support.py)."""
 
 from __future__ import annotations
 
-import os
 import shutil
 from collections.abc import Callable, Iterator
 
 import pytest
 import roslibpy
 
+import testbed  # noqa: F401 (first: it sets the environment, MUJOCO_GL, before anything renders)
 from support import RawClient, RunningServer, ServerFactory, Watch
-
-os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 @pytest.fixture
 def servers(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerFactory]:
-    """Servers for one test (support.ServerFactory: keywords are ServerSettings'), stopped after it."""
+    """Servers for one test (testbed.server.ServerFactory: keywords are ServerSettings'), stopped after it."""
     factory = ServerFactory(tmp_path_factory.mktemp)
     yield factory
     factory.stop_all()

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import base64
 import threading
-import time
 import wave
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 import roslibpy
 
 from client_protocol import names
+from testbed.waiting import Pace
 
 
 def tone(seconds: float, rate: int, channels: int, freq: float = 440.0, amplitude: float = 0.5) -> bytes:
@@ -42,11 +42,10 @@ class VoiceSender:
                                             "sample_format": "S16LE", "bitrate": self.rate * self.channels * 16,
                                             "coding_format": "pcm"}))
         step = int(0.1 * self.rate) * 2 * self.channels
-        start = time.monotonic()
+        pace = Pace(10)  # a live microphone's pace: 100 ms chunks, the first at once
         for i, offset in enumerate(range(0, len(self.pcm), step)):
-            delay = start + i * 0.1 - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)  # a live microphone's pace
+            if i:
+                pace.wait()
             self.data.publish(roslibpy.Message({"data": base64.b64encode(self.pcm[offset:offset + step]).decode()}))
         self.done.set()
 

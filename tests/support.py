@@ -15,7 +15,7 @@ import roslibpy
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from testbed.server import RunningServer, wait_for
+from testbed.server import Pace, RunningServer, ServerFactory, wait_for  # noqa: F401 (the tests' names for them)
 from vr_teleop_server.settings import ServerSettings
 from vr_teleop_server.teleop import TeleopSettings
 
@@ -26,28 +26,6 @@ def patient_teleop() -> TeleopSettings:
     stopped (then the server rightly holds the robot, which an offline mapping of the session cannot know). The
     timeouts themselves are tested with their defaults (test_faults.py, test_explicit_control.py)."""
     return TeleopSettings(watchdog_timeout_s=2.0, controller_timeout_s=2.0)
-
-
-class ServerFactory:
-    """The tests' one way to start servers (conftest's `servers` and `module_servers`): settings from keywords
-    (port 0, no robot unless backend="sim" or another is given), gestures and audio logs in a directory of the
-    test's own unless given; every server it made is stopped by `stop_all`, a test's own `stop` first or not."""
-
-    def __init__(self, tmp: Callable[[str], Path]) -> None:
-        self._tmp = tmp  # makes a fresh temporary directory for a server
-        self.made: list[RunningServer] = []
-
-    def __call__(self, **overrides: Any) -> RunningServer:
-        tmp = self._tmp("server")
-        settings = ServerSettings(**{"port": 0, "backend": "none", "gesture_dir": tmp / "gestures",
-                                     "audio_dir": tmp / "audio", **overrides})
-        server = RunningServer(settings)
-        self.made.append(server)
-        return server
-
-    def stop_all(self) -> None:
-        for server in reversed(self.made):
-            server.stop()
 
 
 class RawClient:
@@ -146,9 +124,14 @@ class Headset:
         self.head_poses_sent = 0
 
     def start(self) -> Headset:
+        """Starts streaming, and returns once the first head pose is handed to the connection: roslibpy sends in
+        the order handed, so a call made next (an engage) reaches the server after a head pose, as a headset's
+        does. (Engaging ahead of the first pose is refused; a server may still take it if the pose overtakes the
+        call's task, and a recording of that replays as a refusal.)"""
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
+        self.send_head_poses(1)
         return self
 
     def stop(self) -> None:
@@ -166,6 +149,7 @@ class Headset:
 
     def _run(self) -> None:
         n = 0
+        pace = Pace(90, catch_up=False)
         while not self._stop.is_set():
             self.head.publish(roslibpy.Message(pose_msg((0.0, EYE_HEIGHT, 0.0), self.head_orientation)))
             with self._sent:
@@ -178,7 +162,8 @@ class Headset:
                     topic.publish(roslibpy.Message({"axes": [0.0, 0.0, 0.0, self.grips[side]],
                                                     "buttons": [0, 0, 0, 0]}))
             n += 1
-            time.sleep(1 / 90)
+            if pace.wait(self._stop):
+                break
 
 
 class Watch:
@@ -233,20 +218,21 @@ def refused(reply: dict[str, Any], reason: str = "") -> dict[str, Any]:
     return reply
 
 
-def engage(ros: roslibpy.Ros) -> None:
-    deadline = time.monotonic() + 5
-    while True:  # the first head pose may still be on its way
+def engage(ros: roslibpy.Ros, timeout: float = 30.0) -> None:
+    """Engages, asking again while the server refuses (inside the response, success false) for want of a head pose
+    of this operator: one sent from another connection (the operator's headset beside its page) may still be on
+    its way. A Headset on `ros` itself has sent one before start() returned."""
+    replies: list[Any] = []
+
+    def engaged() -> bool:
         try:
-            reply = call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True})
-        except roslibpy.core.ServiceException:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.1)
-            continue
-        if reply["success"]:
-            return
-        assert time.monotonic() < deadline, reply  # a refusal comes inside the response (success false)
-        time.sleep(0.1)
+            replies.append(call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True}))
+        except roslibpy.core.ServiceException as exc:
+            replies.append(exc)
+            return False
+        return bool(replies[-1]["success"])
+
+    assert wait_for(engaged, timeout), replies[-1]
 
 
 def wait_subscribed(server: RunningServer, topic: str, clients: int = 1, timeout: float = 5.0) -> bool:

@@ -445,14 +445,15 @@ class Mosquitto:
         binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
         self.proc = subprocess.Popen([binary, "-c", str(self.config)], stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 10
         import socket
-        while time.monotonic() < deadline:
+
+        def listening() -> bool:
             with socket.socket() as s:
-                if s.connect_ex(("127.0.0.1", self.port)) == 0:
-                    return self
-            time.sleep(0.05)
-        raise RuntimeError("mosquitto did not start")
+                return s.connect_ex(("127.0.0.1", self.port)) == 0
+
+        if not wait_for(listening, 10):
+            raise RuntimeError("mosquitto did not start")
+        return self
 
     def stop(self) -> None:
         if self.proc is not None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import base64
-import socket
 import threading
 import time
 
@@ -13,7 +12,8 @@ import numpy as np
 import pytest
 import roslibpy
 from testbed.media_client import MediaPeer, Rosbridge, Tone
-from testbed.server import until
+from testbed.server import Pace, until
+from testbed.processes import free_port
 from support import (
     Headset,
     RunningServer,
@@ -31,12 +31,6 @@ from support import (
 from client_protocol import names
 
 pytestmark = pytest.mark.slow  # a robot-side server, dropped and back
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def robot_side(servers: ServerFactory, port: int) -> RunningServer:
@@ -144,13 +138,14 @@ class RespeakerApp:
         return self
 
     def _run(self) -> None:
-        n, start, sample = 1024, time.monotonic(), 0
+        n, sample = 1024, 0
+        pace = Pace(16000 / n)  # a live microphone's rate
         while not self._stop.is_set():
             t = (sample + np.arange(n)) / 16000
             pcm = (np.sin(2 * np.pi * self.frequency * t) * (0.4 * 32767 if self.loud else 0)).astype("<i2")
             self.topic.publish(roslibpy.Message({"data": base64.b64encode(pcm.tobytes()).decode()}))
             sample += n
-            time.sleep(max(0.0, start + sample / 16000 - time.monotonic()))
+            pace.wait()
 
     def stop(self) -> None:
         self._stop.set()

@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import asyncio
 import contextlib
 import math
@@ -16,6 +12,7 @@ import numpy as np
 import pytest
 
 from robot_models import load_qtrobot
+from robot_models.types import CameraFrame
 from testbed.server import until
 from vr_teleop_server.robot.backends.sim import SimRobot
 from vr_teleop_server.robot.interface import Gesture, MotorMode, Robot, Waypoint
@@ -172,7 +169,7 @@ async def test_gesture_plays_its_waypoints_in_time_without_blocking_the_loop(rob
 
     async def ticker():
         while True:
-            await asyncio.sleep(0.01)
+            await asyncio.sleep(0.01)  # another task taking turns on the loop: what the test looks for
             events.append("tick")
 
     robot.set_joint_targets = recorded
@@ -204,7 +201,7 @@ async def test_gesture_reports_clamps_stop_and_motors_off(robot):
 
     long = Gesture("slow", (Waypoint(0.0, {"HeadYaw": 0.0}), Waypoint(3.0, {"HeadYaw": -50.0})))
     task = asyncio.create_task(robot.play_gesture(long))
-    await asyncio.sleep(0.3)
+    assert await until(lambda: robot.standin.targets()["HeadYaw"] == 0.0, 30)  # its first waypoint is out (from 60)
     robot.stop_gesture()
     result = await asyncio.wait_for(task, 1.0)
     assert result.stopped and not result.completed and result.waypoints_sent == 1
@@ -222,31 +219,46 @@ async def test_gesture_reports_clamps_stop_and_motors_off(robot):
         await robot.play_gesture(Gesture("bad", (Waypoint(0.0, {"Tail": 0}),)))
 
 
-async def test_camera_frames_only_while_subscribed(robot):
-    before = robot.latest_frame()
-    assert await robot.next_frame(before.seq if before else 0, timeout=0.3) is None  # nobody watches
+async def camera_stopped(robot: SimRobot) -> None:
+    """Until nobody watches and the render thread has acknowledged it: a frame it had in flight is out."""
+    assert await asyncio.to_thread(robot.standin.wait_camera_stopped, 30), "the render thread never saw the stop"
+
+
+async def next_frame_watched(robot: SimRobot, after_seq: int) -> CameraFrame:
+    """The next frame after `after_seq`, watching the camera for it only."""
     robot.add_camera_subscriber()
     try:
-        frame = await robot.next_frame(before.seq if before else 0, timeout=3.0)
-        assert frame is not None
+        frame = await robot.next_frame(after_seq, timeout=30)
+    finally:
+        robot.remove_camera_subscriber()
+    assert frame is not None
+    return frame
+
+
+async def test_camera_frames_only_while_subscribed(robot):
+    # The frames are numbered as drawn: the first one drawn after a time nobody watched follows the last one drawn
+    # before it, so none was drawn in between (no wall-clock window to wait out).
+    await camera_stopped(robot)
+    before = robot.latest_frame()
+    before_seq = before.seq if before else 0
+    robot.add_camera_subscriber()
+    try:
+        frame = await robot.next_frame(before_seq, timeout=30)
+        assert frame is not None and frame.seq == before_seq + 1
         image = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_COLOR)
         assert image.shape == (MODEL.camera.height, MODEL.camera.width, 3)
-        newer = await robot.next_frame(frame.seq, timeout=1.0)
+        newer = await robot.next_frame(frame.seq, timeout=30)
         assert newer is not None and newer.seq > frame.seq and newer.stamp_monotonic > frame.stamp_monotonic
     finally:
         robot.remove_camera_subscriber()
-    await asyncio.sleep(0.2)
+    await camera_stopped(robot)
     last = robot.latest_frame()
-    assert await robot.next_frame(last.seq, timeout=0.3) is None
+    assert (await next_frame_watched(robot, last.seq)).seq == last.seq + 1
 
 
 async def test_live_frames_start_after_the_kept_frame_and_give_the_camera_back(robot):
-    robot.add_camera_subscriber()  # leave a kept frame from an earlier run of the camera
-    try:
-        assert await robot.next_frame(0, timeout=3.0) is not None
-    finally:
-        robot.remove_camera_subscriber()
-    await asyncio.sleep(0.2)
+    assert await next_frame_watched(robot, 0) is not None  # leave a kept frame from an earlier run of the camera
+    await camera_stopped(robot)
     kept = robot.latest_frame()
     watchers = robot.standin.camera_subscribers
     async with contextlib.aclosing(robot.live_frames()) as frames:

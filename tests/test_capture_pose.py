@@ -10,13 +10,13 @@ import asyncio
 import json
 import math
 import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import roslibpy
 from testbed.media_client import MediaPeer, Rosbridge
+from testbed.server import until
 from support import RunningServer, Watch, wait_for, wait_subscribed
 
 from client_protocol import names
@@ -178,13 +178,11 @@ async def _webrtc_poses(url: str) -> tuple[list[int], dict[int, dict], float]:
         reply = await peer.negotiate(ros)
         assert reply["values"]["success"], reply
         await peer.wait_video(15, WAIT)
-        while not poses:  # the channel is open and carrying poses (a backstop: the test's timeout)
-            await asyncio.sleep(0.05)
+        assert await until(lambda: poses, WAIT)  # the channel is open and carrying poses
         await peer.wait_video(12, WAIT)  # and frames after that
         rtps = [peer.rtp_timestamp(frame) for _, frame in peer.frames]
-        deadline = time.monotonic() + WAIT  # the frames' poses went before them: any still on the way arrive
-        while not all(r in poses for r in rtps[2:]) and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
+        await until(lambda: all(r in poses for r in rtps[2:]), WAIT)  # the frames' poses went first: those on
+        # the way arrive (what is missing after that is judged below)
         joints = await ros.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")
         state = await asyncio.wait_for(joints.get(), WAIT)
         return rtps, poses, dict(zip(state["name"], state["position"]))["HeadYaw"]

@@ -12,18 +12,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from testbed.processes import free_port
 from websockets.sync.client import connect
 
 from vr_teleop_server.app import TeleopServer
 from vr_teleop_server.settings import ServerSettings
 
 EXE = shutil.which("vr-teleop") or str(Path(sys.executable).with_name("vr-teleop"))
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

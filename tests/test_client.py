@@ -10,9 +10,8 @@ import pytest
 from client_protocol import names
 from simclock import SimulatedClock
 from simclock import run as run_on_clock
-from vr_teleop_server.app import TeleopServer
+from testbed.server import in_loop
 from vr_teleop_server.client import CallFailed, Client, Refused, connect, outcome
-from vr_teleop_server.settings import ServerSettings
 
 
 async def _exercise(client: Client) -> None:
@@ -41,8 +40,7 @@ async def _exercise(client: Client) -> None:
 
 
 async def test_over_a_websocket():
-    server = TeleopServer(ServerSettings(port=0, backend="none", host="127.0.0.1"))
-    async with server:
+    async with in_loop() as server:
         async with await connect(server.url) as client:
             await _exercise(client)
 
@@ -53,9 +51,7 @@ def test_over_the_in_process_connection_on_the_simulated_clock():
     async def main() -> float:
         # A stand-in's, with nothing of its own to do (no pupils talking, no attention rendering the camera for its
         # face detector): the simulated minute below then passes at once.
-        server = TeleopServer(ServerSettings(port=0, backend="sim", host="127.0.0.1", autonomy="teleoperated",
-                                             bystander_interval=0), clock)
-        async with server:
+        async with in_loop(clock=clock, backend="sim", bystander_interval=0) as server:
             async with Client(server.transport.connect_local()) as client:
                 await _exercise(client)
                 started = clock.monotonic()
@@ -84,8 +80,7 @@ def test_the_refusal_rule():
 
 
 async def test_a_closed_connection_fails_the_waits():
-    server = TeleopServer(ServerSettings(port=0, backend="none", host="127.0.0.1"))
-    async with server:
+    async with in_loop() as server:
         client = await connect(server.url)
         sub = await client.subscribe("/client_test/chatter", "std_msgs/String")
         waiting = asyncio.ensure_future(sub.next())

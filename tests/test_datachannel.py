@@ -14,6 +14,7 @@ import pytest
 from aiortc import RTCPeerConnection
 
 from testbed.media_client import MediaPeer, Rosbridge
+from testbed.server import Pace, until
 from support import IDENTITY, RunningServer, pose_msg, unity_yaw_pitch
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.slow]  # WebRTC peers with the stand-in
@@ -56,9 +57,10 @@ async def engage_over_websocket(ros: Rosbridge) -> None:
     channel refuses them before)."""
     await ros.send({"op": "advertise", "topic": HEAD_POSE, "type": "geometry_msgs/PoseStamped"})
     deadline = time.monotonic() + 20
+    pace = Pace(30)
     while True:
         await ros.send({"op": "publish", "topic": HEAD_POSE, "msg": head_pose(0.0)})
-        await asyncio.sleep(0.03)
+        await pace.tick()
         reply = await ros.call(ENGAGE, {"data": True})
         if reply.get("values", {}).get("success"):
             return
@@ -72,9 +74,10 @@ async def release(ros: Rosbridge) -> None:
 
 async def stream(client: MediaPeer, yaw: float, seconds: float, rate: float = 90.0) -> None:
     end = time.monotonic() + seconds
+    pace = Pace(rate)
     while time.monotonic() < end:
         client.poses.send(HEAD_POSE, head_pose(yaw))
-        await asyncio.sleep(1.0 / rate)
+        await pace.tick()
 
 
 async def newest(queue: asyncio.Queue, predicate, timeout: float = 20.0) -> dict:
@@ -145,7 +148,7 @@ async def test_head_poses_over_the_channel_move_the_robot_and_stale_ones_are_dro
         # Joy: the same rule, per topic.
         t = time.time()
         client.poses.send("/vr/left_controller/joy", joy(t))
-        await asyncio.sleep(0.1)
+        assert await until(lambda: not client.poses._pending, 30)  # out, in a frame of its own
         client.poses.send("/vr/left_controller/joy", joy(t - 0.3, grip=1.0))
         entry = await my_telemetry(ros, name, lambda e: e["dc_stale_dropped"] >= 2)
         assert entry["dc_refused"] == 0, entry
@@ -237,9 +240,10 @@ async def test_bad_input_on_the_channel_is_refused_counted_and_never_reaches_the
                 assert reason in entry["dc_last_refusal"], (data, entry["dc_last_refusal"])
                 before = entry
             # Another client's channel while this one holds control: refused, counted for it.
+            pace = Pace(100)
             for _ in range(20):
                 other.poses.send(HEAD_POSE, head_pose(-40.0))
-                await asyncio.sleep(0.01)
+                await pace.tick()
             entry = await my_telemetry(other_ros, other_name, lambda e: e["dc_refused"] >= 20)
             assert entry["dc_received"] == entry["dc_refused"], entry
             assert "does not hold control" in entry["dc_last_refusal"], entry

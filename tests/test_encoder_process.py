@@ -76,7 +76,7 @@ def test_a_keyframe_is_made_when_asked_and_the_bitrate_followed(encoder: Encoder
     assert key
     # A target far from the current one rebuilds the encoder at it (starting with a keyframe), at most once a
     # second: past that second, the next frame is encoded at the new target.
-    time.sleep(REOPEN_INTERVAL_S)
+    time.sleep(REOPEN_INTERVAL_S)  # the rule is in the encoder's wall-clock seconds: nothing else stands for one
     _, key, bitrate = encoder.encode(jpeg(3), 9000, {"VP8": (False, 200_000)})["VP8"]
     assert key and bitrate == 200_000
 

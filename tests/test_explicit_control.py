@@ -15,7 +15,8 @@ import roslibpy
 
 from robot_models import load_qtrobot
 from support import (
-    EYE_HEIGHT, IDENTITY, Headset, RawClient, Watch, call, engage, joints, pose_msg, unity_yaw_pitch, wait_for,
+    EYE_HEIGHT, IDENTITY, Headset, RawClient, Watch, call, engage, joints, pose_msg, still, unity_yaw_pitch,
+    wait_for,
 )
 from vr_teleop_server.teleop import TeleopMapper
 
@@ -84,9 +85,9 @@ def test_right_controller_moves_the_right_arm_only_while_the_grip_is_held(ros, h
     engage(ros)
     forward = (0.19, EYE_HEIGHT - 0.2, 0.55)  # in front of the right shoulder
     headset.hand_positions["right"] = forward
-    time.sleep(0.5)
+    headset.send_head_poses(45)  # half a second of the headset's frames with the hand forward
     before = joints(joint_states)
-    assert not state.latest["right_arm_following"]  # no grip yet: the arm holds
+    assert still(lambda: not state.latest["right_arm_following"], state)  # no grip yet: the arm holds
     headset.grips["right"] = 1.0
     assert wait_for(lambda: state.latest.get("right_arm_following"), 5)
     want = expected_arm(forward)
@@ -100,8 +101,8 @@ def test_right_controller_moves_the_right_arm_only_while_the_grip_is_held(ros, h
     assert wait_for(lambda: not state.latest.get("right_arm_following"), 5)
     held = joints(joint_states)
     headset.hand_positions["right"] = (0.5, EYE_HEIGHT - 0.2, 0.0)
-    time.sleep(1.0)
-    assert all(abs(joints(joint_states)[n] - held[n]) < 1.5 for n in right)
+    headset.send_head_poses(90)  # a second of the headset's frames with the hand away
+    assert still(lambda: all(abs(joints(joint_states)[n] - held[n]) < 1.5 for n in right), joint_states, 30)
 
 
 def test_watchdog_holds_on_a_stalled_stream_and_fresh_poses_resume(ros, headset, state, joint_states):
@@ -114,8 +115,7 @@ def test_watchdog_holds_on_a_stalled_stream_and_fresh_poses_resume(ros, headset,
     assert state.latest["pose_age"] > 0.2 and not state.latest["head_following"]
     assert wait_for(lambda: events.any(lambda e: e["kind"] == "watchdog_stalled"), 3)
     held = joints(joint_states)["HeadYaw"]
-    time.sleep(0.5)
-    assert abs(joints(joint_states)["HeadYaw"] - held) < 0.5
+    assert still(lambda: abs(joints(joint_states)["HeadYaw"] - held) < 0.5, joint_states)
     headset.head_orientation = unity_yaw_pitch(-20.0)
     headset.start()
     assert wait_for(lambda: state.latest.get("state") == "active", 3)
@@ -203,15 +203,15 @@ def test_estop_holds_and_releases_control(ros, headset, state, joint_states):
     reply = call(ros, "/vr_teleop/control/estop", "std_srvs/Trigger")
     assert reply["success"]
     assert wait_for(lambda: state.latest.get("state") == "estopped" and state.latest["holder"] == "", 3)
-    time.sleep(0.3)
+    still(lambda: True, joint_states, 10)  # a command already on its way lands (what the servo does with it)
     held = joints(joint_states)["HeadYaw"]
-    time.sleep(0.7)
-    assert abs(joints(joint_states)["HeadYaw"] - held) < 1.0  # the robot holds although the head still turns
+    # the robot holds although the head still turns, over the robot's own joint states (30 Hz), not a time window
+    assert still(lambda: abs(joints(joint_states)["HeadYaw"] - held) < 1.0, joint_states, 20)
 
 
 def test_calibration_measures_the_operator_in_a_t_pose(ros, headset):
     headset.hand_positions = {"left": (-0.80, EYE_HEIGHT - 0.22, -0.05), "right": (0.80, EYE_HEIGHT - 0.22, -0.05)}
-    time.sleep(0.3)
+    headset.send_head_poses(27)  # the T-pose, in the headset's frames, before the call (sent after them)
     reply = call(ros, "/vr_teleop/control/calibrate", "std_srvs/Trigger")
     assert reply["success"], reply
     import json

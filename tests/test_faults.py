@@ -13,18 +13,17 @@ import gc
 import json
 import os
 import random
-import socket
 import subprocess
-import sys
 import threading
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
 import psutil
 import pytest
 from support import RawClient, wait_for
+from testbed import processes
+from testbed.server import Pace
 from testbed.churn import drain, owner_counts, visitor
 from websockets.asyncio.client import connect
 from websockets.sync.client import connect as sync_connect
@@ -33,7 +32,6 @@ from client_protocol import names
 
 pytestmark = pytest.mark.slow  # a minute of churn, stalled clients, memory traced
 
-ROOT = Path(__file__).resolve().parent.parent
 MIB = 1024 * 1024
 CHURN_SECONDS = float(os.environ.get("CHURN_SECONDS", "60"))  # the issue asks for a minute
 
@@ -116,9 +114,10 @@ def test_a_client_that_stops_reading_costs_bounded_memory_and_slows_nobody(serve
     base = traced_now()
     start = time.monotonic()
     half = 0
-    for i in range(count):  # paced at about 800 messages a second
+    pace = Pace(800)  # about 800 messages a second
+    for i in range(count):
         publisher.send({"op": "publish", "topic": topic, "msg": {"data": f"{i:06d}{body}"}})
-        time.sleep(max(0.0, start + i / 800 - time.monotonic()))
+        pace.wait()
         if i == count // 2:  # by now the socket's buffers and the stalled client's queue are full
             half = traced_now() - base
     sent_s = time.monotonic() - start
@@ -199,6 +198,7 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
         reader = asyncio.create_task(drain(ws))
         seq = 0
         start = time.monotonic()
+        pace = Pace(90)  # a headset's rate
         engaged = False
         while True:
             await ws.send(head(seq))
@@ -214,7 +214,7 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
                 await reader
                 return dropped
             assert time.monotonic() - start < 20, f"the head never followed: {targets[-5:]}"
-            await asyncio.sleep(max(0.0, start + seq / 90 - time.monotonic()))
+            await pace.tick()
 
     dropped = asyncio.run(operate())
     time.sleep(1.5)
@@ -230,14 +230,9 @@ def test_an_operator_dropped_mid_motion_leaves_the_robot_holding_within_the_watc
 
 
 def _serve_sim() -> tuple[subprocess.Popen, str]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    proc = subprocess.Popen([sys.executable, "-m", "vr_teleop_server.cli", "serve", "--port", str(port), "--backend",
-                             "sim", "--bystander-interval", "0", "--log-level", "warning"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    assert "listening" in proc.stdout.readline()
-    return proc, f"ws://127.0.0.1:{port}"
+    proc = processes.serve("--backend", "sim", "--bystander-interval", "0", log_level="warning",
+                           stderr=subprocess.PIPE)
+    return proc, proc.url
 
 
 def _render_worker(server: subprocess.Popen) -> psutil.Process:

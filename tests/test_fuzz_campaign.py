@@ -43,6 +43,7 @@ from fuzz_frames import (
 from hypothesis import HealthCheck, Phase, given, seed, settings
 from hypothesis import strategies as st
 from support import RunningServer
+from testbed.server import until
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed
 
@@ -242,13 +243,14 @@ class Bystander:
     async def keeps_receiving(self, timeout: float = 30.0) -> None:
         """A few more joint states arrive (the timeout only catches a stream that stopped)."""
         start = self.count
-        deadline = time.monotonic() + timeout
-        while self.count < start + 3:
-            if time.monotonic() > deadline:
-                raise Campaign(f"the bystander got {self.count - start} joint states in {timeout:g} s after the "
-                               "campaign: its stream stopped")
+
+        def more() -> bool:
             self.check()
-            await asyncio.sleep(0.05)
+            return self.count >= start + 3
+
+        if not await until(more, timeout):
+            raise Campaign(f"the bystander got {self.count - start} joint states in {timeout:g} s after the "
+                           "campaign: its stream stopped")
 
 
 class CommandLog:

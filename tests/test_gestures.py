@@ -3,10 +3,6 @@ MuJoCo stand-in."""
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import asyncio
 import math
 import time
@@ -405,7 +401,7 @@ async def _poll(robot, out: list, stop: asyncio.Event, hz: float = 50.0) -> None
     """The stand-in's own snapshots: their sim_time is the clock the velocity caps hold on."""
     while not stop.is_set():
         out.append(robot.standin.joint_state())
-        await asyncio.sleep(1.0 / hz)
+        await asyncio.sleep(1.0 / hz)  # simulated time: the clock jumps to it
 
 
 async def _home(robot) -> None:
@@ -415,7 +411,7 @@ async def _home(robot) -> None:
     while clock.monotonic() < deadline:
         if all(abs(v - MODEL.joint(n).home) < 0.3 for n, v in robot.joint_state().as_dict().items()):
             return
-        await asyncio.sleep(0.02)
+        await asyncio.sleep(0.02)  # simulated time: the clock jumps to it
     raise AssertionError("the stand-in did not get home")
 
 
@@ -470,7 +466,7 @@ async def _record_save_reload_and_replay(tmp_path, clock: SimulatedClock) -> Non
             while not stop.is_set():
                 state = robot.joint_state()
                 offered.append((state.stamp_monotonic, rec.sample(state)))
-                await asyncio.sleep(1 / 20)
+                await asyncio.sleep(1 / 20)  # simulated time: the clock jumps to it
 
         task = asyncio.create_task(sampler())
         t0 = clock.monotonic()
@@ -478,7 +474,7 @@ async def _record_save_reload_and_replay(tmp_path, clock: SimulatedClock) -> Non
             s = min(t, SWEEP_S)
             robot.set_joint_targets({"HeadYaw": YAW_AMPLITUDE * math.sin(2 * math.pi * s / SWEEP_S),
                                      "HeadPitch": PITCH_AMPLITUDE * math.sin(2 * math.pi * s / (SWEEP_S / 2))})
-            await asyncio.sleep(0.02)
+            await asyncio.sleep(0.02)  # simulated time: the clock jumps to it
         stop.set()
         await task
         recorded = rec.stop()

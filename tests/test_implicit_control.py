@@ -15,7 +15,7 @@ import pytest
 import roslibpy
 
 from sim.face import draw_face
-from support import Headset, RawClient, Watch, call, engage, joints, refused, unity_yaw_pitch, wait_for
+from support import Headset, RawClient, Watch, call, engage, joints, refused, still, unity_yaw_pitch, wait_for
 from vr_teleop_server.robot.gestures import parse_gesture_xml
 from vr_teleop_server.features.speech import TextToSpeech
 
@@ -118,18 +118,20 @@ def test_speech_sends_audio_whose_duration_matches_the_wav(sim_server, ros):
 
 def test_speech_can_be_stopped_and_configured(sim_server, ros):
     chunks = Watch(ros, "/vr_teleop/audio/robot", "audio_common_msgs/AudioData")
+    js = Watch(ros, "/qt_robot/joints/state", "sensor_msgs/JointState")  # the robot's steady 30 Hz
     say = roslibpy.Topic(ros, "/qt_robot/speech/say", "std_msgs/String")
     say.publish(roslibpy.Message({"data": "This is a rather long sentence that the teacher will cut short, "
                                           "because the class already knows the answer to the question."}))
     standin = sim_server.server.robot.standin
     assert wait_for(standin.is_talking, 10)
-    time.sleep(0.5)
+    assert wait_for(lambda: len(chunks.messages) >= 3, 10)  # it has begun to speak
     assert select(ros, "speech.stop")["success"]
     assert wait_for(lambda: not standin.is_talking(), 2)
-    time.sleep(0.3)
+    still(lambda: True, js, 10)  # a chunk already on its way lands
     count = len(chunks.messages)
-    time.sleep(1.0)
-    assert len(chunks.messages) == count  # no audio after the stop
+    # no audio after the stop, over a second of the robot's joint states (its steady stream), not a time window
+    assert still(lambda: len(chunks.messages) == count, js, 30)
+    js.close()
     assert count < 40  # the whole sentence is several seconds: 100 ms chunks
     assert select(ros, "speech.slower")["success"]
     assert call(ros, "/qt_robot/speech/config", "qt_robot_interface/speech_config",
@@ -150,7 +152,7 @@ def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_serve
             headset.head_orientation = unity_yaw_pitch(yaw)
             # Each pose held until the robot's head is there (not for a fixed time: a loaded machine is slower).
             assert wait_for(lambda yaw=yaw: abs(joints(js).get("HeadYaw", 99) - yaw) < 2.0, 30), yaw
-            time.sleep(0.1)
+            time.sleep(0.1)  # held a moment; 9 headset frames instead failed the shape check 2 of 3 runs (why: open)
         reply = select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})
         assert reply["message"] == "saved as look_around"
     finally:
@@ -229,8 +231,10 @@ def test_status_panels_at_2_hz(sim_server, ros):
     motors = Watch(ros, "/vr_teleop/status/motors", "vr_teleop_msgs/MotorsStatus")
     hardware = Watch(ros, "/vr_teleop/status/hardware", "vr_teleop_msgs/HardwareStatus")
     dialog = Watch(ros, "/vr_teleop/status/dialog", "vr_teleop_msgs/DialogState")
-    time.sleep(2.2)
-    assert 3 <= len(motors.messages) <= 7
+    assert wait_for(lambda: len(motors.messages) >= 5, 30)
+    with motors.lock:  # 2 Hz by the server's own stamps (what a loaded machine does to delivery does not count)
+        stamps = [m["header"]["stamp"]["secs"] + m["header"]["stamp"]["nsecs"] / 1e9 for m in motors.messages]
+    assert 0.35 <= float(np.median(np.diff(stamps))) <= 0.7, np.diff(stamps)
     m = motors.latest
     model = sim_server.server.model
     assert sorted(m["name"]) == sorted(model.names) and len(set(m["name"])) == len(m["name"])  # each motor once
@@ -280,8 +284,8 @@ def test_head_and_arms_control_switches(ros):
         assert wait_for(lambda: state.latest.get("head_following"), 5)
         assert select(ros, "motion.arms", {"enable": False})["message"] == "arms control off"
         headset.grips["right"] = 1.0
-        time.sleep(0.5)
-        assert not state.latest["right_arm_following"]
+        headset.send_head_poses(45)  # half a second of the headset's frames with the grip held
+        assert still(lambda: not state.latest["right_arm_following"], state)
         select(ros, "motion.arms", {"enable": True})
         assert select(ros, "motion.robot.release")["success"]
         assert wait_for(lambda: not state.latest.get("engaged"), 5)

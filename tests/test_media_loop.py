@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 from testbed.media_client import MediaPeer, Rosbridge
+from testbed.server import Pace, until
 from test_datachannel import HEAD_POSE, engage_over_websocket, head_pose, release, whoami
 from vr_teleop_server.media.media_loop import THREAD_NAME, MediaLoop
 
@@ -58,8 +59,7 @@ async def test_the_peers_run_on_the_media_loop_poses_reach_the_session_in_order_
         reply = await client.negotiate(ros)
         assert reply["values"]["success"], reply
         await client.wait_video(3)
-        while channel.readyState != "open":
-            await asyncio.sleep(0.02)
+        assert await until(lambda: channel.readyState == "open", 30)
         name = await whoami(ros)
 
         # aiortc's transports run on the media loop, none of them on the server's.
@@ -74,15 +74,14 @@ async def test_the_peers_run_on_the_media_loop_poses_reach_the_session_in_order_
         await engage_over_websocket(ros)
         server.call(published.clear)
         t0 = time.time()
+        pace = Pace(100)  # ten poses at a time, a hundred times a second
         for k in range(POSES):
             msg = head_pose(0.0, t0 + k * 0.001)
             msg["pose"]["position"]["x"] = k / 1000
             channel.send(json.dumps({"op": "publish", "topic": HEAD_POSE, "msg": msg}))
             if k % 10 == 9:
-                await asyncio.sleep(0.01)
-        deadline = time.monotonic() + 30
-        while server.call(lambda: len(published)) < POSES and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
+                await pace.tick()
+        await until(lambda: server.call(lambda: len(published)) >= POSES, 30, blocking=True)
         seen = server.call(lambda: list(published))
         # Every pose, through the session (its name as sender), on the server's loop, in the order sent.
         assert [x for _, x, _ in seen] == pytest.approx([k / 1000 for k in range(POSES)]), seen
@@ -114,7 +113,7 @@ async def test_the_media_loop_runs_work_in_its_thread_and_shutdown_cancels_what_
 
     async def forever() -> None:
         try:
-            await asyncio.sleep(3600)
+            await asyncio.Event().wait()  # until cancelled
         finally:
             unwound.set()
 

@@ -21,7 +21,6 @@ import asyncio
 import ipaddress
 import json
 import math
-import os
 import shutil
 import socket
 import statistics
@@ -37,6 +36,7 @@ import pytest
 
 from netem import EDGES, Edge, Emulator, cleanup_leftovers, edges_available, list_namespaces
 from testbed.pages import operator_in_namespace
+from testbed.processes import environment
 from vr_teleop_server.core.certs import make_authority, make_certificate
 from vr_teleop_server.media.turn import credentials
 
@@ -83,9 +83,7 @@ class Server:
         else's (Debian's faketime), as a server whose clock was never set does; its monotonic clock is left
         alone."""
         self.log = tempfile.NamedTemporaryFile("w+", prefix="nat-serve-", suffix=".log", delete=False)
-        env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "SSL_CERT_FILE": str(cert),
-               "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-               "FAKETIME_DONT_FAKE_MONOTONIC": "1"}
+        env = environment(SSL_CERT_FILE=str(cert), FAKETIME_DONT_FAKE_MONOTONIC="1")
         faketime = ["faketime", "-m", "-f", f"-{clock_behind}"] if clock_behind else []
         self.proc = net.popen("server", [*faketime, sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host",
                                          net.server_ip, "--port", str(PORT), "--insecure", "--backend", "sim",

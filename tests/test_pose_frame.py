@@ -12,6 +12,7 @@ import pytest
 from client_protocol import interface, names, pose_frame
 from client_protocol.registry import TypeRegistry
 from testbed.media_client import MediaPeer, Rosbridge
+from testbed.server import until
 from test_datachannel import (HEAD_COMMAND, dc_server, engage_over_websocket, my_telemetry, newest,  # noqa: F401
                               head_pose, release, stream, whoami)
 from test_pose_channel import HEAD, JOY, FakeSession, deliver, publish
@@ -98,14 +99,12 @@ async def test_binary_frames_from_an_aiortc_sender_move_the_robot(dc_server) -> 
             mover.cancel()
         # one XR frame's messages, sent without yielding, leave as ONE binary frame (as the page flushes its frame)
         sender = client.poses
-        while sender.channel.bufferedAmount > 0 or sender._pending:
-            await asyncio.sleep(0.01)
+        assert await until(lambda: sender.channel.bufferedAmount == 0 and not sender._pending, 30)
         before = sender.sent
         sender.send(HEAD, head_pose(25.0))
         sender.send("/vr/left_controller/pose", head_pose(10.0))
         assert sender.sent == before  # not before the frame is over
-        while sender._pending:
-            await asyncio.sleep(0.01)
+        assert await until(lambda: not sender._pending, 30)
         assert sender.sent == before + 1 and sender.head_sent > 0
         await release(ros)
     finally:

@@ -11,6 +11,7 @@ import time
 import cbor2
 import pytest
 
+from testbed.server import Pace
 from vr_teleop_server.core.wire import png_unpack
 
 POSE = {"header": {"seq": 3, "stamp": {"secs": 10, "nsecs": 20}, "frame_id": "unity_left_handed"},
@@ -134,10 +135,11 @@ def test_throttle_rate_sends_at_most_one_message_per_interval(client_factory):
     sent_at: list[float] = []  # the publisher's own clock: when each message left
 
     def publish() -> None:
+        pace = Pace(50)
         for i in range(30):
             sent_at.append(time.monotonic())
             publisher.send({"op": "publish", "topic": "/fast", "msg": {"data": i}})
-            time.sleep(0.02)
+            pace.wait()
 
     thread = threading.Thread(target=publish)
     thread.start()
@@ -430,9 +432,10 @@ def test_slow_reader_is_bounded_and_does_not_slow_others(servers, connect_raw):
     n = 200
 
     def publish() -> None:
+        pace = Pace(100)
         for i in range(n):
             pub.send({"op": "publish", "topic": "/flood", "msg": {"data": f"{i}:{payload}"}})
-            time.sleep(0.01)
+            pace.wait()
 
     thread = threading.Thread(target=publish)
     thread.start()

@@ -3,10 +3,6 @@ render of the same state gives, pixel for pixel, and a change in view is drawn a
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import mujoco
 import numpy as np
 import pytest

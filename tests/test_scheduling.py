@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import threading
 from pathlib import Path
 
 import pytest
 
-from test_cli_serve import EXE, free_port
+from testbed import processes
 from vr_teleop_server.core.scheduling import SHORT_SLICE_S, short_slice, slice_of
 
 SHORT_NS = int(SHORT_SLICE_S * 1e9)
@@ -47,11 +46,8 @@ def test_a_thread_takes_a_short_slice_and_what_it_starts_does_not() -> None:
 
 @needs_short_slices
 def test_serve_gives_its_loop_the_short_slice_and_no_other_thread() -> None:
-    port = free_port()
-    proc = subprocess.Popen([EXE, "serve", "--host", "127.0.0.1", "--port", str(port)], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = processes.serve(stderr=subprocess.DEVNULL)
     try:
-        assert "listening" in proc.stdout.readline()
         slices = {int(tid.name): slice_of(int(tid.name)) for tid in Path(f"/proc/{proc.pid}/task").iterdir()}
         assert slices.pop(proc.pid) == SHORT_NS  # the main thread runs the event loop
         assert slices and all(s is not None and s > SHORT_NS for s in slices.values()), slices

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
 import subprocess
 import sys
 from collections import Counter
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testbed.processes import free_port
 from support import patient_teleop
 
 from vr_teleop_server.recording.format import read_recording
@@ -22,12 +22,6 @@ from vr_teleop_server.tools.synth import build, menu_tour, write
 pytestmark = pytest.mark.slow  # sessions replayed in real time
 
 EXE = str(Path(sys.executable).with_name("vr-teleop"))
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 # ---- synth ------------------------------------------------------------------------------------------------------

@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import threading
 import time
 from pathlib import Path
@@ -20,6 +17,7 @@ from sim import MotorMode, StandIn
 from sim.face import draw_face
 from sim.scene import OVERVIEW_CAMERA
 from test_frame_ring import holds_ring, is_ring
+from testbed.server import Pace, wait_for
 from worker_process.frame_ring import FrameRing
 
 ROBOT = load_qtrobot()
@@ -35,25 +33,16 @@ def standin():
     s.close()
 
 
-def wait_until(predicate, timeout: float, poll: float = 0.01) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(poll)
-    return predicate()
-
-
 def let_simulated_time_pass(s: StandIn, seconds: float) -> None:
     """Waits until the simulation's clock has advanced by `seconds` (a loaded machine stretches wall time, which
     would leave a wall-clock sleep with less simulated time than it says)."""
     start = s.joint_state().sim_time
-    assert wait_until(lambda: s.joint_state().sim_time >= start + seconds, 30.0), "the simulation stopped advancing"
+    assert wait_for(lambda: s.joint_state().sim_time >= start + seconds, 30.0), "the simulation stopped advancing"
 
 
 def settle_home(s: StandIn) -> None:
     s.set_targets(ROBOT.home_pose())
-    assert wait_until(lambda: all(abs(s.joint_positions()[n] - ROBOT.joint(n).home) < 0.5 for n in ROBOT.names), 30.0)
+    assert wait_for(lambda: all(abs(s.joint_positions()[n] - ROBOT.joint(n).home) < 0.5 for n in ROBOT.names), 30.0)
 
 
 def test_head_reaches_target_no_faster_than_its_cap(standin):
@@ -63,12 +52,13 @@ def test_head_reaches_target_no_faster_than_its_cap(standin):
     samples = []
     sim0 = standin.joint_state().sim_time
     deadline = time.monotonic() + 60.0  # only catches a simulation that stopped
+    pace = Pace(200)  # samples of the joint state at up to 200 Hz
     standin.set_targets({"HeadYaw": target})
     while not samples or samples[-1][0] - sim0 < 2.0:  # two seconds on the simulation's clock
         assert time.monotonic() < deadline, "the simulation stopped advancing"
         snap = standin.joint_state()
         samples.append((snap.sim_time, snap.position("HeadYaw"), snap.velocities[0]))
-        time.sleep(0.005)
+        pace.wait()
     times = np.array([s[0] for s in samples])
     pos = np.array([s[1] for s in samples])
     vel = np.array([s[2] for s in samples])
@@ -101,7 +91,7 @@ def test_out_of_range_targets_are_clamped(standin):
     applied = standin.set_targets({"HeadYaw": 100.0, "LeftElbowRoll": 20.0})
     assert applied == {"HeadYaw": 60.0, "LeftElbowRoll": -7.0}
     assert standin.targets()["HeadYaw"] == 60.0
-    assert wait_until(lambda: abs(standin.joint_positions()["HeadYaw"] - 60.0) < 0.5, 30.0)
+    assert wait_for(lambda: abs(standin.joint_positions()["HeadYaw"] - 60.0) < 0.5, 30.0)
     let_simulated_time_pass(standin, 0.2)
     assert standin.joint_positions()["HeadYaw"] <= 60.5
     with pytest.raises(KeyError, match="HeadYaw"):
@@ -117,18 +107,19 @@ def decode(frame) -> np.ndarray:
 
 def test_camera_streams_only_while_watched_and_changes_when_the_head_turns(standin):
     settle_home(standin)
+    # Frames are numbered as drawn, and the render thread acknowledges a stop once the frame it had in flight is
+    # out: the first frame after a time nobody watched follows the last one before it (no wall-clock window).
+    assert standin.wait_camera_stopped(30.0)
     before = standin.latest_frame()
-    time.sleep(0.15)
-    assert standin.latest_frame() is before  # nobody watches: nothing is rendered
     standin.start_camera()
     try:
         first = standin.wait_frame(before.seq if before else 0, timeout=30.0)
-        assert first is not None
+        assert first is not None and first.seq == (before.seq if before else 0) + 1  # none while nobody watched
         image = decode(first)
         assert image.shape == (480, 640, 3)
         assert first.width == 640 and first.height == 480
         standin.set_targets({"HeadYaw": 30.0})
-        assert wait_until(lambda: abs(standin.joint_positions()["HeadYaw"] - 30.0) < 0.5, 30.0)
+        assert wait_for(lambda: abs(standin.joint_positions()["HeadYaw"] - 30.0) < 0.5, 30.0)
         there = time.monotonic()
         # A frame drawn from the state as the head got there: one in flight then may show it before it turned.
         turned = standin.latest_frame()
@@ -140,9 +131,14 @@ def test_camera_streams_only_while_watched_and_changes_when_the_head_turns(stand
         assert diff > 10, diff
     finally:
         standin.stop_camera()
+    assert standin.wait_camera_stopped(30.0)  # the frame in flight, if any, has landed
     at_stop = standin.latest_frame().seq
-    time.sleep(1.0)
-    assert standin.latest_frame().seq <= at_stop + 1  # the frame in flight may still land, and no more
+    standin.start_camera()
+    try:
+        resumed = standin.wait_frame(at_stop, timeout=30.0)
+    finally:
+        standin.stop_camera()
+    assert resumed is not None and resumed.seq == at_stop + 1  # and none was drawn after it
     settle_home(standin)
 
 
@@ -208,16 +204,16 @@ def test_face_texture_follows_emotion_and_speech(standin):
         if not np.array_equal(face, neutral) and not any(np.array_equal(face, f) for f in talking):
             talking.append(face)
         return len(talking) >= 2
-    assert wait_until(mouth_moved, 30.0), "the mouth does not move while talking"
+    assert wait_for(mouth_moved, 30.0), "the mouth does not move while talking"
     standin.speak(0.0)
     assert not standin.is_talking()
-    assert wait_until(lambda: np.array_equal(standin.face_image(), neutral), 30.0), "face did not settle after speech"
+    assert wait_for(lambda: np.array_equal(standin.face_image(), neutral), 30.0), "face did not settle after speech"
 
 
 def test_head_camera_view_is_the_classroom_with_markers_at_their_true_poses(standin, tmp_path):
     settle_home(standin)
     standin.set_targets({"HeadPitch": 18.0})
-    assert wait_until(lambda: abs(standin.joint_positions()["HeadPitch"] - 18.0) < 0.3, 30.0)
+    assert wait_for(lambda: abs(standin.joint_positions()["HeadPitch"] - 18.0) < 0.3, 30.0)
     let_simulated_time_pass(standin, 0.2)
     angles = standin.joint_positions()
     rgb = standin.snapshot()
@@ -254,7 +250,7 @@ def test_motor_modes_off_brake_on(standin):
     arm = ROBOT.parts["left_arm"]
     standin.set_motor_mode(arm, MotorMode.OFF)
     # Limp: the raised-out upper arm falls toward its lower roll limit under gravity.
-    assert wait_until(lambda: standin.joint_positions()["LeftShoulderRoll"] < -65.0, 30.0)
+    assert wait_for(lambda: standin.joint_positions()["LeftShoulderRoll"] < -65.0, 30.0)
     assert standin.joint_state().modes[ROBOT.names.index("LeftShoulderRoll")] is MotorMode.OFF
     standin.set_motor_mode(arm, MotorMode.BRAKE)
     held = standin.joint_positions()["LeftShoulderRoll"]
@@ -275,7 +271,7 @@ def test_physics_never_runs_ahead_of_real_time_and_drops_a_backlog(standin):
     are speed figures: bench/standin.py prints them."""
     dt = standin.dt
     before = standin.physics_stats()
-    assert wait_until(lambda: standin.physics_stats().steps > before.steps + 10, 30.0)  # it advances
+    assert wait_for(lambda: standin.physics_stats().steps > before.steps + 10, 30.0)  # it advances
     stats = standin.physics_stats()
     alive = time.monotonic() - standin.test_created_at
     assert stats.sim_time == pytest.approx(stats.steps * dt, rel=1e-6), stats  # sim time is steps x dt
@@ -286,9 +282,9 @@ def test_physics_never_runs_ahead_of_real_time_and_drops_a_backlog(standin):
     stall = standin.physics.MAX_LAG_S * 4
     before, wall0 = standin.physics_stats(), time.monotonic()
     with standin.physics.lock:
-        time.sleep(stall)
-    assert wait_until(lambda: standin.physics_stats().resyncs > before.resyncs, 30.0), "the backlog was not dropped"
-    assert wait_until(lambda: standin.physics_stats().steps > before.steps + 10, 30.0)  # and it goes on
+        time.sleep(stall)  # the stall itself: what is tested is the physics against the wall clock
+    assert wait_for(lambda: standin.physics_stats().resyncs > before.resyncs, 30.0), "the backlog was not dropped"
+    assert wait_for(lambda: standin.physics_stats().steps > before.steps + 10, 30.0)  # and it goes on
     stats, wall = standin.physics_stats(), time.monotonic()
     # It dropped more than MAX_LAG_S of backlog instead of catching up: simulated time now trails wall time by it.
     assert stats.sim_time - before.sim_time <= wall - wall0 - standin.physics.MAX_LAG_S, (stats, before, wall - wall0)
@@ -332,7 +328,7 @@ def test_a_dead_render_process_closes_the_camera_and_the_robot_goes_on():
             s.snapshot()
         yaw = s.joint_positions()["HeadYaw"]
         s.set_targets({"HeadYaw": yaw + 20.0})
-        assert wait_until(lambda: abs(s.joint_positions()["HeadYaw"] - (yaw + 20.0)) < 1.0, 30.0)
+        assert wait_for(lambda: abs(s.joint_positions()["HeadYaw"] - (yaw + 20.0)) < 1.0, 30.0)
     finally:
         s.close()
     assert not s._render_thread.is_alive()

@@ -20,13 +20,13 @@ def test_timers_fire_in_order_at_their_simulated_times_without_waiting_for_the_w
     fired: list[tuple[str, float]] = []
 
     async def after(delay: float, tag: str) -> None:
-        await asyncio.sleep(delay)
+        await asyncio.sleep(delay)  # simulated time: the clock jumps to it
         fired.append((tag, asyncio.get_running_loop().time()))
 
     async def main() -> None:
         await asyncio.gather(after(3600.0, "hour"), after(1.0, "second"), after(0.5, "half"), after(60.0, "minute"))
         with pytest.raises(TimeoutError):  # timeouts are timers too
-            await asyncio.wait_for(asyncio.sleep(1e6), 2.0)
+            await asyncio.wait_for(asyncio.sleep(1e6), 2.0)  # simulated time: the clock jumps to it
         fired.append(("timeout", asyncio.get_running_loop().time()))
 
     simclock.run(main(), clock)
@@ -84,9 +84,9 @@ def test_participants_are_brought_along_in_time_order_and_stopped_at_when_due():
     seen: list[tuple[float, float]] = []
 
     async def main() -> None:
-        await asyncio.sleep(0.6)
+        await asyncio.sleep(0.6)  # simulated time: the clock jumps to it
         seen.append((asyncio.get_running_loop().time(), metronome.calls[-1]))
-        await asyncio.sleep(0.4)
+        await asyncio.sleep(0.4)  # simulated time: the clock jumps to it
 
     simclock.run(main(), clock)
     assert metronome.calls == sorted(metronome.calls)
@@ -104,7 +104,7 @@ def test_a_simulated_run_is_the_same_every_time():
 
         async def worker(name: str, rng: random.Random) -> None:
             for _ in range(50):
-                await asyncio.sleep(rng.uniform(0.0, 0.1))
+                await asyncio.sleep(rng.uniform(0.0, 0.1))  # simulated time: the clock jumps to it
                 out.append((name, asyncio.get_running_loop().time()))
                 if rng.random() < 0.1:
                     await asyncio.to_thread(sum, range(1000))

@@ -144,9 +144,9 @@ def test_a_profile_delays_both_ways_in_order_and_a_lost_frame_comes_one_time_out
         start = clock.monotonic()
         for i in range(40):
             await conn.send(str(i))
-            await asyncio.sleep(0.01)
+            await asyncio.sleep(0.01)  # simulated time: the clock jumps to it
         while len(back) < 40:
-            await asyncio.sleep(0.05)
+            await asyncio.sleep(0.05)  # simulated time: the clock jumps to it
         reader.cancel()
         await conn.close()
         return [(t - start, f) for t, f in echo.got], [(t - start, f) for t, f in back], \

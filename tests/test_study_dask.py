@@ -8,7 +8,6 @@ import csv
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import sysconfig
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from testbed.processes import free_port
 from study_support import small_study
 
 from vr_teleop_server.tools.distributed import Workers, run_all
@@ -120,12 +120,6 @@ def test_a_trial_lost_with_its_killed_worker_is_redone_once_and_counted_once(tmp
     assert {job.key: done.report.live.to_json_dict() for job, done in results} == sequential
     redone = next(done for job, done in results if job.key == "teleoperated-seed2")
     assert redone.worker_pid != killed["pid"] and redone.recording and redone.report.recording_matches
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.mark.timeout(300)

@@ -16,6 +16,7 @@ import pytest
 import yaml
 from study_support import EXAMPLE, on_loop, prepared, small_study
 from support import RawClient, RunningServer, bystanders_in_view, wait_for
+from testbed.server import until
 
 from vr_teleop_server.client import Client, Refused, connect
 from vr_teleop_server.study.people import SimulatedPeople
@@ -62,13 +63,6 @@ def run_with_people(server: RunningServer, runtime: TrialRuntime, *, people: boo
         return asyncio.run(main())
     finally:
         on_loop(server, runtime.close())
-
-
-async def until(predicate, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not reached in time"
-        await asyncio.sleep(0.02)
 
 
 # ---- perception -----------------------------------------------------------------------------------------------------
@@ -224,7 +218,7 @@ def test_preempt_stops_the_tree_and_the_robot_holds(server):
     robot = server.server.robot
 
     async def preempt(client: Client, rt: TrialRuntime) -> None:
-        await until(lambda: rt.log.happened("robot", "pick_bottom", "start"))
+        assert await until(lambda: rt.log.happened("robot", "pick_bottom", "start"), 30)
         await asyncio.sleep(0.2)
         values = await client.call("/decision/preempt", {})
         assert values["success"]
@@ -252,7 +246,7 @@ def test_override_moves_a_stalled_action_on_and_counts_as_an_intervention(server
     runtime = prepared(server, study, "autonomous")
 
     async def override(client: Client, rt: TrialRuntime) -> None:
-        await until(lambda: rt.log.happened("robot", "handover_front", "start"), 60)
+        assert await until(lambda: rt.log.happened("robot", "handover_front", "start"), 60)
         await asyncio.sleep(1.5)  # longer than the move takes: it is the stall that holds the plan
         assert not rt.log.happened("robot", "handover_front", "stop")
         values = await client.call("/decision/override", {"succeeded": True, "note": "the arm got there"})
@@ -274,7 +268,7 @@ def test_wizard_of_oz_and_semi_autonomous_take_the_operators_commands(server):
     runtime = prepared(server, study, "semi")
 
     async def check_refusals(client: Client, rt: TrialRuntime) -> None:
-        await until(lambda: rt.log.happened("robot", "pick_bottom", "stop"), 30)
+        assert await until(lambda: rt.log.happened("robot", "pick_bottom", "stop"), 30)
         with pytest.raises(Refused, match="waiting for handover on bottom, not hold on bottom"):
             await client.call("/decision/teleop", {"object": "bottom", "action": "hold"})
 
@@ -316,10 +310,10 @@ def test_every_primitive_runs_on_the_stand_in_and_reports_its_start_and_stop(ser
 
     async def command(client: Client, rt: TrialRuntime) -> None:
         await client.subscribe("/study/state_updates", "vr_teleop_msgs/StateUpdate", seen.append)
-        await asyncio.sleep(0.2)
+        await client.sync()  # the subscription is the server's before the first command
         for action in extra:
             await client.call("/decision/teleop", {"object": "bottom", "action": action})
-            await until(lambda a=action: rt.log.happened("robot", f"{a}_bottom", "stop"), 20)
+            assert await until(lambda a=action: rt.log.happened("robot", f"{a}_bottom", "stop"), 20)
         await client.call("/decision/preempt", {})
 
     result, _ = run_with_people(server, runtime, people=False, during=command)

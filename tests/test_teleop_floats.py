@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
-import time
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from testbed.server import wait_for
 from vr_teleop_server.teleop import BodyModel, make_pose
 from vr_teleop_server.teleop.body import hand_point, shoulder_points
 from vr_teleop_server.teleop.head import HeadTracker
@@ -74,12 +74,10 @@ def test_standin_commands_and_state_do_not_wait_for_a_physics_batch():
         assert applied == {"HeadYaw": 12.5}
         assert held.targets[held.names.index("HeadYaw")] == 12.5
         yaw = held.position("HeadYaw")
-        for _ in range(6000):  # bounded by polls, not by a time window
+        def followed() -> bool:
             later = standin.joint_state()
-            if later.sim_time > held.sim_time and later.position("HeadYaw") > yaw + 1.0:
-                break
-            time.sleep(0.01)
-        else:
-            pytest.fail("the published joint state did not follow the physics")
+            return later.sim_time > held.sim_time and later.position("HeadYaw") > yaw + 1.0
+
+        assert wait_for(followed, 60), "the published joint state did not follow the physics"
     finally:
         standin.close()
