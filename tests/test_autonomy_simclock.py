@@ -48,13 +48,13 @@ def test_time_outs_and_attention_on_the_simulated_clock(tmp_path):
                                      (names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome"),
                                      (names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")):
                 await conn.send(json.dumps({"op": "subscribe", "topic": topic, "type": type_name}))
-            await asyncio.sleep(2.0)
+            await asyncio.sleep(2.0)  # simulated time
             onset = clock.monotonic()
             await conn.send(json.dumps({"op": "call_service", "service": names.SIM_BYSTANDERS_SPEAK_SERVICE,
                                         "args": {"who": "child_left",
                                                  "text": "I know it, the answer is Jupiter, the biggest planet."}}))
             while not got["outcomes"]:
-                await asyncio.sleep(0.1)
+                await asyncio.sleep(0.1)  # simulated time
             reader.cancel()
             return got["outcomes"], got["joints"], onset, server.autonomy.cfg.rate_hz
 
@@ -109,8 +109,8 @@ def test_a_proposal_is_shown_a_second_before_a_newer_one_replaces_it_and_a_late_
                                             "args": {"who": who, "text": text}}))
                 n = len(proposals)
                 while len(proposals) == n:  # the answer's end proposes (the second: once the first was shown 1 s)
-                    await asyncio.sleep(0.01)
-            await asyncio.sleep(2.0)
+                    await asyncio.sleep(0.01)  # simulated time
+            await asyncio.sleep(2.0)  # simulated time
             page = server.transport.connect_local()  # a page that opens now
             await page.send(json.dumps({"op": "subscribe", "topic": names.AUTONOMY_STATE_TOPIC,
                                         "type": "vr_teleop_msgs/AutonomyState"}))
