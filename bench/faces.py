@@ -63,11 +63,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="a small grid (a minute or so)")
     parser.add_argument("--sizes", default="640,480,320,256,480+256,384+224,320+192",
                         help="CenterFace input widths to measure, comma-separated; a+b searches at both widths")
+    parser.add_argument("--threshold", type=float, default=FaceDetector().threshold,
+                        help="CenterFace's score threshold (the server's default unless given)")
     args = parser.parse_args(argv)
     grid = QUICK if args.quick else FULL
     detectors: dict[str, Detector] = {"haar cascade (baseline)": CascadeDetector()}
     for size in args.sizes.split(","):
-        detectors[f"centerface @{size}"] = FaceDetector(input_widths=tuple(int(w) for w in size.split("+")))
+        detectors[f"centerface @{size}"] = FaceDetector(input_widths=tuple(int(w) for w in size.split("+")),
+                                                                threshold=args.threshold)
     camera = PupilCamera()
     pupils = sorted(camera.figures)
     tallies = {name: Tally() for name in detectors}
@@ -89,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     n = next(iter(tallies.values())).frames
     counted = next(iter(tallies.values())).counted
     print(f"{n} pictures 640x480 (JPEG q80): {', '.join(f'{p} ({skin_tone(p)} skin, {counted[p]} counted)' for p in pupils)}")
+    print(f"CenterFace threshold {args.threshold}")
     print(f"grid: distances {grid['distances']} m, head turned {grid['head_yaws']} deg, camera panned {grid['pans']} deg;"
           f" counted: face turned <= {IN_VIEW_DEG:.0f} deg, whole in the frame, >= {MIN_FACE_PX:.0f} px tall")
     base_cpu = tallies["haar cascade (baseline)"].cpu_s / n

