@@ -60,9 +60,13 @@ $(WEB_VENDOR): package.json package-lock.json $(SYSTEM)
 	cp node_modules/three/build/three.module.js node_modules/three/build/three.core.js node_modules/three/LICENSE $(@D)/
 	touch $@
 
+# A .venv made before the face detector holds opencv-python-headless, which opencv-python replaces: both install the
+# one cv2 package, so both go before the install brings opencv-python back alone.
 $(STAMP): pyproject.toml $(SYSTEM) $(WEB_VENDOR)
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
+	if $(PY) -m pip show --quiet opencv-python-headless 2>/dev/null; then \
+	  $(PY) -m pip uninstall --quiet --yes opencv-python-headless opencv-python; fi
 	$(PY) -m pip install --quiet -e '.[test,docs]'
 	touch $@
 

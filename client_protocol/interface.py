@@ -206,14 +206,15 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              {"header": _stamp(), "source": "experimenter", "kind": "human_action_start", "level": "info",
               "detail": "{\"action\": \"hand_over_cup\", \"wall_time\": 1700000000.0}"}),
     Endpoint(names.FACES_TOPIC, "vr_teleop_msgs/Faces", "subscribe",
-             "Bystanders' faces found in the head camera's frames (OpenCV's frontal-face cascade), boxes in the "
-             "frame's pixels; frame_seq is the camera frame's header.seq. Searched only while someone subscribes.",
+             "Bystanders' faces found in the head camera's frames (CenterFace, a CNN, through OpenCV's DNN), boxes "
+             "in the frame's pixels with a confidence 0..1; frame_seq is the camera frame's header.seq. Searched "
+             "only while someone subscribes.",
              "up to 5 Hz",
              {"header": {"seq": 42, "stamp": {"secs": 1700000000, "nsecs": 0},
                          "frame_id": "camera_color_optical_frame"},
               "frame_seq": 42, "image_width": 640, "image_height": 480, "detector":
-              "opencv-haar:haarcascade_frontalface_default", "faces": [{"x": 301, "y": 170, "width": 44,
-                                                                        "height": 44, "confidence": 3.4}]}),
+              "centerface:480+320", "faces": [{"x": 301, "y": 170, "width": 40,
+                                               "height": 46, "confidence": 0.62}]}),
     # ---- media: WebRTC video and voice beside the rosbridge stream (vr_teleop_server/media) ----
     Endpoint(names.MEDIA_OFFER_SERVICE, "vr_teleop_msgs/MediaOffer", "call",
              "WebRTC signalling over this rosbridge connection: send your RTCPeerConnection's offer (type 'offer', "

@@ -9,12 +9,22 @@ from dataclasses import dataclass
 
 TABLE_HEIGHT = 0.72  # metres: the robot stands on a classroom table (sim/scene.py)
 
+# Skin tones span the range a classroom holds, so that a face detector's bias shows (bench/faces.py): three tones
+# of the Monk Skin Tone scale (Monk, 2019), light (MST 2), medium (MST 6) and deep (MST 9), in sRGB.
+SKIN_TONES = {"light": (0.953, 0.906, 0.859, 1), "medium": (0.627, 0.494, 0.337, 1), "deep": (0.227, 0.192, 0.165, 1)}
+
 # name, floor position in the world (x, y; the robot's base is above the origin), height, shirt, skin, hair
 FIGURES: tuple[tuple[str, tuple[float, float], float, tuple[float, ...], tuple[float, ...], tuple[float, ...]], ...] = (
-    ("child_left", (1.65, 0.65), 1.25, (0.3, 0.5, 0.85, 1), (0.96, 0.80, 0.69, 1), (0.35, 0.22, 0.1, 1)),
-    ("adult_centre", (2.05, -0.1), 1.72, (0.55, 0.25, 0.3, 1), (0.76, 0.57, 0.45, 1), (0.1, 0.08, 0.06, 1)),
-    ("child_right", (1.55, -0.8), 1.35, (0.3, 0.65, 0.4, 1), (0.55, 0.38, 0.27, 1), (0.05, 0.05, 0.05, 1)),
+    ("child_left", (1.65, 0.65), 1.25, (0.3, 0.5, 0.85, 1), SKIN_TONES["light"], (0.35, 0.22, 0.1, 1)),
+    ("adult_centre", (2.05, -0.1), 1.72, (0.55, 0.25, 0.3, 1), SKIN_TONES["medium"], (0.1, 0.08, 0.06, 1)),
+    ("child_right", (1.55, -0.8), 1.35, (0.3, 0.65, 0.4, 1), SKIN_TONES["deep"], (0.05, 0.05, 0.05, 1)),
 )
+
+
+def skin_tone(name: str) -> str:
+    """The skin tone (a key of SKIN_TONES) of a figure."""
+    skin = next(f[4] for f in FIGURES if f[0] == name)
+    return next(tone for tone, rgba in SKIN_TONES.items() if rgba == skin)
 
 
 AWAY_DEG = 110.0  # a pupil looking away turns its head this far: its eyes and mouth go round out of the robot's view

