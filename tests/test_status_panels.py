@@ -57,8 +57,9 @@ def test_the_motors_panel_shows_each_joint_as_the_topic_says_and_closes_with_b(b
         assert wait_for(lambda: len(motors.messages) >= 2, 30)
         shown = page.evaluate("window.operator.state.motors")
         assert shown["name"] == motors.latest["name"] and len(shown["name"]) >= 8
-        assert motors.any(lambda m: m["header"] == shown["header"] and m["position_normalized"] ==
-                          shown["position_normalized"])  # the page's values are one of the topic's messages
+        # the page's values are one of the topic's messages (the page may be one ahead of this test's subscriber)
+        assert wait_for(lambda: motors.any(lambda m: m["header"] == shown["header"] and m["position_normalized"] ==
+                                           shown["position_normalized"]), 30)
         n = len(shown["name"])
         frames(page, 5)
         for i, name in enumerate(shown["name"]):
@@ -140,7 +141,9 @@ def test_the_dashboard_shows_the_same_panels_and_its_buttons_change_motivation(b
                                " && document.querySelectorAll('#motivation-controls button.raise').length === 4",
                                timeout=SLOW)
         shown = page.evaluate("window.dashboard.panels.motors")
-        assert motors.any(lambda m: m["header"] == shown["header"] and m["position"] == shown["position"])
+        # the page may be a message ahead of this test's own subscriber: wait for the watcher to see it too
+        assert wait_for(lambda: motors.any(lambda m: m["header"] == shown["header"]
+                                           and m["position"] == shown["position"]), 30)
         n = len(shown["name"])
         for i, fraction in enumerate(shown["position_normalized"]):  # the canvas drew what the topic said
             if not 0.15 < fraction < 0.85:
