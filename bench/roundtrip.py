@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 import websockets
 from websockets.asyncio.client import connect
 
@@ -92,8 +93,11 @@ async def latency(url: str, ours: bool, duration: float, rate: float, samples: b
             "n": len(ms)}
 
 
-async def flood(url: str, ours: bool, duration: float, window: int) -> float:
+async def flood(url: str, ours: bool, duration: float, window: int, pid: int) -> tuple[float, float]:
+    """Messages a second through the server, and the server process's CPU microseconds a message (the figure a
+    busy machine moves least)."""
     pub, sub = await setup(url, ours)
+    server = psutil.Process(pid)
     received = 0
     credit = asyncio.Semaphore(window)
     stop = time.perf_counter() + duration
@@ -108,6 +112,7 @@ async def flood(url: str, ours: bool, duration: float, window: int) -> float:
     receiver = asyncio.create_task(receive())
     frames = [pose(i) for i in range(1000)]
     start = time.perf_counter()
+    cpu = sum(server.cpu_times()[:2])
     i = 0
     while time.perf_counter() < stop:
         await credit.acquire()
@@ -115,10 +120,11 @@ async def flood(url: str, ours: bool, duration: float, window: int) -> float:
         i += 1
     elapsed = time.perf_counter() - start
     count = received
+    cpu = sum(server.cpu_times()[:2]) - cpu
     receiver.cancel()
     await pub.close()
     await sub.close()
-    return count / elapsed
+    return count / elapsed, cpu / max(count, 1) * 1e6
 
 
 def machine() -> str:
@@ -131,23 +137,27 @@ async def run(duration: float, rate: float, window: int, rounds: int = 1) -> Non
     of a shared machine: latencies pooled, the flood's median."""
     samples: dict[str, list[float]] = {"relay": [], "ours": []}
     floods: dict[str, list[float]] = {"relay": [], "ours": []}
+    cpus: dict[str, list[float]] = {"relay": [], "ours": []}
     for r in range(rounds):
         for kind in (("relay", "ours") if r % 2 == 0 else ("ours", "relay")):
             server = Server(kind)
             try:
                 samples[kind] += await latency(server.url, kind == "ours", duration, rate, samples=True)
-                floods[kind].append(await flood(server.url, kind == "ours", duration, window))
+                rate_, cpu = await flood(server.url, kind == "ours", duration, window, server.proc.pid)
+                floods[kind].append(rate_)
+                cpus[kind].append(cpu)
             finally:
                 server.stop()
     results = {kind: {"p50_ms": float(np.percentile(samples[kind], 50)), "p99_ms": float(np.percentile(samples[kind], 99)),
-                      "max_ms": float(np.max(samples[kind])), "msgs_per_s": float(np.median(floods[kind]))}
+                      "max_ms": float(np.max(samples[kind])), "msgs_per_s": float(np.median(floods[kind])),
+                      "cpu_us": float(np.median(cpus[kind]))}
                for kind in samples}
     ours, relay = results["ours"], results["relay"]
     print(f"# roundtrip: PoseStamped at {rate:g} Hz for {duration:g} s, then flooding with {window} in flight "
           f"for {duration:g} s; {rounds} round(s), taking turns\n# machine: {machine()}")
     print(f"{'figure':<22}{'vr-teleop':>12}{'bare relay':>12}{'ratio':>8}")
     for key, label in (("p50_ms", "latency p50 (ms)"), ("p99_ms", "latency p99 (ms)"), ("max_ms", "latency max (ms)"),
-                       ("msgs_per_s", "flood (msgs/s)")):
+                       ("msgs_per_s", "flood (msgs/s)"), ("cpu_us", "server CPU/msg (us)")):
         print(f"{label:<22}{ours[key]:>12.3f}{relay[key]:>12.3f}{ours[key] / relay[key]:>8.2f}")
     if rounds > 1:
         print("flood per round (msgs/s), ours / relay: "
