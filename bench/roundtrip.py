@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 import websockets
 from websockets.asyncio.client import connect
 
@@ -92,8 +93,11 @@ async def latency(url: str, ours: bool, duration: float, rate: float, samples: b
             "n": len(ms)}
 
 
-async def flood(url: str, ours: bool, duration: float, window: int) -> float:
+async def flood(url: str, ours: bool, duration: float, window: int, pid: int) -> tuple[float, float]:
+    """Messages a second through the server, and the server process's CPU microseconds a message (the figure a
+    busy machine moves least)."""
     pub, sub = await setup(url, ours)
+    server = psutil.Process(pid)
     received = 0
     credit = asyncio.Semaphore(window)
     stop = time.perf_counter() + duration
@@ -108,6 +112,7 @@ async def flood(url: str, ours: bool, duration: float, window: int) -> float:
     receiver = asyncio.create_task(receive())
     frames = [pose(i) for i in range(1000)]
     start = time.perf_counter()
+    cpu = sum(server.cpu_times()[:2])
     i = 0
     while time.perf_counter() < stop:
         await credit.acquire()
@@ -115,10 +120,11 @@ async def flood(url: str, ours: bool, duration: float, window: int) -> float:
         i += 1
     elapsed = time.perf_counter() - start
     count = received
+    cpu = sum(server.cpu_times()[:2]) - cpu
     receiver.cancel()
     await pub.close()
     await sub.close()
-    return count / elapsed
+    return count / elapsed, cpu / max(count, 1) * 1e6
 
 
 def machine() -> str:
@@ -126,23 +132,36 @@ def machine() -> str:
             f"{platform.machine()} {platform.system()}")
 
 
-async def run(duration: float, rate: float, window: int) -> None:
-    results: dict[str, dict[str, float]] = {}
-    for kind in ("relay", "ours"):
-        server = Server(kind)
-        try:
-            lat = await latency(server.url, kind == "ours", duration, rate)
-            lat["msgs_per_s"] = await flood(server.url, kind == "ours", duration, window)
-            results[kind] = lat
-        finally:
-            server.stop()
+async def run(duration: float, rate: float, window: int, rounds: int = 1) -> None:
+    """The relay and the server take turns `rounds` times, the order alternating, so that both see the same moments
+    of a shared machine: latencies pooled, the flood's median."""
+    samples: dict[str, list[float]] = {"relay": [], "ours": []}
+    floods: dict[str, list[float]] = {"relay": [], "ours": []}
+    cpus: dict[str, list[float]] = {"relay": [], "ours": []}
+    for r in range(rounds):
+        for kind in (("relay", "ours") if r % 2 == 0 else ("ours", "relay")):
+            server = Server(kind)
+            try:
+                samples[kind] += await latency(server.url, kind == "ours", duration, rate, samples=True)
+                rate_, cpu = await flood(server.url, kind == "ours", duration, window, server.proc.pid)
+                floods[kind].append(rate_)
+                cpus[kind].append(cpu)
+            finally:
+                server.stop()
+    results = {kind: {"p50_ms": float(np.percentile(samples[kind], 50)), "p99_ms": float(np.percentile(samples[kind], 99)),
+                      "max_ms": float(np.max(samples[kind])), "msgs_per_s": float(np.median(floods[kind])),
+                      "cpu_us": float(np.median(cpus[kind]))}
+               for kind in samples}
     ours, relay = results["ours"], results["relay"]
     print(f"# roundtrip: PoseStamped at {rate:g} Hz for {duration:g} s, then flooding with {window} in flight "
-          f"for {duration:g} s\n# machine: {machine()}")
+          f"for {duration:g} s; {rounds} round(s), taking turns\n# machine: {machine()}")
     print(f"{'figure':<22}{'vr-teleop':>12}{'bare relay':>12}{'ratio':>8}")
     for key, label in (("p50_ms", "latency p50 (ms)"), ("p99_ms", "latency p99 (ms)"), ("max_ms", "latency max (ms)"),
-                       ("msgs_per_s", "flood (msgs/s)")):
+                       ("msgs_per_s", "flood (msgs/s)"), ("cpu_us", "server CPU/msg (us)")):
         print(f"{label:<22}{ours[key]:>12.3f}{relay[key]:>12.3f}{ours[key] / relay[key]:>8.2f}")
+    if rounds > 1:
+        print("flood per round (msgs/s), ours / relay: "
+              + ", ".join(f"{o:.0f} / {b:.0f}" for o, b in zip(floods["ours"], floods["relay"])))
 
 
 def main() -> None:
@@ -150,9 +169,10 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="seconds per measurement (default 10)")
     parser.add_argument("--rate", type=float, default=90.0, help="pose rate in Hz (default 90)")
     parser.add_argument("--window", type=int, default=50, help="messages in flight when flooding (default 50)")
+    parser.add_argument("--rounds", type=int, default=1, help="turns each server takes, alternating (default 1)")
     parser.add_argument("--quick", action="store_true", help="2 s per measurement")
     args = parser.parse_args()
-    asyncio.run(run(2.0 if args.quick else args.duration, args.rate, args.window))
+    asyncio.run(run(2.0 if args.quick else args.duration, args.rate, args.window, args.rounds))
 
 
 if __name__ == "__main__":

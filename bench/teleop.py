@@ -249,7 +249,9 @@ async def wire_latency(ours_url: str, echo_url: str, duration: float) -> tuple[n
             seq += 1
             next_at += 1 / RATE
             await asyncio.sleep(max(0.0, next_at - loop.time()))
-        warm = int(RATE)  # the first second warms up (ramp, caches)
+        # the first second warms up (ramp, caches); on a machine so loaded that a short run got fewer ticks than
+        # that, its first half (rather than an empty sample and an IndexError)
+        warm = min(int(RATE), len(samples[True]) // 2)
         return np.array(samples[True][warm:]), np.array(samples[False][warm:])
 
 

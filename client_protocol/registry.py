@@ -11,6 +11,7 @@ import base64
 import binascii
 import re
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -290,7 +291,14 @@ class TypeRegistry:
         if f.type == "time" and owner == "std_msgs/Header":
             # rosbridge's rule: a header (or its stamp) left out is stamped with the current time
             return Field(default_factory=lambda: self._now())
-        return Field(default_factory=lambda: self._zero(owner, f.type))
+        return Field(default_factory=_Zero(lambda: self._zero(owner, f.type), not self._stamps_now(f.type)))
+
+    def _stamps_now(self, ftype: str) -> bool:
+        """Whether a zero `ftype` holds a header, whose stamp defaults to the time it is made."""
+        if ftype == "std_msgs/Header":
+            return True
+        spec = self._specs.get(ftype)
+        return spec is not None and any(self._stamps_now(f.type) for f in spec.fields)
 
     def _zero(self, owner: str, ftype: str) -> Any:
         if ftype in _INT_TYPES:
@@ -498,8 +506,33 @@ def _as_typed_dicts(node: Any) -> Any:
     out = {key: (_as_typed_dicts(value) if key != "cls" else value) for key, value in node.items()}
     if kind == "default" and "default_factory" in out:  # model defaults become their plain form
         factory = out["default_factory"]
-        out["default_factory"] = lambda factory=factory: _plain_default(factory())
+        if isinstance(factory, _Zero) and factory.constant:  # made once, copied for each message: a model built
+            plain = _plain_default(factory())  # and dumped per message was most of a command's validation
+            out["default_factory"] = lambda plain=plain: _copy_plain(plain)
+        else:
+            out["default_factory"] = lambda factory=factory: _plain_default(factory())
     return out
+
+
+class _Zero:
+    """A field's default factory that makes its type's zero; `constant`: the zero is the same whenever made (it
+    holds no header, whose stamp is the time of making), so the plain path makes its plain form once."""
+
+    def __init__(self, make: Callable[[], Any], constant: bool) -> None:
+        self.make = make
+        self.constant = constant
+
+    def __call__(self) -> Any:
+        return self.make()
+
+
+def _copy_plain(value: Any) -> Any:
+    """A copy of plain data (dicts, lists, scalars) that shares no mutable part with the original."""
+    if isinstance(value, dict):
+        return {key: _copy_plain(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_copy_plain(item) for item in value]
+    return value
 
 
 def _plain_default(value: Any) -> Any:

@@ -136,3 +136,34 @@ def test_a_message_that_cannot_be_encoded_is_dropped_and_the_stream_goes_on():
     frames, _ = h.outbox.take(now=0.0)
     assert [cbor2.loads(f)["msg"]["data"] for f in frames] == ["good"]
     assert h.outbox.counters["dropped"] == 1
+
+
+def test_a_frame_goes_to_the_socket_at_once_only_while_nothing_waits_and_the_socket_takes_it():
+    """The writer's direct path (Outbox.write_now): used while nothing is queued, so the order holds; a socket
+    that does not take the frame (backed up) leaves it queued as before; a throttled subscription always queues."""
+    h = Harness()
+    sub = h.subscription()
+    written: list = []
+    taking = [True]
+
+    def write_now(frame) -> bool:
+        if taking[0]:
+            written.append(frame)
+        return taking[0]
+
+    h.outbox.write_now = write_now
+    h.publish(sub, "a")
+    h.outbox.push('{"op":"status","level":"info","msg":"one"}')
+    assert datas(written[:1]) == ["a"] and written[1:] == ['{"op":"status","level":"info","msg":"one"}']
+    assert h.outbox.take(now=0.0) == ([], float("inf")) and h.wakes == 0
+    taking[0] = False  # backed up: queued, the writer woken
+    h.publish(sub, "b")
+    taking[0] = True  # taking again, but "b" waits: "c" must not overtake it
+    h.publish(sub, "c")
+    h.outbox.push('{"op":"status","level":"info","msg":"two"}')
+    frames, _ = h.outbox.take(now=0.0)
+    assert frames[0] == '{"op":"status","level":"info","msg":"two"}' and datas(frames[1:]) == ["b", "c"]
+    assert len(written) == 2 and h.wakes == 3
+    throttled = h.subscription(throttle_ms=100)
+    h.publish(throttled, "d")
+    assert len(written) == 2 and datas(h.outbox.take(now=0.0)[0]) == ["d"]

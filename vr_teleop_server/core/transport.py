@@ -20,6 +20,7 @@ from pathlib import Path
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
+from websockets.protocol import State
 from websockets.http11 import Request, Response
 
 from .access import AccessDenied, AccessPolicy, Login
@@ -138,6 +139,7 @@ class WebSocketTransport:
 
     @staticmethod
     async def _write(ws: ServerConnection, session: Session) -> None:
+        session.outbox.write_now = lambda frame: _write_now(ws, frame)
         try:
             while True:
                 frames = await session.next_frames()
@@ -150,6 +152,26 @@ class WebSocketTransport:
                     log.exception("%s: a frame could not be sent and was dropped", session.name)
         except ConnectionClosed:
             pass
+
+
+def _write_now(ws: ServerConnection, frame: str | bytes) -> bool:
+    """Writes one frame to the socket in the caller's turn of the loop, as websockets' broadcast does, when nothing
+    is waiting to go out (else False: the writer task sends it, with websockets' flow control)."""
+    if ws.protocol.state is not State.OPEN or ws.send_in_progress is not None \
+            or ws.transport.get_write_buffer_size():
+        return False
+    try:
+        if isinstance(frame, str):
+            ws.protocol.send_text(frame.encode("utf-8"))
+        else:
+            ws.protocol.send_binary(frame)
+    except Exception:  # not taken: the writer task sends it and reports what is wrong
+        return False
+    try:
+        ws.send_data()
+    except OSError:  # the connection is failing: its reader ends the session
+        pass
+    return True
 
 
 async def _send_batch(ws: ServerConnection, session: Session, frames: list[str | bytes]) -> None:
