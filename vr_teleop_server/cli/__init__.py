@@ -20,6 +20,7 @@ SUBCOMMANDS: dict[str, str] = {
     "replay": "vr_teleop_server.cli.replay",
     **dict.fromkeys(("qam", "sus", "tlx", "godspeed"), _QUESTIONNAIRES),
     "metrics": "vr_teleop_server.cli.metrics",
+    "export": "vr_teleop_server.cli.export",
     "study": "vr_teleop_server.cli.study",
     "cert": "vr_teleop_server.cli.cert",
 }
