@@ -87,7 +87,8 @@ def test_a_live_session_exports_as_a_video_and_tiers_aligned_to_it(servers, tmp_
 
     eaf = pympi.Elan.Eaf(str(tmp_path / "coded" / "session.eaf"))
     media = eaf.media_descriptors[0]
-    assert (media["MEDIA_URL"], media["MIME_TYPE"]) == ("session.mp4", "video/mp4")
+    assert (media["MEDIA_URL"], media["RELATIVE_MEDIA_URL"], media["MIME_TYPE"]) == (
+        "session.mp4", "./session.mp4", "video/mp4")
     assert set(eaf.get_tier_names()) == {"labels", "human actions", "robot actions", "proposals", "decisions",
                                          "pupils' speech", "teacher's speech", "autonomy level"}
     for tier in eaf.get_tier_names():

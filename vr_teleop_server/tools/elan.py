@@ -174,7 +174,8 @@ def _take(line: _Timeline, rec: Recorded, t: float) -> None:
 def _write_eaf(path: Path, line: _Timeline, zero: float, video: Path | None) -> dict[str, int]:
     eaf = pympi.Elan.Eaf(author="vr-teleop export elan")
     if video is not None:
-        eaf.add_linked_file(video.name, relpath=video.name, mimetype="video/mp4")
+        # ELAN resolves RELATIVE_MEDIA_URL against the .eaf's folder: the two move together
+        eaf.add_linked_file(video.name, relpath=f"./{video.name}", mimetype="video/mp4")
     counts = {}
     for tier in TIERS:
         eaf.add_tier(tier)
