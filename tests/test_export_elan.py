@@ -162,3 +162,46 @@ def test_a_missing_foreign_or_cut_off_file_is_refused_with_the_reason(tmp_path, 
     done = export(path, tmp_path / "coded")
     assert done.returncode == 2 and problem in done.stderr and str(path) in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_a_live_study_trial_exports_the_experimenters_labels(servers, tmp_path):
+    import asyncio
+
+    from vr_teleop_server.client.rosbridge import connect
+
+    folder = tmp_path / "study"
+    server = servers(backend="sim", study=ROOT / "examples" / "classroom.yaml", study_dir=folder,
+                     record_camera_fps=5.0, camera_fps=10, supervisor_token="sup-token-elan", bystander_interval=0.0)
+
+    async def main() -> str:
+        sup = await connect(f"{server.url}/?token=sup-token-elan")
+        added = await sup.call(names.STUDY_PARTICIPANT_ADD_SERVICE,
+                               {"consent": True, "consent_form": "classroom v1 2026-11", "group": ""})
+        await sup.call(names.STUDY_TRIAL_START_SERVICE, {"participant": added["participant"], "condition": "",
+                                                          "reason": ""})
+        camera = await sup.subscribe(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage")
+        for _ in range(10):  # frames, so that the recorder keeps some at its 5 fps before the labels
+            await camera.next()
+        await sup.call(names.STUDY_LABEL_START_SERVICE, {"action": "explain"})
+        for _ in range(10):
+            await camera.next()
+        await sup.call(names.STUDY_LABEL_STOP_SERVICE, {"action": "explain"})
+        await sup.call(names.STUDY_TRIAL_END_SERVICE, {"outcome": "completed", "note": ""})
+        await sup.close()
+        return f"{added['participant']}/{added['order'][0]}.mcap"
+
+    recording = folder / asyncio.run(main())
+    server.stop()
+    held = list(read_recording(recording))
+    frames = [m for m in held if m.topic == names.CAMERA_TOPIC]
+    # the label services mark the human's action in the trial: its start and stop updates, from the experimenter
+    labels = [m for m in held if m.topic == names.STUDY_STATE_UPDATES_TOPIC and m.data["source"] == "label"]
+    assert frames and [m.data["finished"] for m in labels] == [False, True]
+    done = export(recording, tmp_path / "coded")
+    assert done.returncode == 0, done.stderr
+    eaf = pympi.Elan.Eaf(str(tmp_path / "coded" / recording.with_suffix(".eaf").name))
+    zero = frames[0].time_ns
+    assert annotations(eaf, "labels") == [(ms(labels[0].time_ns, zero), ms(labels[1].time_ns, zero), "explain")]
+    assert (ms(labels[0].time_ns, zero), ms(labels[1].time_ns, zero), "explain") in annotations(eaf, "human actions")
+    levels = [v for _a, _b, v in annotations(eaf, "autonomy level")]
+    assert levels and levels[0] == recording.stem  # the classroom's condition is its autonomy level

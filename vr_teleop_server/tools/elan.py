@@ -123,21 +123,20 @@ def export_elan(path: Path, out: Path) -> Export:
 def _take(line: _Timeline, rec: Recorded, t: float) -> None:
     d = rec.data
     if rec.topic == names.STUDY_LABELS_TOPIC:
-        action = json.loads(d.get("detail") or "{}").get("action", "")
-        if d.get("kind") == EventKind.HUMAN_ACTION_START.value:
-            line.begin("labels", action, t, action)
-        elif d.get("kind") == EventKind.HUMAN_ACTION_STOP.value:
-            line.finish("labels", action, t)
-        else:
-            line.add("labels", t, t, f"{d.get('kind', 'label')} {action}".strip())
+        # the dashboard's label buttons: a start or stop becomes a state update from the trial (below); an
+        # intervention is a moment of its own
+        if d.get("kind") == EventKind.INTERVENTION.value:
+            action = json.loads(d.get("detail") or "{}").get("action", "")
+            line.add("labels", t, t, f"intervention {action}".strip())
     elif rec.topic == names.STUDY_STATE_UPDATES_TOPIC:
-        tier = "human actions" if d.get("agent") == "human" else "robot actions"
         key = f"{d.get('trial')}:{d.get('id')}"
-        if d.get("finished"):
-            line.begin(tier, key, t, d.get("action", ""))  # a start and stop in one update: a moment
-            line.finish(tier, key, t)
-        else:
+        tiers = ["human actions" if d.get("agent") == "human" else "robot actions"]
+        if d.get("source") == "label":  # marked by the experimenter (/study/label/* or the dashboard's keys)
+            tiers.append("labels")
+        for tier in tiers:
             line.begin(tier, key, t, d.get("action", ""))
+            if d.get("finished"):  # a start and stop in one update (/study/label/add) is a moment
+                line.finish(tier, key, t)
     elif rec.topic == names.AUTONOMY_PROPOSALS_TOPIC:
         line.begin("proposals", str(d.get("id")), t, f"{d.get('action')} ({d.get('reason', '')})")
     elif rec.topic == names.AUTONOMY_OUTCOMES_TOPIC:
