@@ -21,6 +21,7 @@ SUBCOMMANDS: dict[str, str] = {
     "replay": "vr_teleop_server.cli.replay",
     **dict.fromkeys(("qam", "sus", "tlx", "godspeed"), _QUESTIONNAIRES),
     "metrics": "vr_teleop_server.cli.metrics",
+    "export": "vr_teleop_server.cli.export",
     "study": "vr_teleop_server.cli.study",
     "cert": "vr_teleop_server.cli.cert",
     "examples": "vr_teleop_server.cli.examples",

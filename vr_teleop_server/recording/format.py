@@ -102,7 +102,7 @@ def read_recording(path: Path) -> Iterator[Recorded]:
         try:
             reader = make_reader(f)
             summary = reader.get_summary()
-        except (McapError, ValueError, EOFError, AssertionError):
+        except (McapError, ValueError, EOFError, AssertionError, OSError):  # OSError: too short to seek to a footer
             summary = None
         if summary is not None:
             f.seek(0)
