@@ -162,10 +162,10 @@ def _take(line: _Timeline, rec: Recorded, t: float) -> None:
         if current is None or current[1] != d["level"]:
             line.finish("autonomy level", "level", t)
             line.begin("autonomy level", "level", t, d["level"])
-    elif rec.topic == "/rosbridge/in" and d.get("op") == "call_service" \
+    elif rec.topic == names.RECORDING_IN_CHANNEL and d.get("op") == "call_service" \
             and d.get("service") == names.SPEECH_SAY_SERVICE:
         line.begin("teacher's speech", f"{rec.sender}:{d.get('id')}", t, str((d.get("args") or {}).get("message", "")))
-    elif rec.topic == "/rosbridge/out" and d.get("op") == "service_response" \
+    elif rec.topic == names.RECORDING_OUT_CHANNEL and d.get("op") == "service_response" \
             and d.get("service") == names.SPEECH_SAY_SERVICE:
         line.finish("teacher's speech", f"{rec.sender}:{d.get('id')}", t)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from client_protocol import names
 
-from ...recording.format import read_recording
+from ...recording.format import check_recording, read_recording
 
 from .model import Intervention, MetricsInputError, StateUpdate, TrialData
 
@@ -50,6 +50,10 @@ def read_trial_mcap(path: Path | str, trial: str | None = None) -> TrialData:
         raise MetricsInputError(path, f"cannot read the recording ({exc.strerror or exc})",
                                 "pass an MCAP file written by `vr-teleop serve --record` or `study run`") from None
     trials = sorted({k[0] for k in starts} | set(states))
+    if not trials and not check_recording(path).closed:
+        raise MetricsInputError(path, "cannot read the recording: it was cut off (never closed) before any study "
+                                "state update", "pass an MCAP file written by `vr-teleop serve --record` or `study "
+                                "run` and closed (Ctrl-C closes it)")
     if not trials:
         raise MetricsInputError(path, "the recording has no study state updates (/study/state_updates)",
                                 "record a trial with `vr-teleop study run` or `serve --record` while a study runs")
