@@ -229,7 +229,8 @@ class TeleopServer:
                   "motivation": motivation.message}
         menu = MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
                            status=lambda which: panels[which](), luxai=self.luxai, language=lambda: speaker.language,
-                           clips=clips.names)
+                           clips=clips.names,
+                           unavailable=lambda: set() if clips.directory is not None else {"record_clip"})
         speaker.language_checks.append(menu.check_language)  # a missing sentence list refuses the switch
         speaker.language_changed.append(menu.publish)
         clips.changed.append(menu.publish)

@@ -41,7 +41,7 @@ class MenuService:
     def __init__(self, bus: Bus, menus: list[LoadedMenu], *, gestures: Callable[[], list[str]],
                  emotions: tuple[str, ...], status: Callable[[str], dict[str, Any]],
                  luxai: Any | None, language: Callable[[], str] = lambda: REFERENCE_LANGUAGE,
-                 clips: Callable[[], list[str]] = list) -> None:
+                 clips: Callable[[], list[str]] = list, unavailable: Callable[[], set[str]] = set) -> None:
         self.bus = bus
         self.menus = menus
         self._gestures = gestures
@@ -50,6 +50,7 @@ class MenuService:
         self._luxai_api = luxai  # gesture recording (start_recording / save_recording / recording) and its news
         self._language = language  # the robot's language: the sentences are that language's list
         self._clips = clips
+        self._unavailable = unavailable  # commands this server cannot run (no clip library): their items are left out
         self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
         self._labels: dict[str, str] = {}
         self._arms_on = True
@@ -94,11 +95,14 @@ class MenuService:
         items: list[dict[str, Any]] = []
         table: dict[str, tuple[str, dict[str, Any]]] = {}
         labels: dict[str, str] = {}
+        unavailable = self._unavailable()
         for menu in self.menus:
             for parent, position, item in walk(menu.items, menu.info.id):
                 generated = self._generated(item, menu) if item.generate else []
                 if item.generate and not generated:
                     continue  # an empty list (no clips yet) is left out: a menu item leads somewhere
+                if item.command in unavailable:
+                    continue  # nor is an item that could only be refused
                 items.append({"id": item.id, "menu": menu.info.id, "parent": parent, "label": item.label,
                               "slot": item.slot, "position": position, "icon": item.icon,
                               "command": item.command or "", "args": json.dumps(item.args) if item.command else ""})

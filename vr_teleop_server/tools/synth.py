@@ -169,7 +169,7 @@ def menu_item_ids(menu_dir: Path | None = None) -> list[str]:
     bus = Bus(TypeRegistry())
     gestures = GestureLibrary([packaged_gesture_dir()], model).names
     MenuService(bus, menus, gestures=gestures, emotions=model.emotions, status=lambda _which: {},
-                luxai=None).start()
+                luxai=None, unavailable=lambda: {"record_clip"}).start()  # a `serve` without --clips, as replayed
     got: list[Any] = []
     bus.subscribe(SERVER_NODE, names.MENUS_TOPIC, None, lambda published: got.append(published.data))
     ids = [item["id"] for item in got[-1]["items"] if item["command"]]
