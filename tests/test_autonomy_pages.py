@@ -221,7 +221,9 @@ def test_the_attention_target_is_drawn_and_the_status_menu_switches_the_level(br
             assert place["box"] == pytest.approx({"u": f["x"] / size["width"], "v": f["y"] / size["height"],
                                                   "w": f["width"] / size["width"], "h": f["height"] / size["height"]})
         page.wait_for_function(DRAWN, timeout=SLOW)
-        assert page.text_content("#hud-autonomy").startswith("autonomy: supervised · looking at")
+        # the HUD says so too (the target may have moved on since the snapshot: wait for the line, not a moment)
+        page.wait_for_function("document.getElementById('hud-autonomy').textContent"
+                               ".startsWith('autonomy: supervised · looking at')", timeout=SLOW)
 
         # the drawing itself: a ring where a direction falls, an arrow at the edge for one outside the picture
         rings = page.evaluate("""async () => {

@@ -94,7 +94,9 @@ console.log(JSON.stringify(out));
 # ---- the stand-in ------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def standin(module_servers) -> RunningServer:
-    return module_servers(backend="sim", bystander_interval=0)
+    # the tests put the head and expect it to stay while they watch frames: a client that wants that asks for it by
+    # name (at the default level, attention takes the head back once a client's grace has passed)
+    return module_servers(backend="sim", bystander_interval=0, autonomy="teleoperated")
 
 
 @pytest.fixture
