@@ -87,6 +87,20 @@ MESSAGES: dict[str, str] = {
         "Header header\nfloat32 cpu_percent\nfloat32 memory_percent\nfloat32 memory_used_mb\n"
         "bool has_temperature\nfloat32 temperature_c\nfloat32 load_1min"
     ),
+    "vr_teleop_msgs/RobotHardwareStatus": (
+        "# The robot's own hardware as its backend reports it (Robot.hardware_report). backend: sim, ros or luxai;\n"
+        "# source: measured (a real robot) or modelled (the stand-in). A figure is meaningful only where its has_\n"
+        "# flag is set; missing names each figure the backend cannot give (motor_temperature, motor_voltage,\n"
+        "# battery, cpu, memory, temperature: the robot's own computer) and missing_reason says why, in the same\n"
+        "# order: interface (the robot's interface gives no way to read it), no_reading (nothing read yet),\n"
+        "# not_modelled (the stand-in does not simulate it)\n"
+        "Header header\nstring backend\nstring source\nbool connected\nuint32 motors\n"
+        "bool has_motor_temperature\nstring hottest_motor\nfloat32 motor_temperature_c\n"
+        "bool has_motor_voltage\nfloat32 motor_voltage_min_v\nuint32 motor_faults\n"
+        "bool has_battery\nfloat32 battery_percent\nbool has_cpu\nfloat32 cpu_percent\n"
+        "bool has_memory\nfloat32 memory_percent\nbool has_temperature\nfloat32 temperature_c\n"
+        "string[] missing\nstring[] missing_reason"
+    ),
     "vr_teleop_msgs/MotorsStatus": (
         "# One entry per motor, once each. position_normalized: 0 at the joint's lower limit, 1 at its upper.\n"
         "# mode: on, off or brake. fault: what the motor reports wrong (QTrobot v3: overload_limit, voltage_limit,\n"

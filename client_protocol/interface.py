@@ -155,9 +155,20 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "Save the recording (stopping it) as a LuxAI gesture file named name in the server's gesture "
              "directory; path must be empty.", example={"name": "my_wave", "path": ""}),
     Endpoint(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", "subscribe",
-             "The server machine's CPU, memory and temperature.", "2 Hz",
+             "The server machine's CPU, memory and temperature (the robot's own: robot_hardware).", "2 Hz",
              {"header": _stamp(), "cpu_percent": 23.5, "memory_percent": 41.0, "memory_used_mb": 3300.0,
               "has_temperature": True, "temperature_c": 52.0, "load_1min": 0.8}),
+    Endpoint(names.ROBOT_HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/RobotHardwareStatus", "subscribe",
+             "The robot's own hardware as its backend reports it: the hottest motor, the lowest motor voltage, "
+             "faults, and the robot's battery and computer where its interface gives them; each figure it cannot "
+             "give is named in missing, with why.", "2 Hz",
+             {"header": _stamp(), "backend": "ros", "source": "measured", "connected": True, "motors": 8,
+              "has_motor_temperature": True, "hottest_motor": "RightShoulderPitch", "motor_temperature_c": 41.0,
+              "has_motor_voltage": True, "motor_voltage_min_v": 11.9, "motor_faults": 0, "has_battery": False,
+              "battery_percent": 0.0, "has_cpu": False, "cpu_percent": 0.0, "has_memory": False,
+              "memory_percent": 0.0, "has_temperature": False, "temperature_c": 0.0,
+              "missing": ["battery", "cpu", "memory", "temperature"],
+              "missing_reason": ["interface", "interface", "interface", "interface"]}),
     Endpoint(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", "subscribe",
              "Each motor once: position, position within its range (0..1), temperature, voltage, mode.", "2 Hz",
              {"header": _stamp(), "name": ["HeadYaw"], "position": [30.0], "position_normalized": [0.75],

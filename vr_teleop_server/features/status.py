@@ -1,6 +1,7 @@
 """The status panels of the status menu, published at 2 Hz as typed messages on /vr_teleop/status/*.
 
 hardware: the server machine's CPU, memory and (where the kernel reports one) temperature, via psutil.
+robot_hardware: the robot's own, as its backend reports it (Robot.hardware_report): what it cannot read is named.
 motors: each motor once, with its position normalised to its own joint range, temperature, voltage and mode.
 dialog: the newest vr_teleop_msgs/DialogState a dialog system published on /vr_teleop/dialog/update.
 motivation: published by the motivation variables themselves (motivation.py).
@@ -19,7 +20,7 @@ from client_protocol import names
 
 from ..core.bus import SERVER_NODE, Bus, Published
 from ..core.tasks import cancel_and_wait
-from ..robot.interface import MotorMode, Robot
+from ..robot.interface import HardwareReport, MotorMode, Robot
 
 RATE_HZ = 2.0
 MODE_NAMES = {MotorMode.ON: "on", MotorMode.OFF: "off", MotorMode.BRAKE: "brake"}
@@ -49,6 +50,7 @@ class StatusPublisher:
         bus = self.bus
         bus.declare_topic(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", persistent=True)
         bus.declare_topic(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", persistent=True)
+        bus.declare_topic(names.ROBOT_HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/RobotHardwareStatus", persistent=True)
         bus.declare_topic(names.DIALOG_STATUS_TOPIC, "vr_teleop_msgs/DialogState", persistent=True)
         bus.declare_topic(names.DIALOG_UPDATE_TOPIC, "vr_teleop_msgs/DialogState", persistent=True)
         bus.subscribe(SERVER_NODE, names.DIALOG_UPDATE_TOPIC, None, self._on_dialog)
@@ -71,6 +73,7 @@ class StatusPublisher:
 
     def publish_all(self) -> None:
         self.bus.publish(names.HARDWARE_STATUS_TOPIC, self.hardware())
+        self.bus.publish(names.ROBOT_HARDWARE_STATUS_TOPIC, self.robot_hardware())
         self.bus.publish(names.MOTORS_STATUS_TOPIC, self.motors())
         self.bus.publish(names.DIALOG_STATUS_TOPIC, self.dialog())
 
@@ -84,6 +87,20 @@ class StatusPublisher:
                 "memory_percent": memory.percent, "memory_used_mb": (memory.total - memory.available) / 2**20,
                 "has_temperature": temperature is not None, "temperature_c": temperature or 0.0,
                 "load_1min": os.getloadavg()[0]}
+
+    def robot_hardware(self) -> dict[str, Any]:
+        r: HardwareReport = self.robot.hardware_report()
+        figures = {"motor_temperature": r.motor_temperature_c, "motor_voltage": r.motor_voltage_min_v,
+                   "battery": r.battery_percent, "cpu": r.cpu_percent, "memory": r.memory_percent,
+                   "temperature": r.temperature_c}
+        return {"header": self._header(), "backend": self.robot.backend, "source": r.source,
+                "connected": r.connected, "motors": r.motors, "hottest_motor": r.hottest_motor,
+                "motor_temperature_c": r.motor_temperature_c or 0.0, "motor_voltage_min_v": r.motor_voltage_min_v or 0.0,
+                "motor_faults": r.motor_faults, "battery_percent": r.battery_percent or 0.0,
+                "cpu_percent": r.cpu_percent or 0.0, "memory_percent": r.memory_percent or 0.0,
+                "temperature_c": r.temperature_c or 0.0,
+                **{f"has_{name}": value is not None for name, value in figures.items()},
+                "missing": list(r.missing), "missing_reason": list(r.missing.values())}
 
     def motors(self) -> dict[str, Any]:
         model = self.robot.model

@@ -20,7 +20,7 @@ import logging
 import math
 import threading
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -141,6 +141,53 @@ class MotorStatus:
     mode: MotorMode
     source: str  # "measured" (a real robot) or "modelled" (the stand-in's thermal model)
     fault: str = ""  # what the motor reports wrong (comma-separated), "" when nothing (or the backend cannot tell)
+
+
+# Why a HardwareReport has no figure for something (its `missing` values)
+NO_INTERFACE = "interface"       # the robot's interface gives no way to read it
+NO_READING = "no_reading"        # it can be read, but nothing has come yet (or the robot was lost before)
+NOT_MODELLED = "not_modelled"    # the stand-in does not simulate it
+
+
+@dataclass(frozen=True)
+class HardwareReport:
+    """The robot's own hardware as its backend reads it (/vr_teleop/status/robot_hardware). A figure is None where
+    the backend cannot give it, and `missing` names each such figure with why (NO_INTERFACE, NO_READING,
+    NOT_MODELLED), so that a panel says so rather than showing a zero."""
+
+    source: str  # "measured" (a real robot) or "modelled" (the stand-in)
+    connected: bool
+    motors: int  # motors that report a temperature
+    hottest_motor: str  # "" when none reports one
+    motor_temperature_c: float | None  # the hottest motor's
+    motor_voltage_min_v: float | None  # the lowest supply voltage a motor reports
+    motor_faults: int  # motors that report a fault now
+    battery_percent: float | None = None
+    cpu_percent: float | None = None  # the robot's own computer
+    memory_percent: float | None = None
+    temperature_c: float | None = None
+    missing: Mapping[str, str] = field(default_factory=dict)  # figure -> why it is None
+
+
+def motors_report(motors: Sequence[MotorStatus], connected: bool, unread: str) -> HardwareReport:
+    """A report from the motors' own readings; the robot's battery and computer, which `unread` says why this
+    backend cannot read, are missing. A motor figure no motor gives is missing: never read (NO_READING) on a
+    measured robot, not simulated (NOT_MODELLED) on the stand-in."""
+    modelled = any(m.source == "modelled" for m in motors)
+    no_motor = NOT_MODELLED if modelled else NO_READING
+    hot = [m for m in motors if m.temperature_c is not None]
+    hottest = max(hot, key=lambda m: m.temperature_c) if hot else None  # type: ignore[arg-type,return-value]
+    volts = [m.voltage_v for m in motors if m.voltage_v is not None]
+    missing = {figure: unread for figure in ("battery", "cpu", "memory", "temperature")}
+    if hottest is None:
+        missing["motor_temperature"] = no_motor
+    if not volts:
+        missing["motor_voltage"] = no_motor
+    return HardwareReport(source="modelled" if modelled else "measured", connected=connected, motors=len(hot),
+                          hottest_motor=hottest.name if hottest else "",
+                          motor_temperature_c=hottest.temperature_c if hottest else None,
+                          motor_voltage_min_v=min(volts) if volts else None,
+                          motor_faults=sum(1 for m in motors if m.fault), missing=missing)
 
 
 class FrameMailbox:
@@ -338,6 +385,8 @@ class Robot(abc.ABC):
     hear what open() finds (an event such as camera_unavailable).
     """
 
+    backend: str = ""  # its name in robot.backends.BACKENDS
+
     def __init__(self) -> None:
         self._voice_listeners = Listeners("voice activity")
         self._connection_listeners = Listeners("connection")
@@ -401,6 +450,13 @@ class Robot(abc.ABC):
     @abc.abstractmethod
     def motor_status(self) -> tuple[MotorStatus, ...]:
         """Per motor position, temperature, voltage and mode (canonical order)."""
+
+    def hardware_report(self) -> HardwareReport:
+        """The robot's own hardware: what its motors report (motor_status), and, named missing, its battery and
+        computer. Neither LuxAI interface gives those (the ROS 1 API has no such topic or service; the v3 SDK's
+        describes the robot's type but not its state), so NO_INTERFACE is the default; a backend that reads them
+        fills them."""
+        return motors_report(self.motor_status(), self.connected, NO_INTERFACE)
 
     # ---------------------------------------------------------------------------------- face, speech, gestures
     @abc.abstractmethod

@@ -170,8 +170,6 @@ class RobotLink(Robot):
     """A real robot behind a link that can be lost. Construction does no I/O; open() (or connect(), blocking)
     reaches the robot, close() lets it go."""
 
-    backend: str = ""  # its name in robot.backends.BACKENDS
-
     def __init__(self, url: str, model: RobotModel) -> None:
         super().__init__()
         self.url = url

@@ -8,7 +8,8 @@ import {CODEC_NAMES, IceErrors, RenderTimes, ServerClock, cameraMode, chooseVide
         webRtcMissing} from "./webrtc.js";
 import {AutonomyModel, attentionInImage, attentionText, outcomeText} from "./autonomy.js";
 import {language, t, translateMenus, translatePage} from "./i18n.js";
-import {Trends, drawMotivation, drawMotors, motivationStep} from "./status_panels.js";
+import {Trends, dialogChoices, drawDialog, drawHardware, drawMotivation, drawMotors, motivationStep}
+  from "./status_panels.js";
 
 const $ = (id) => document.getElementById(id);
 const el = (tag, props = {}, ...children) => {
@@ -216,6 +217,8 @@ ros.subscribe(names.CLAMP_TOPIC, "vr_teleop_msgs/Clamp", (c) => {
 
 // ---- status and motivation ------------------------------------------------------------------------------------------
 ros.subscribe(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", (h) => {
+  panels.hardware = h;
+  drawHardware($("hardware-panel"), panels.robotHardware, h, t, "");
   const rows = [["CPU", `${h.cpu_percent.toFixed(0)} %`], ["memory", `${h.memory_percent.toFixed(0)} %`],
                 ["load", h.load_1min.toFixed(2)]];
   if (h.has_temperature) rows.push(["temperature", `${h.temperature_c.toFixed(0)} °C`]);
@@ -224,7 +227,12 @@ ros.subscribe(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", (h) 
 // The headset's status panels (status_panels.js), both shown, live at their topics' rate; the motivation
 // variables raised and lowered by a tenth of their range with the buttons under the panel (a supervisor's right).
 const trends = new Trends();
-const panels = {motors: null, motivation: null};
+const panels = {motors: null, motivation: null, robotHardware: null, hardware: null,
+                dialog: {choices: {sentences: [], faces: []}, choice: {sentence: 0, face: 0}, result: null}};
+ros.subscribe(names.ROBOT_HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/RobotHardwareStatus", (m) => {
+  panels.robotHardware = m;
+  drawHardware($("hardware-panel"), m, panels.hardware, t, "");
+});
 ros.subscribe(names.MOTORS_STATUS_TOPIC, "vr_teleop_msgs/MotorsStatus", (m) => {
   panels.motors = m;
   drawMotors($("motors-panel"), m, clamped, t, "");
@@ -248,6 +256,45 @@ ros.subscribe(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", (m) =>
       }})),
   ]));
 });
+// The dialog panel: a sentence and a face chosen in the two lists under it, said and shown together by the button
+// (the speech and emotion menus' own items, as the headset's panel runs them).
+function drawDialogPanel() {
+  const d = panels.dialog;
+  drawDialog($("dialog-panel"), d.choices, d.choice, d.result, t, "");
+}
+function fillDialogControls(choices) {
+  panels.dialog.choices = choices;
+  const old = panels.dialog.choice, keep = (list, i) => Math.min(i, Math.max(0, list.length - 1));
+  panels.dialog.choice = {sentence: keep(choices.sentences, old.sentence), face: keep(choices.faces, old.face)};
+  for (const [id, list, key] of [["dialog-sentence", choices.sentences, "sentence"],
+                                 ["dialog-face", choices.faces, "face"]]) {
+    $(id).replaceChildren(...list.map((c, i) => el("option", {value: String(i), textContent: c.label})));
+    $(id).value = String(panels.dialog.choice[key]);
+  }
+  drawDialogPanel();
+}
+for (const [id, key] of [["dialog-sentence", "sentence"], ["dialog-face", "face"]]) {
+  $(id).onchange = (event) => {
+    panels.dialog.choice = {...panels.dialog.choice, [key]: Number(event.target.value)};
+    drawDialogPanel();
+  };
+}
+$("dialog-say").onclick = async () => {
+  const {choices, choice} = panels.dialog;
+  const sentence = choices.sentences[choice.sentence], face = choices.faces[choice.face];
+  if (!sentence || !face) return;
+  panels.dialog.result = {text: t("panel.dialog_sent", {face: face.label}), level: "ok"};
+  drawDialogPanel();
+  const results = await Promise.allSettled([face, sentence].map((item) =>
+    ros.call(names.MENU_SELECT_SERVICE, {id: item.id, args: ""})
+      .then((r) => logLine($("events"), `${item.id}: ${r.message}`))));
+  const refused = results.find((r) => r.status === "rejected");
+  if (refused) {
+    panels.dialog.result = {text: t("panel.dialog_failed", {reason: refused.reason.message}), level: "error"};
+    logLine($("events"), refused.reason.message, "error");
+    drawDialogPanel();
+  }
+};
 Object.assign(window.dashboard, {panels});
 ros.subscribe(names.EVENT_TOPIC, "vr_teleop_msgs/Event", (e) => {
   logLine($("events"), `${e.source}: ${e.kind}${e.detail ? " " + e.detail : ""}`, e.level);
@@ -266,6 +313,7 @@ function canonicalArgs(args) {
 }
 ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (message) => {
   const m = translateMenus(message);  // the labels in the page's language (i18n.js)
+  fillDialogControls(dialogChoices(m.items));
   const byParent = new Map();
   for (const item of m.items) {
     if (!byParent.has(item.parent)) byParent.set(item.parent, []);

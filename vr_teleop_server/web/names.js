@@ -41,6 +41,7 @@ export const MENU_SELECT_SERVICE = "/vr_teleop/menu/select";
 export const MENU_SELECTION_TOPIC = "/vr_teleop/menu/selection";
 export const HARDWARE_STATUS_TOPIC = "/vr_teleop/status/hardware";
 export const MOTORS_STATUS_TOPIC = "/vr_teleop/status/motors";
+export const ROBOT_HARDWARE_STATUS_TOPIC = "/vr_teleop/status/robot_hardware";
 export const DIALOG_STATUS_TOPIC = "/vr_teleop/status/dialog";
 export const DIALOG_UPDATE_TOPIC = "/vr_teleop/dialog/update";
 export const MOTIVATION_STATUS_TOPIC = "/vr_teleop/status/motivation";

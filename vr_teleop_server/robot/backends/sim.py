@@ -21,12 +21,15 @@ from ..interface import (
     FrameMailbox,
     Gesture,
     GestureResult,
+    HardwareReport,
     JointState,
     MotorMode,
     MotorStatus,
+    NOT_MODELLED,
     Robot,
     SpeechResult,
     clamp_command,
+    motors_report,
     pcm_level,
     stopped_within,
     stream_waypoints,
@@ -43,6 +46,8 @@ class SimRobot(Robot):
     from asyncio, use `await SimRobot.create(...)`. Its time is the stand-in's clock (`clock=`, default the wall
     clock; a simulated one must be the running loop's, see simclock).
     """
+
+    backend = "sim"
 
     def __init__(self, model: RobotModel | None = None, *, standin: StandIn | None = None,
                  words_per_minute: float = 150.0, **standin_options: Any) -> None:
@@ -108,6 +113,11 @@ class SimRobot(Robot):
                         mode=MotorMode(int(m)), source="modelled")
             for n, p, m in zip(s.names, s.positions, s.modes)
         )
+
+    def hardware_report(self) -> HardwareReport:
+        """The stand-in's simulated hardware: its motors' modelled temperatures (sim/thermal.py); it simulates no
+        supply voltage, battery or computer of the robot's, and says so."""
+        return motors_report(self.motor_status(), self.connected, NOT_MODELLED)
 
     # ---------------------------------------------------------------------------------- face, speech, gestures
     def show_emotion(self, name: str) -> None:

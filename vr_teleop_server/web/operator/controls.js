@@ -18,7 +18,8 @@ const FLICK = 0.8, CENTRED = 0.3;    // a thumbstick pushed sideways past FLICK 
 const LETTERS = {left: ["X", "Y"], right: ["A", "B"]};
 
 export class ControllerActions {
-  /** actions: {menuButton(hand, letter), menuOpen(), select(), toggleControl(), talk(on), calibrate(), estop(),
+  /** actions: {menuButton(hand, letter), menuOpen(), select(), panelPick() (true: an open panel took the right
+   * trigger), toggleControl(), talk(on), calibrate(), estop(),
    * stick(x, yUp, now), decide("accept" | "reject"), proposalPending()} */
   constructor(actions) {
     this.actions = actions;
@@ -47,6 +48,7 @@ export class ControllerActions {
     this.trigger[hand] = down;
     if (down && !wasDown) {
       if (this.actions.menuOpen()) this.actions.select();
+      else if (hand === "right" && this.actions.panelPick?.()) { /* an open panel's pick (the dialog's) */ }
       else if (hand === "right") this.actions.toggleControl();
       else { this.talking = true; this.actions.talk(true); }
     } else if (!down && wasDown && hand === "left" && this.talking) {

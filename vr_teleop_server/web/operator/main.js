@@ -17,7 +17,8 @@ import {HAND_MENU_ID, HandActions, handRays, inputKind, rayPointer, readHand, wi
 import {OperatorAutonomy} from "./autonomy.js";
 import {Comfort, COMMAND as COMFORT_COMMAND, optionFromAddress} from "./comfort.js";
 import {t, translateMenus, translatePage} from "../i18n.js";
-import {PANELS, PANEL_SIZE, Trends, drawMotivation, drawMotors, motivationBar, motivationStep, motorBar}
+import {PANELS, PANEL_SIZE, Trends, dialogChoices, dialogFace, dialogRow, drawDialog, drawHardware, drawMotivation,
+        drawMotors, hardwareRow, hardwareRows, motivationBar, motivationStep, motorBar, moveDialog}
   from "../status_panels.js";
 
 const TOPICS = {
@@ -66,9 +67,13 @@ const state = {
   lastClamped: new Set(),
   motorFaults: {},                     // motor -> what it reports wrong (a real robot's joints error stream)
   voice: null,                         // {activity, direction_deg} while the robot's microphone hears a voice
-  statusPanel: null,                   // the status panel open over the reduced view: "motors", "motivation"
+  statusPanel: null,                   // the status panel open over the reduced view: one of PANELS
   motors: null, motivation: null,      // the newest /vr_teleop/status/motors and /vr_teleop/status/motivation
+  robotHardware: null, hardware: null, // the newest /vr_teleop/status/robot_hardware and /vr_teleop/status/hardware
   panelRow: 0,                         // the motivation variable the controls act on
+  dialogChoices: {sentences: [], faces: []},  // what the dialog panel offers (from the menus)
+  dialog: {sentence: 0, face: 0},      // the dialog panel's chosen sentence and face
+  dialogResult: null,                  // what became of its last pick: {text, level}
 };
 
 // ---- the scene ----------------------------------------------------------------------------------------------------
@@ -317,6 +322,14 @@ ros.subscribe(names.MOTIVATION_STATUS_TOPIC, "vr_teleop_msgs/Motivation", (m) =>
   trends.add(m, performance.now());
   if (state.statusPanel === "motivation") statusDirty = true;
 });
+ros.subscribe(names.ROBOT_HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/RobotHardwareStatus", (m) => {
+  state.robotHardware = m;
+  if (state.statusPanel === "hardware") statusDirty = true;
+});
+ros.subscribe(names.HARDWARE_STATUS_TOPIC, "vr_teleop_msgs/HardwareStatus", (m) => {
+  state.hardware = m;
+  if (state.statusPanel === "hardware") statusDirty = true;
+});
 
 function showPanel(which) {
   state.statusPanel = state.statusPanel === which ? null : which;  // picking the item again closes it
@@ -330,6 +343,11 @@ function drawStatus() {
     drawMotors(statusCanvas, state.motors, state.lastClamped, t, t("panel.close_hint"));
   } else if (state.statusPanel === "motivation") {
     drawMotivation(statusCanvas, state.motivation, trends, state.panelRow, t, t("panel.motivation_hint"));
+  } else if (state.statusPanel === "hardware") {
+    drawHardware(statusCanvas, state.robotHardware, state.hardware, t, t("panel.close_hint"));
+  } else if (state.statusPanel === "dialog") {
+    drawDialog(statusCanvas, state.dialogChoices, state.dialog, state.dialogResult, t,
+               state.xr ? t("panel.dialog_hint") : t("panel.dialog_keys_hint"));
   }
   statusTexture.needsUpdate = true;
 }
@@ -363,12 +381,56 @@ async function changeMotivation(sign) {
   }
 }
 
+// The dialog panel's controls (the paper's dialog window): the left stick (or the arrow keys) up and down chooses a
+// sentence, left and right a face, once per push; the right trigger, A (or Enter) has the robot say the sentence
+// with that face: the speech and emotion menus' own items, both at once, through /vr_teleop/menu/select.
+let dialogStickOut = false;
+function dialogStick(x, y) {
+  if (Math.hypot(x, y) < 0.3) { dialogStickOut = false; return; }
+  if (dialogStickOut || Math.hypot(x, y) < 0.8) return;
+  dialogStickOut = true;
+  if (Math.abs(y) > Math.abs(x)) moveInDialog(0, y > 0 ? -1 : 1);
+  else moveInDialog(x > 0 ? 1 : -1, 0);
+}
+
+function moveInDialog(dx, dy) {
+  state.dialog = moveDialog(state.dialog, state.dialogChoices, dx, dy);
+  statusDirty = true;
+}
+
+async function pickDialog() {
+  const {sentences, faces} = state.dialogChoices;
+  const sentence = sentences[state.dialog.sentence], face = faces[state.dialog.face];
+  if (!sentence || !face) return;
+  state.dialogResult = {text: t("panel.dialog_sent", {face: face.label}), level: "ok"};
+  statusDirty = true;
+  const results = await Promise.allSettled([face, sentence].map((item) =>
+    ros.call(SERVICES.select, {id: item.id, args: ""})));
+  const refused = results.find((r) => r.status === "rejected");
+  if (refused) {
+    state.dialogResult = {text: t("panel.dialog_failed", {reason: refused.reason.message}), level: "error"};
+    say(refused.reason.message, "error");
+    statusDirty = true;
+  }
+}
+
+/** The open panel's pick (the right trigger, A, Enter): true when a panel took it. */
+function panelPick() {
+  if (nav.open || state.statusPanel !== "dialog") return false;
+  pickDialog();
+  return true;
+}
+
 // ---- menus ----------------------------------------------------------------------------------------------------------
 const nav = new MenuNavigator();
 let menuDirty = true;
 ros.subscribe(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", (msg) => {
   try {
-    nav.setTree(withHandMenu(parseMenus(translateMenus(msg))));  // hands open the menus from a ring of them (hands.js)
+    const translated = translateMenus(msg);
+    nav.setTree(withHandMenu(parseMenus(translated)));  // hands open the menus from a ring of them (hands.js)
+    state.dialogChoices = dialogChoices(translated.items);  // the robot's language may have changed the sentences
+    state.dialog = moveDialog(state.dialog, state.dialogChoices, 0, 0);
+    if (state.statusPanel === "dialog") statusDirty = true;
     state.menusProblem = null;
   } catch (err) {
     if (!(err instanceof MenuError)) console.error(err);
@@ -396,6 +458,7 @@ function pressMenuButton(hand, letter) {
     showPanel(state.statusPanel);
     return;
   }
+  if (letter === "A" && panelPick()) return;  // A picks in the dialog panel
   const menu = nav.menuFor(hand, letter);
   if (!menu) {
     if (!nav.tree) say("the menus have not arrived from the server yet", "warning");
@@ -532,12 +595,14 @@ function pointInMenu(x, y, now) {
 }
 
 const actions = {
-  menuButton: pressMenuButton, menuOpen: () => nav.open, select: selectInMenu, toggleControl, calibrate, estop,
+  menuButton: pressMenuButton, menuOpen: () => nav.open, select: selectInMenu, panelPick, toggleControl, calibrate,
+  estop,
   talk, decide: (decision) => autonomy.decide(decision), proposalPending: () => autonomy.pending,
   stick: (hand, x, y, now) => {
     const menu = nav.menu;
     if (menu && (menu.controller === hand || menu.controller === "any")) pointInMenu(x, y, now);
     else if (!nav.open && state.statusPanel === "motivation" && hand === "left") panelStick(x, y);
+    else if (!nav.open && state.statusPanel === "dialog" && hand === "left") dialogStick(x, y);
   },
   // the hands' own (hands.js): the menus' ring, back one level, the ray as thumbstick, their Joy
   openMenus: () => { nav.press(HAND_MENU_ID); state.footer = null; menuDirty = true; },
@@ -910,6 +975,11 @@ window.addEventListener("keydown", (e) => {
     if (e.key === "ArrowUp" || e.key === "ArrowDown") panelMove(e.key === "ArrowUp" ? -1 : 1);
     else changeMotivation(e.key === "ArrowRight" ? 1 : -1);
   }
+  else if (ARROWS[e.key] && state.statusPanel === "dialog") {
+    if (e.key === "ArrowUp" || e.key === "ArrowDown") moveInDialog(0, e.key === "ArrowUp" ? -1 : 1);
+    else moveInDialog(e.key === "ArrowRight" ? 1 : -1, 0);
+  }
+  else if (e.key === "Enter" && !e.repeat && panelPick()) { /* the dialog panel's pick */ }
   else if (e.key === "Tab" && nav.open) { nav.step(e.shiftKey ? -1 : 1); menuDirty = true; }
   else if (e.key === "Enter" && nav.open) selectInMenu();
   else if (e.key === "Backspace" && nav.open) { nav.back(); menuDirty = true; }
@@ -952,6 +1022,7 @@ window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
   hands: handActions, comfort,
   readPixels: (at = null, size = 64) => new Promise((resolve) => pixelRequests.push({resolve, at, size})),
-  statusCanvas, statusPoint, statusPanels: {motorBar, motivationBar},
+  statusCanvas, statusPoint, statusPanels: {motorBar, motivationBar, hardwareRow, dialogRow, dialogFace,
+                                            hardwareRows: () => hardwareRows(state.robotHardware, state.hardware, t)},
 };
 window.operator.panel = panelAnchor;  // the camera panel's anchor: its rotation is where the panel hangs
