@@ -20,7 +20,7 @@ from client_protocol import names
 
 from ..core.bus import SERVER_NODE, Bus, Published
 from ..core.tasks import cancel_and_wait
-from ..robot.interface import HardwareReport, MotorMode, Robot
+from ..robot.interface import MotorMode, Robot
 
 RATE_HZ = 2.0
 MODE_NAMES = {MotorMode.ON: "on", MotorMode.OFF: "off", MotorMode.BRAKE: "brake"}
@@ -89,14 +89,14 @@ class StatusPublisher:
                 "load_1min": os.getloadavg()[0]}
 
     def robot_hardware(self) -> dict[str, Any]:
-        r: HardwareReport = self.robot.hardware_report()
+        r = self.robot.hardware_report()
         figures = {"motor_temperature": r.motor_temperature_c, "motor_voltage": r.motor_voltage_min_v,
                    "battery": r.battery_percent, "cpu": r.cpu_percent, "memory": r.memory_percent,
                    "temperature": r.temperature_c}
         return {"header": self._header(), "backend": self.robot.backend, "source": r.source,
                 "connected": r.connected, "motors": r.motors, "hottest_motor": r.hottest_motor,
-                "motor_temperature_c": r.motor_temperature_c or 0.0, "motor_voltage_min_v": r.motor_voltage_min_v or 0.0,
-                "motor_faults": r.motor_faults, "battery_percent": r.battery_percent or 0.0,
+                "motor_temperature_c": r.motor_temperature_c or 0.0,
+                "motor_voltage_min_v": r.motor_voltage_min_v or 0.0, "motor_faults": r.motor_faults, "battery_percent": r.battery_percent or 0.0,
                 "cpu_percent": r.cpu_percent or 0.0, "memory_percent": r.memory_percent or 0.0,
                 "temperature_c": r.temperature_c or 0.0,
                 **{f"has_{name}": value is not None for name, value in figures.items()},

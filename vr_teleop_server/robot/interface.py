@@ -176,7 +176,7 @@ def motors_report(motors: Sequence[MotorStatus], connected: bool, unread: str) -
     modelled = any(m.source == "modelled" for m in motors)
     no_motor = NOT_MODELLED if modelled else NO_READING
     hot = [m for m in motors if m.temperature_c is not None]
-    hottest = max(hot, key=lambda m: m.temperature_c) if hot else None  # type: ignore[arg-type,return-value]
+    hottest = max(hot, key=lambda m: m.temperature_c or 0.0) if hot else None
     volts = [m.voltage_v for m in motors if m.voltage_v is not None]
     missing = {figure: unread for figure in ("battery", "cpu", "memory", "temperature")}
     if hottest is None:
