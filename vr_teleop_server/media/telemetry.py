@@ -26,7 +26,7 @@ from ..robot.interface import Robot
 from . import link_quality
 from .media_loop import MediaLoop
 from .peer import Peer
-from .video import VIDEO_CLOCK_RATE, VideoHub
+from .video import VIDEO_CLOCK_RATE
 
 log = logging.getLogger(__name__)
 
@@ -65,14 +65,13 @@ class Telemetry:
     """Publishes /vr_teleop/telemetry and provides /vr_teleop/clock, on the server's loop."""
 
     def __init__(self, bus: Bus, access: AccessPolicy, sessions: Callable[[], Mapping[str, SessionView]],
-                 peers: Mapping[str, Peer], media_loop: MediaLoop, *, video: VideoHub | None, robot: Robot | None,
+                 peers: Mapping[str, Peer], media_loop: MediaLoop, *, robot: Robot | None,
                  control: Callable[[str], link_quality.ControlLink | None], clock: Clock = WALL) -> None:
         self.bus = bus
         self.access = access
         self.sessions = sessions
         self.peers = peers
         self.media_loop = media_loop
-        self.video = video
         self.robot = robot
         self.control = control  # the watchdog as a connection's operator meets it (for the link quality)
         self.clock = clock
@@ -230,8 +229,7 @@ class Telemetry:
         video = peer.video
         if video is not None:
             fields.update(video_codec=video.codec, rtc_frames_sent=video.frames_sent,
-                          rtc_target_bitrate=float(self.video.bitrate(video.codec))
-                          if video.codec and self.video is not None else NOT_KNOWN)
+                          rtc_target_bitrate=float(video.hub.bitrate(video.codec)) if video.codec else NOT_KNOWN)
             recent = video.recent(min(MAX_FRAME_TIMES, video.frames_sent - link.frames_reported))
             link.frames_reported = video.frames_sent
             newest = video.recent(1)
