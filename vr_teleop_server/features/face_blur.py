@@ -12,7 +12,7 @@ it): a face is never shown for want of a search.
 
 Where blurred frames are made:
 - the recording (recording/recorder.py): each kept camera frame is blurred before it is written, and beside it, on
-  /vr_teleop/face_blur, a FaceBlur note says what was done to it: whether detection ran on that very frame
+  /vr_teleop/face_blur, a FaceBlur note says what was done to it: whether a search of that very frame had ended
   (`detected`), which frame the newest detection searched and how long before, the regions blurred, or
   `whole_frame`. Every detection is recorded too, on /perception/faces;
 - the camera topic for spectators: a spectator's subscription to the camera topic is served from the blurred
@@ -38,7 +38,7 @@ from client_protocol import names
 from simclock import WALL, Clock
 from worker_process.face_blur import MARGIN, WHOLE_FRAME, Regions, blur_regions
 
-from ..core.bus import SERVER_NODE, Bus, Published
+from ..core.bus import Bus, Published
 from ..core.tasks import cancel_and_wait
 from ..robot.interface import Robot
 
@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 HOLD_S = 1.0  # a detection's boxes are blurred for this long; a frame with no detection this recent is blurred whole
 LEASE_S = 3.0  # detection keeps running this long after the last blurred frame
 JPEG_QUALITY = 80  # the stand-in's own
-BLUR_NODE = "/vr_teleop/face_blur"
+BLUR_NODE = "/vr_teleop_server/face_blur"  # the owner of the blur's subscription to the faces
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class BlurPlan:
 
     @property
     def detected(self) -> bool:
-        """Detection ran on this very frame."""
+        """A search of this very frame had ended when the frame was blurred: its boxes are exact, not held."""
         return self.detection_seq == self.frame_seq
 
     def note(self, header: dict[str, Any]) -> dict[str, Any]:
@@ -177,7 +177,7 @@ class FaceBlur:
                 self.bus.publish(names.CAMERA_BLURRED_TOPIC, {
                     "header": {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
                                "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
-                    "format": "jpeg", "data": jpeg}, sender=SERVER_NODE)
+                    "format": "jpeg", "data": jpeg})
 
 
 def _blur_jpeg(jpeg: bytes, regions: Regions) -> bytes | None:
