@@ -1,6 +1,6 @@
 """`serve --blur-faces` on the stand-in, whose pupils sit in the head camera's view: what is recorded and what a
 spectator sees (the camera topic, the WebRTC video) has their faces blurred; the operator and the supervisor see them.
-Whether a face is there is the server's own detector's answer (testbed/faces.py renders the same pupils)."""
+Whether a face is there is the server's own detector's answer (tests/test_faces.py holds its recall on the pupils)."""
 
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from client_protocol import names
+from client_protocol.registry import TypeRegistry
 from testbed.media_client import MediaPeer, Rosbridge
 from testbed.waiting import until
 from vr_teleop_server.core.bus import Bus
 from vr_teleop_server.features.face_blur import FaceBlur
 from vr_teleop_server.features.faces import FaceBox, FaceDetector
 from vr_teleop_server.recording.format import read_recording
-from client_protocol.registry import TypeRegistry
 from worker_process.face_blur import MARGIN, WHOLE_FRAME
 
 TOKENS = {"operator_token": "op-token", "supervisor_token": "sup-token", "spectator_token": "spec-token"}
@@ -88,7 +88,8 @@ async def test_a_spectators_camera_topic_is_blurred_and_the_operators_and_superv
             are in the spectator's, which is otherwise the same picture (the faces blurred, not the frame)."""
             drain()
             for seq in sorted(set(frames["operator"]) & set(frames["spectator"]), reverse=True)[:2]:
-                raw, blurred = decode(frames["operator"].pop(seq)), decode(frames["spectator"].pop(seq))
+                raw_jpeg = frames["operator"].pop(seq)
+                raw, blurred = decode(raw_jpeg), decode(frames["spectator"].pop(seq))
                 faces = detector.detect(raw)
                 if not faces:
                     continue
@@ -96,7 +97,7 @@ async def test_a_spectators_camera_topic_is_blurred_and_the_operators_and_superv
                 rest = float(np.abs(raw.astype(int) - blurred.astype(int))[mask].mean())
                 if rest > 4.0:  # blurred whole: detection had not run recently enough yet
                     continue
-                found.update(seq=seq, faces=faces, raw=raw, blurred=blurred, rest=rest)
+                found.update(seq=seq, faces=faces, raw_jpeg=raw_jpeg, raw=raw, blurred=blurred)
                 return True
             return False
 
@@ -105,9 +106,9 @@ async def test_a_spectators_camera_topic_is_blurred_and_the_operators_and_superv
         assert not any(near(detector.detect(blurred), f) for f in faces), faces
         for face in faces:
             assert sharpness(blurred, face) < 0.2 * sharpness(raw, face), face
-        # The supervisor got the operator's frame itself.
+        # The supervisor got the operator's frame itself, faces and all.
         assert await until(lambda: (drain() or found["seq"] in frames["supervisor"]), 30)
-        assert detector.detect(decode(frames["supervisor"][found["seq"]]))
+        assert frames["supervisor"][found["seq"]] == found["raw_jpeg"]
     finally:
         for ros in clients.values():
             await ros.close()
@@ -192,7 +193,9 @@ async def test_the_recording_holds_blurred_frames_and_which_had_a_detection_of_t
             found = detector.detect(image)
             assert not any(near(found, b) for b in boxes), (blur, found)
             checked += 1
-    assert checked >= 3 and len(notes) == len(camera)
+    assert checked >= 3
+    # and every frame has its note (but the newest, whose note a read of the file being written may not reach yet)
+    assert {m.data["header"]["seq"] for m in camera} - {n.data["frame_seq"] for n in notes} <= {max(by_seq)}
 
 
 class _Clock:
