@@ -235,6 +235,11 @@ async def test_a_face_one_search_missed_stays_blurred_for_the_hold_then_the_whol
         assert set(blur.plan(5).regions) == {(12, 20, 30, 40)}
         clock.now += 0.5  # no search within the hold
         assert blur.plan(6).regions == WHOLE_FRAME
+        # No frame asks for a plan any more: detection stops once its lease (LEASE_S) runs out, and what it found is
+        # not trusted by the next run.
+        assert await until(lambda: not bus.topics[names.FACES_TOPIC].subscribers, 30)
+        faces(7, (12, 20, 30, 40))  # a search that ended after the blur stopped listening
+        assert blur.plan(8).regions == WHOLE_FRAME and bus.topics[names.FACES_TOPIC].subscribers
     finally:
         await blur.stop()
     assert not bus.topics[names.FACES_TOPIC].subscribers
