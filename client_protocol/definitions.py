@@ -160,6 +160,15 @@ MESSAGES: dict[str, str] = {
         "# Faces found in one head-camera frame, on /perception/faces. detector: what found them.\n"
         "Header header\nuint32 frame_seq\nuint32 image_width\nuint32 image_height\nstring detector\nFace[] faces"
     ),
+    "vr_teleop_msgs/FaceBlur": (
+        "# What serve --blur-faces blurred in one recorded camera frame, on /vr_teleop/face_blur; header: the\n"
+        "# frame's own. detected: a search of this very frame had ended when it was blurred (its boxes are among\n"
+        "# faces). detection_seq: the frame the newest search had searched, detection_age seconds before (-1:\n"
+        "# none). faces: the held detections' boxes, each blurred grown by margin (of its size) on every side;\n"
+        "# whole_frame: no detection recent enough, the frame blurred whole.\n"
+        "Header header\nuint32 frame_seq\nbool detected\nuint32 detection_seq\nfloat64 detection_age\n"
+        "bool whole_frame\nfloat64 margin\nFace[] faces"
+    ),
     # supervised autonomy (vr_teleop_server/features/autonomy)
     "vr_teleop_msgs/AttentionTarget": (
         "# Where the robot's attention is, on /vr_teleop/autonomy/attention (on every change, and 1 Hz).\n"

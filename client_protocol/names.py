@@ -76,6 +76,11 @@ ROBOT_AUDIO_INFO_TOPIC = "/vr_teleop/audio/robot/info"
 OPERATOR_AUDIO_TOPIC = "/vr_teleop/audio/operator"
 OPERATOR_AUDIO_INFO_TOPIC = "/vr_teleop/audio/operator/info"
 FACES_TOPIC = "/perception/faces"
+# serve --blur-faces (vr_teleop_server/features/face_blur.py): the head camera with every detected face blurred
+# (sensor_msgs/CompressedImage; what a spectator's subscription to CAMERA_TOPIC is served from), and in recordings,
+# beside each kept camera frame, what was blurred in it (vr_teleop_msgs/FaceBlur)
+CAMERA_BLURRED_TOPIC = "/vr_teleop/camera/blurred/compressed"
+FACE_BLUR_TOPIC = "/vr_teleop/face_blur"
 WHOAMI_SERVICE = "/vr_teleop/whoami"
 # The robot's language (features/speech.py's LANGUAGES: en, de, fr, lb): set with the service
 # (vr_teleop_msgs/SetLanguage), the one in force on the latched topic (std_msgs/String holding its code)

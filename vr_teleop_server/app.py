@@ -26,6 +26,7 @@ from .core.session import Session
 from .core.transport import Ping, WebSocketTransport
 from .features import Feature
 from .features.explicit_control import ExplicitControl
+from .features.face_blur import FaceBlur
 from .features.faces import FacePublisher
 from .features.luxai_api import LuxaiApi
 from .features.menu_service import MenuService, check_commands_implemented
@@ -87,7 +88,10 @@ class TeleopServer:
                 raise ValueError(f"{settings.study}: the study file declares no consent_form (the version of the "
                                  "consent form participants sign); a study with people needs one")
         self.live_study: LiveStudy | None = None
-        self.access = AccessPolicy(tokens, participants=self._participant_of)
+        self.access = AccessPolicy(tokens, participants=self._participant_of,
+                                   blurred_views={names.CAMERA_TOPIC: names.CAMERA_BLURRED_TOPIC}
+                                   if settings.blur_faces else {})
+        self.face_blur: FaceBlur | None = None  # serve --blur-faces, on a robot
         if self.access.open and not is_loopback(settings.host) and not settings.insecure:
             raise ValueError(f"refusing to serve {settings.host} without tokens: anyone on the network could drive "
                              "the robot. Give --operator-token/--supervisor-token (or --generate-tokens), or pass "
@@ -225,6 +229,11 @@ class TeleopServer:
         motivation = Motivation(self.bus, self.motivation_config)
         self._start(motivation)
         self._start(FacePublisher(self.bus, robot))
+        if s.blur_faces:
+            self.face_blur = FaceBlur(self.bus, robot, clock=self.clock)
+            self._start(self.face_blur)
+            if self.recorder is not None:
+                self.recorder.blur = self.face_blur
         panels = {"hardware": status.hardware, "motors": status.motors, "dialog": status.dialog,
                   "motivation": motivation.message}
         menu = MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
@@ -305,7 +314,7 @@ class TeleopServer:
         parts = ServerParts(self.bus, self.robot, self.registry, self.owners,
                             self.luxai.gestures if self.luxai is not None else None,
                             (lambda level: autonomy.set_level(level, "study")) if autonomy is not None else None,
-                            camera_fps=s.record_camera_fps, clock=self.clock)
+                            camera_fps=s.record_camera_fps, clock=self.clock, blur=self.face_blur)
         self.live_study = LiveStudy(self.bus, folder, TrialHost(study, kind, parts), self._who,
                                     autonomy_level=lambda: autonomy.level if autonomy is not None else None)
         self._start(self.live_study)
@@ -318,7 +327,7 @@ class TeleopServer:
                                   camera_fps=self.settings.camera_fps,
                                   ice=self.settings.ice_config(), holds_control=self._holds_control,
                                   control=lambda connection: self.control.link_view(connection)
-                                  if self.control is not None else None, clock=self.clock)
+                                  if self.control is not None else None, clock=self.clock, blur=self.face_blur)
         self._start(self.media)
 
     @property

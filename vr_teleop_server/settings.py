@@ -99,6 +99,9 @@ class ServerSettings(CoreSettings):
         None, description="token of the supervisor role (or $VR_TELEOP_SUPERVISOR_TOKEN)")
     spectator_token: Annotated[str | None, Cli("access")] = Field(
         None, description="token of the read-only spectator role (or $VR_TELEOP_SPECTATOR_TOKEN)")
+    blur_faces: Annotated[bool, Cli("access")] = Field(
+        False, description="blur every face the detector finds in the recordings and in the camera the spectators "
+                           "see (topic and WebRTC video); the operator and the supervisor see it as it is")
     insecure: Annotated[bool, Cli("access")] = Field(
         False, description="allow open access (no tokens) on a non-loopback address")
     teleop: TeleopSettings = Field(default_factory=TeleopSettings, description="explicit control (teleop/settings.py)")

@@ -7,6 +7,10 @@ environment (VR_TELEOP_OPERATOR_TOKEN, ...), or `--generate-tokens`; a client pr
 `auth` op (the token in `mac`) before anything else. Without tokens the server is open: every client is a
 supervisor, and serve binds to loopback only unless told `--insecure`.
 
+With `serve --blur-faces`, only an operator and a supervisor see faces (they must see the pupils): a spectator's
+subscription to a camera topic is served from its face-blurred stand-in (`blurred_views`), and its WebRTC video is
+blurred too (media/service.py).
+
 A live study (`serve --study`) adds the participant role: each participant's page has a token of its own (from
 /study/participants/add), known to the study folder, which admits only that participant's questionnaires, with
 tokens or without.
@@ -65,6 +69,8 @@ class AccessPolicy:
     tokens: dict[str, Role]  # token -> role; empty: open access
     # a live study's participant tokens: token -> participant id, or None (study/folder.py makes them)
     participants: Callable[[str], str | None] | None = field(default=None, compare=False)
+    # serve --blur-faces: a topic -> the topic with its faces blurred, which is what a role that may not see faces gets
+    blurred_views: dict[str, str] = field(default_factory=dict)
 
     def participant(self, token: str) -> str | None:
         return self.participants(token) if self.participants is not None and token else None
@@ -139,6 +145,15 @@ class AccessPolicy:
                                "spectators only watch")
         if op == "call_service" and target in SUPERVISOR_ONLY_SERVICES:
             raise AccessDenied(f"role operator may not call {target}: only a supervisor may")
+
+    def sees_faces(self, role: Role | None) -> bool:
+        """Whether a role gets the camera as it is; without --blur-faces everyone who may watch it does."""
+        return not self.blurred_views or self.open or role in ("operator", "supervisor")
+
+    def topic_view(self, role: Role | None, topic: str) -> str:
+        """The topic that serves `role`'s subscription to `topic`: its blurred view for a role that may not see
+        faces."""
+        return topic if self.sees_faces(role) else self.blurred_views.get(topic, topic)
 
     def may_override_control(self, role: Role | None) -> bool:
         """Whether a caller may take control away from whoever holds it."""

@@ -71,6 +71,16 @@ class Published:
             self._value = self.codec.to_model(self.plain)
         return self._value
 
+    def renamed(self, topic: str) -> Published:
+        """This message as if published on `topic` (a blurred camera view served under the camera's name: core/
+        access.py), made once and shared, with its encodings, by every subscriber that reads it so."""
+        key = "as " + topic
+        alias = self.encoded.get(key)
+        if alias is None:
+            alias = self.encoded[key] = Published(topic, self.type, self._value, self.known, self.sender, self.plain,
+                                                  self.codec)
+        return alias
+
 
 Subscriber = Callable[[Published], None]
 

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from worker_process import WorkerDied, WorkerProcess, accept, answer
+from worker_process.face_blur import Regions, blur_regions
 from worker_process.frame_ring import FrameRing
 
 NICE = 10  # added to the worker's niceness: the server's loop wins a core over the encoder
@@ -69,11 +70,13 @@ class EncoderProcess(WorkerProcess):
             if fd is not None:
                 os.close(fd)
 
-    def encode(self, frame: bytes | int, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
+    def encode(self, frame: bytes | int, pts: int, jobs: dict[str, tuple[bool, int]],
+               blur: Regions | None = None) -> dict[str, Encoded]:
         """Encode a frame (its seq in the ring, or a JPEG, decoded once) with each codec in `jobs` ({codec:
-        (keyframe, bitrate)}): per codec the encoded frame (none when the encoder held it back) or the error's
-        text; nothing at all when the ring's slot already holds a newer frame (this one is lost)."""
-        return self.call((frame, pts, jobs))
+        (keyframe, bitrate)}), its `blur` regions blurred first (serve --blur-faces): per codec the encoded frame
+        (none when the encoder held it back) or the error's text; nothing at all when the ring's slot already holds
+        a newer frame (this one is lost)."""
+        return self.call((frame, pts, jobs, blur))
 
     def failed(self, why: str) -> Exception:
         """A frame the worker could not handle at all: the hub starts another worker (as when one dies)."""
@@ -109,20 +112,23 @@ class _Worker:
         w2, h2 = w - w % 2, h - h % 2  # I420 needs even sizes
         return self.cv2.cvtColor(self.np.ascontiguousarray(image[:h2, :w2]), code)
 
-    def encode(self, frame: bytes | int, pts: int, jobs: dict[str, tuple[bool, int]]) -> dict[str, Encoded]:
-        """The frame to I420 once (from the ring's RGB, or a JPEG), then each codec's encoder once."""
+    def encode(self, frame: bytes | int, pts: int, jobs: dict[str, tuple[bool, int]],
+               blur: Regions | None = None) -> dict[str, Encoded]:
+        """The frame to I420 once (from the ring's RGB, or a JPEG), blurred first where `blur` says, then each
+        codec's encoder once."""
         cv2 = self.cv2
         if isinstance(frame, int):
             if self.ring is None:
                 raise ValueError("a frame number was sent, but this encoder process has no frame ring")
-            yuv = self.ring.read(frame, lambda rgb: self.i420(rgb, cv2.COLOR_RGB2YUV_I420))
+            yuv = self.ring.read(frame, lambda rgb: self.i420(
+                rgb if blur is None else blur_regions(rgb.copy(), blur), cv2.COLOR_RGB2YUV_I420))
             if yuv is None:  # overwritten by a newer frame, which the hub sends next
                 return {}
         else:
             bgr = cv2.imdecode(self.np.frombuffer(frame, self.np.uint8), cv2.IMREAD_COLOR)
             if bgr is None:  # this frame is lost; the encoders and the next frames are not
                 return {codec: f"a camera frame of {len(frame)} bytes is not a JPEG; not encoded" for codec in jobs}
-            yuv = self.i420(bgr, cv2.COLOR_BGR2YUV_I420)
+            yuv = self.i420(bgr if blur is None else blur_regions(bgr, blur), cv2.COLOR_BGR2YUV_I420)
         out: dict[str, Encoded] = {}
         for codec, (keyframe, bitrate) in jobs.items():
             encoder = self.encoders.get(codec)

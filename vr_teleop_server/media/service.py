@@ -22,7 +22,8 @@ comes back (call_soon_threadsafe, in order): data-channel messages into the clie
 to the robot and the bus, a failed connection to be closed.
 
 Access is the camera topic's, for the offer and the ICE servers: a client that may not subscribe to the head camera
-gets no media. An operator's or
+gets no media. Under `serve --blur-faces` a client that may not see faces (a spectator: core/access.py) gets its
+video from a second hub, whose frames have their faces blurred. An operator's or
 supervisor's microphone is played on the robot and logged; a spectator's is ignored.
 """
 
@@ -31,7 +32,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Awaitable, Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from aiortc import RTCConfiguration, RTCPeerConnection, RTCSessionDescription
 from aiortc.exceptions import InvalidStateError, OperationError
@@ -51,6 +52,9 @@ from .telemetry import SessionView, Telemetry
 from .turn import IceConfig
 from .video import CODECS, CameraTrack, VideoHub
 
+if TYPE_CHECKING:
+    from ..features.face_blur import FaceBlur
+
 log = logging.getLogger(__name__)
 
 class MediaService:
@@ -62,7 +66,7 @@ class MediaService:
                  ice: IceConfig | None = None,
                  holds_control: Callable[[str], bool] = lambda _name: False,
                  control: Callable[[str], link_quality.ControlLink | None] = lambda connection: None,
-                 clock: Clock = WALL) -> None:
+                 clock: Clock = WALL, blur: FaceBlur | None = None) -> None:
         self.bus = bus
         self.holds_control = holds_control  # a session's name -> whether its operator holds control (poses channel)
         self.robot = robot
@@ -70,11 +74,14 @@ class MediaService:
         self.sessions = sessions
         self.ice = ice or IceConfig()
         self.video = VideoHub(robot, camera_fps, clock=clock) if robot is not None else None
+        # serve --blur-faces: what a client that may not see faces watches
+        self.blurred_video = VideoHub(robot, camera_fps, clock=clock, blur=blur) \
+            if robot is not None and blur is not None else None
         self.audio = AudioMixer(bus, robot=robot)
         self.peers: dict[str, Peer] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
         self.media_loop = MediaLoop()
-        self.telemetry = Telemetry(bus, access, sessions, self.peers, self.media_loop, video=self.video, robot=robot,
+        self.telemetry = Telemetry(bus, access, sessions, self.peers, self.media_loop, robot=robot,
                                    control=control, clock=clock)
         self.home: asyncio.AbstractEventLoop | None = None  # the server's loop (start)
         self.peers_created = 0
@@ -84,8 +91,9 @@ class MediaService:
     def start(self) -> None:
         self.home = asyncio.get_running_loop()
         self.media_loop.setup()
-        if self.video is not None:
-            self.video.start()
+        for hub in (self.video, self.blurred_video):
+            if hub is not None:
+                hub.start()
         self.bus.provide(names.MEDIA_OFFER_SERVICE, "vr_teleop_msgs/MediaOffer", self._offer)
         self.bus.provide(names.MEDIA_ICE_SERVERS_SERVICE, "vr_teleop_msgs/IceServers", self._ice_servers,
                          confidential=True)
@@ -106,8 +114,9 @@ class MediaService:
             if name in self.bus.services:
                 self.bus.unadvertise_service(SERVER_NODE, name)
         await self.audio.close()
-        if self.video is not None:
-            await self.video.close()
+        for hub in (self.video, self.blurred_video):
+            if hub is not None:
+                await hub.close()
         await self.media_loop.shutdown()  # last: the hubs above stop their tracks on it
 
     def _spawn(self, coro: Awaitable[Any]) -> asyncio.Task[Any]:
@@ -234,7 +243,9 @@ class MediaService:
             if directions.get(transceiver.mid) not in ("sendrecv", "recvonly"):  # the client does not receive
                 continue
             if transceiver.kind == "video" and self.video is not None and peer.video is None:
-                peer.video = CameraTrack(self.video)
+                hub = self.video if self.blurred_video is None or self.access.sees_faces(session.role) \
+                    else self.blurred_video
+                peer.video = CameraTrack(hub)
                 peer.video.pose_channel = peer.pose_channel
                 pc.addTrack(peer.video)
                 sending = next(t for t in pc.getTransceivers() if t.sender.track is peer.video)

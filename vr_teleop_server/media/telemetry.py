@@ -26,7 +26,7 @@ from ..robot.interface import Robot
 from . import link_quality
 from .media_loop import MediaLoop
 from .peer import Peer
-from .video import VIDEO_CLOCK_RATE, VideoHub
+from .video import VIDEO_CLOCK_RATE
 
 log = logging.getLogger(__name__)
 
@@ -65,14 +65,13 @@ class Telemetry:
     """Publishes /vr_teleop/telemetry and provides /vr_teleop/clock, on the server's loop."""
 
     def __init__(self, bus: Bus, access: AccessPolicy, sessions: Callable[[], Mapping[str, SessionView]],
-                 peers: Mapping[str, Peer], media_loop: MediaLoop, *, video: VideoHub | None, robot: Robot | None,
+                 peers: Mapping[str, Peer], media_loop: MediaLoop, *, robot: Robot | None,
                  control: Callable[[str], link_quality.ControlLink | None], clock: Clock = WALL) -> None:
         self.bus = bus
         self.access = access
         self.sessions = sessions
         self.peers = peers
         self.media_loop = media_loop
-        self.video = video
         self.robot = robot
         self.control = control  # the watchdog as a connection's operator meets it (for the link quality)
         self.clock = clock
@@ -80,7 +79,9 @@ class Telemetry:
         self.entry_model = bus.registry.model("vr_teleop_msgs/ClientTelemetry")
         self.report_model = bus.registry.model("vr_teleop_msgs/Telemetry")
         self._task: asyncio.Task[None] | None = None
-        self._camera_published = 0
+        # camera frames published, per topic: the camera's, and its blurred view (serve --blur-faces), which serves
+        # a spectator's subscription to the camera
+        self._camera_published = {names.CAMERA_TOPIC: 0, names.CAMERA_BLURRED_TOPIC: 0}
         self._pose_token = 0
 
     def start(self) -> None:
@@ -122,16 +123,17 @@ class Telemetry:
             link.poses.append(self.clock.monotonic())
 
     def _tap(self, published: Published) -> None:
-        if published.topic != names.CAMERA_TOPIC:
+        if published.topic not in self._camera_published:
             return
-        self._camera_published += 1
+        self._camera_published[published.topic] += 1
         stamp = (published.data or {}).get("header", {}).get("stamp")
         if stamp is None:
             return
         render = (stamp.get("secs", stamp.get("sec", 0)) or 0) + (stamp.get("nsecs", stamp.get("nanosec", 0)) or 0) / 1e9
         age = max(0.0, self.clock.time() - render)
         for name, session in self.sessions().items():
-            if names.CAMERA_TOPIC in session.subscriptions:
+            sub = session.subscriptions.get(names.CAMERA_TOPIC)
+            if sub is not None and sub.source == published.topic:
                 link = self.links.setdefault(name, ClientLink())
                 link.json_age_sum += age
                 link.json_age_n += 1
@@ -214,10 +216,11 @@ class Telemetry:
         age_sum, age_n = link.json_age_sum, link.json_age_n
         link.json_age_sum, link.json_age_n = 0.0, 0
         if sub is not None:
+            published = self._camera_published[sub.source]
             if link.camera_base is None:
-                link.camera_base = self._camera_published - len(sub.queue) - sub.dropped
+                link.camera_base = published - len(sub.queue) - sub.dropped
             dropped = sub.dropped
-            sent = max(0, self._camera_published - link.camera_base - dropped - len(sub.queue))
+            sent = max(0, published - link.camera_base - dropped - len(sub.queue))
         else:
             link.camera_base = None
         return sent, dropped, age_sum, age_n
@@ -230,8 +233,7 @@ class Telemetry:
         video = peer.video
         if video is not None:
             fields.update(video_codec=video.codec, rtc_frames_sent=video.frames_sent,
-                          rtc_target_bitrate=float(self.video.bitrate(video.codec))
-                          if video.codec and self.video is not None else NOT_KNOWN)
+                          rtc_target_bitrate=float(video.hub.bitrate(video.codec)) if video.codec else NOT_KNOWN)
             recent = video.recent(min(MAX_FRAME_TIMES, video.frames_sent - link.frames_reported))
             link.frames_reported = video.frames_sent
             newest = video.recent(1)

@@ -47,7 +47,7 @@ import logging
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import av
 from aiortc import MediaStreamTrack, RTCRtpSender
@@ -56,10 +56,14 @@ from aiortc.rtp import RTCP_PSFB_APP, RTCP_PSFB_FIR, RTCP_PSFB_PLI, RtcpPsfbPack
 
 from robot_models.types import CameraFrame, CapturePose
 from simclock import WALL, Clock
+from worker_process.face_blur import Regions
 
 from ..robot.interface import Robot
 from .encoder_process import VIDEO_CLOCK_RATE, EncoderProcess, EncoderProcessError
 from .media_loop import call_on
+
+if TYPE_CHECKING:
+    from ..features.face_blur import FaceBlur
 
 log = logging.getLogger(__name__)
 
@@ -87,10 +91,13 @@ class EncodedFrame:
 
 
 class VideoHub:
-    """One per server: the camera pump and one shared encoder per codec, for every attached CameraTrack."""
+    """One per server, and a second one for spectators under `serve --blur-faces` (`blur`: each frame's faces
+    blurred by the encoder process): the camera pump and one shared encoder per codec, for every attached
+    CameraTrack."""
 
-    def __init__(self, robot: Robot, fps: float = 30.0, clock: Clock = WALL) -> None:
+    def __init__(self, robot: Robot, fps: float = 30.0, clock: Clock = WALL, blur: FaceBlur | None = None) -> None:
         self.robot = robot
+        self.blur = blur
         self.fps = fps
         self.clock = clock  # the server's: frames are stamped on it, so pts and ages are too
         self._tracks: dict[str, set[CameraTrack]] = {codec: set() for codec in CODECS}
@@ -183,8 +190,9 @@ class VideoHub:
                     if not jobs:
                         return
                     targets = {codec: tuple(self._tracks[codec]) for codec in jobs}
+                    regions = None if self.blur is None else self.blur.plan(frame.seq).regions
                     try:
-                        await loop.run_in_executor(self._executor, self._encode, frame, jobs, targets)
+                        await loop.run_in_executor(self._executor, self._encode, frame, jobs, targets, regions)
                     except EncoderProcessError as exc:
                         log.warning("%s; another starts in %g s", exc, RESTART_DELAY_S)
                         self._keyframe.update(jobs)  # a new encoder starts with one anyway; the peers need it
@@ -196,7 +204,8 @@ class VideoHub:
             log.exception("the WebRTC camera pump failed; peers get no more video")
 
     def _encode(self, frame: CameraFrame, jobs: dict[str, tuple[bool, int]],
-                targets: dict[str, tuple[CameraTrack, ...]] | None = None) -> dict[str, EncodedFrame]:
+                targets: dict[str, tuple[CameraTrack, ...]] | None = None,
+                regions: Regions | None = None) -> dict[str, EncodedFrame]:
         """Executor thread: the frame through the encoder process (started on first use, or again after it
         failed); blocks in a socket read, without the GIL, while the process encodes. Each encoded frame goes
         from here straight to its `targets`' loops (the tracks of its codec when the frame was taken), not by
@@ -207,7 +216,7 @@ class VideoHub:
             self._encoder = EncoderProcess(self.fps, ring=frame.ring)
         pts = round((frame.stamp_wall - self.epoch) * VIDEO_CLOCK_RATE)
         try:
-            results = self._encoder.encode(frame.seq if frame.ring is not None else frame.jpeg, pts, jobs)
+            results = self._encoder.encode(frame.seq if frame.ring is not None else frame.jpeg, pts, jobs, regions)
         except EncoderProcessError:
             self._close_encoder()
             raise

@@ -2,6 +2,10 @@
 
 Crash safety: messages go into small zstd chunks, and an unfinished chunk is closed every FLUSH_S and flushed to
 disk, so that a killed server leaves all but the last second or so readable (format.read_recording).
+
+With `serve --blur-faces` (`blur`), a camera frame kept is written only once its faces are blurred (in the blur's
+thread), with its blur note (features/face_blur.py) beside it; the raw frame is never written, nor the blurred
+camera topic (its frames are these frames).
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ import asyncio
 import json
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mcap.writer import CompressionType, Writer
 
@@ -22,6 +27,9 @@ from ..core.tasks import cancel_and_wait
 from ..core.wire import message_json
 from .format import FRAME_JSON_SCHEMA, FRAME_SCHEMA
 
+if TYPE_CHECKING:
+    from ..features.face_blur import FaceBlur
+
 log = logging.getLogger(__name__)
 
 FLUSH_S = 0.5
@@ -30,10 +38,12 @@ CHUNK_SIZE = 256 * 1024
 
 class Recorder:
     def __init__(self, path: Path, registry: TypeRegistry, camera_fps: float = 2.0, bus: Bus | None = None,
-                 clock: Clock = WALL) -> None:
+                 clock: Clock = WALL, blur: FaceBlur | None = None) -> None:
         """`bus`: the bus start() taps; without one, messages come only through write_message (synth). `clock`
-        stamps the messages (log time: its time(), in nanoseconds)."""
+        stamps the messages (log time: its time(), in nanoseconds). `blur`: camera frames are recorded blurred."""
         self.clock = clock
+        self.blur = blur
+        self._blurring: set[asyncio.Task[None]] = set()
         self.path = path
         self.bus = bus
         self.registry = registry
@@ -105,12 +115,37 @@ class Recorder:
         self.messages += 1
 
     def on_published(self, published: Published) -> None:
+        if published.topic == names.CAMERA_BLURRED_TOPIC:
+            return
         if published.topic == names.CAMERA_TOPIC:
             now = self.clock.monotonic()
             if self.camera_period is None or now - self._last_camera < self.camera_period:
                 return
             self._last_camera = now
+            if self.blur is not None:
+                task = asyncio.ensure_future(self._write_blurred(published, round(self.clock.time() * 1e9)))
+                self._blurring.add(task)
+                task.add_done_callback(self._blurring.discard)
+                return
         self.write_message(published.topic, published.type, published.sender, message_json(published).encode())
+
+    async def _write_blurred(self, published: Published, time_ns: int) -> None:
+        """A kept camera frame, its faces blurred, at the time it was published; and its blur note."""
+        assert self.blur is not None
+        msg = published.data
+        plan = self.blur.plan(msg["header"]["seq"])
+        try:
+            jpeg = await self.blur.blur_jpeg(msg["data"], plan)
+        except Exception:  # never the raw frame instead
+            log.exception("a camera frame could not be blurred; it is not recorded")
+            return
+        if jpeg is None or self._file.closed:
+            return
+        blurred = Published(published.topic, published.type, None, True, published.sender,
+                            {**msg, "data": jpeg}, published.codec or self.registry.codec(published.type))
+        self.write_message(published.topic, published.type, published.sender, message_json(blurred).encode(), time_ns)
+        self.write_message(names.FACE_BLUR_TOPIC, "vr_teleop_msgs/FaceBlur", published.sender,
+                           json.dumps(plan.note(msg["header"])).encode(), time_ns)
 
     def write_message(self, topic: str, type_name: str, sender: str, data: bytes, time_ns: int | None = None) -> None:
         """A topic message as JSON bytes (also how `vr-teleop synth` writes its headset sessions)."""
@@ -133,6 +168,8 @@ class Recorder:
         if self.bus is not None and self.on_published in self.bus.taps:
             self.bus.taps.remove(self.on_published)
         await cancel_and_wait(self._task)
+        if self._blurring:  # the frames being blurred are written before the file closes
+            await asyncio.gather(*self._blurring, return_exceptions=True)
         self.finish()
 
     def finish(self) -> None:

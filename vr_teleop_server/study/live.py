@@ -58,6 +58,7 @@ class ServerParts:
     set_autonomy: Callable[[str], None] | None  # the classroom kind's conditions are autonomy levels
     camera_fps: float = 2.0
     clock: Clock = WALL
+    blur: Any = None  # features/face_blur.FaceBlur under serve --blur-faces: trial recordings blur faces too
 
 
 class TrialHost:
@@ -77,7 +78,7 @@ class TrialHost:
 
     async def begin(self, condition: str, recording: Path, level_now: str | None) -> None:
         p = self.parts
-        self.recorder = Recorder(recording, p.registry, p.camera_fps, bus=p.bus, clock=p.clock)
+        self.recorder = Recorder(recording, p.registry, p.camera_fps, bus=p.bus, clock=p.clock, blur=p.blur)
         self.recorder.start()
         try:
             if self.kind == "classroom":

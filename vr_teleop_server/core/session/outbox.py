@@ -38,8 +38,9 @@ class TopicSubscription:
     """Everything one client asked of one topic. However many subscription ids it holds, the client gets one
     frame per message, sent at the lowest throttle rate, with the smallest fragment size and the longest queue."""
 
-    def __init__(self, topic: str, default_bound: int) -> None:
+    def __init__(self, topic: str, default_bound: int, source: str | None = None) -> None:
         self.topic = topic
+        self.source = source or topic  # the bus topic it is served from (a face-blurred view: core/access.py)
         self.requests: dict[Any, SubscriptionRequest] = {}
         self.default_bound = default_bound
         self.queue: deque[Published] = deque(maxlen=default_bound)

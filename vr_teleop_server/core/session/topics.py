@@ -7,6 +7,7 @@ from typing import Any
 
 from client_protocol import ops
 
+from ..access import AccessPolicy, Role
 from ..bus import Bus, BusError
 from ..settings import CoreSettings
 from .outbox import Outbox, SubscriptionRequest, TopicSubscription
@@ -41,6 +42,8 @@ class TopicOps:
 
     name: str
     bus: Bus
+    policy: AccessPolicy
+    role: Role | None
     settings: CoreSettings
     outbox: Outbox
     subscriptions: dict[str, TopicSubscription]
@@ -84,13 +87,18 @@ class TopicOps:
                                f"subscribing, or subscribe after it is advertised")
             if op.compression == "cbor-raw" and not topic.known:
                 raise ProtocolError(f"cbor-raw needs a type this server knows; {topic.type} is carried as JSON only")
-            sub = TopicSubscription(op.topic, topic.queue_bound or self.settings.queue_bound)
+            source = self.policy.topic_view(self.role, op.topic)
+            sub = TopicSubscription(op.topic, topic.queue_bound or self.settings.queue_bound, source)
             sub.requests[op.id] = SubscriptionRequest(op.throttle_rate, op.queue_length, op.fragment_size,
                                                       op.compression)
             sub.update()
             self.subscriptions[op.topic] = sub
-            sub.token = self.bus.subscribe(self.name, op.topic, None,
-                                           lambda p, s=sub, deliver=self.outbox.deliver: deliver(s, p))
+            if source == op.topic:
+                sub.token = self.bus.subscribe(self.name, op.topic, None,
+                                               lambda p, s=sub, deliver=self.outbox.deliver: deliver(s, p))
+            else:  # served from its blurred view, under the name the client asked for
+                sub.token = self.bus.subscribe(self.name, source, None, lambda p, s=sub, deliver=self.outbox.deliver:
+                                               deliver(s, p.renamed(s.topic)))
         else:
             sub.requests[op.id] = SubscriptionRequest(op.throttle_rate, op.queue_length, op.fragment_size,
                                                       op.compression)
@@ -111,4 +119,4 @@ class TopicOps:
             return
         del self.subscriptions[op.topic]
         self.outbox.forget(op.topic)
-        self.bus.unsubscribe(op.topic, sub.token)
+        self.bus.unsubscribe(sub.source, sub.token)
