@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -34,6 +35,7 @@ from support import (
 from client_protocol import names
 from sim.pupils import pupil
 from vr_teleop_server.features.autonomy import AUTONOMY_NODE
+from vr_teleop_server.features.autonomy.feature import FACE_FRESH_S, FaceTrack
 
 RULES = """
 timeout_s: 2.0
@@ -254,6 +256,23 @@ def test_a_pupil_keeps_one_name_and_a_rename_reaches_every_message(server, ros):
         assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
         attention.close()
         state.close()
+
+
+def test_a_face_nobody_known_explains_is_numbered_renamed_and_forgotten_with_its_name(server, ros):
+    """A real robot's faces (here one behind the stand-in, where no pupil is) are face-N; the name given to one
+    goes when the robot forgets the track, so that the same child found again can be given it anew."""
+    feature = server.server.autonomy
+    ident = server.call(lambda: feature._track_id(170.0))
+    assert re.fullmatch(r"face-\d+", ident), ident
+    stale = server.call(feature.clock.monotonic) - FACE_FRESH_S - 1.0  # tracked, but no candidate for attention
+    server.call(lambda: feature.tracks.__setitem__(ident, FaceTrack(ident, 170.0, 0.0, 1.0, {}, stale, stale)))
+    try:
+        assert rename(ros, ident, "Mia") == {"success": True, "message": f"{ident} is Mia"}
+        assert server.call(lambda: feature.name(ident)) == "Mia"
+    finally:
+        server.call(lambda: feature._forget(ident))
+    assert server.call(lambda: feature.name(ident)) == ident
+    refused(rename(ros, ident, "Ben"), f"no person '{ident}' is tracked")
 
 
 def test_engage_takes_the_head_at_once_the_watchdog_hold_keeps_it_and_release_gives_it_back(server, ros):

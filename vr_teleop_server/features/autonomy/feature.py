@@ -204,7 +204,8 @@ class Autonomy:
         elif not on and self._faces_token is not None:
             self.bus.unsubscribe(names.FACES_TOPIC, self._faces_token)
             self._faces_token = None
-            self.tracks.clear()
+            for key in list(self.tracks):
+                self._forget(key)
 
     # ---- the tick -------------------------------------------------------------------------------------------
     async def _run(self) -> None:
@@ -266,7 +267,7 @@ class Autonomy:
                 self.tracks[key] = FaceTrack(key, yaw, pitch, distance, box, now, now)
                 seen.add(key)
         for key in [k for k, t in self.tracks.items() if now - t.last_seen > FACE_FORGET_S]:
-            del self.tracks[key]
+            self._forget(key)
 
     def _track_id(self, yaw: float) -> str:
         """A new face's id: the person the backend knows in that direction (the stand-in's pupils), so that the
@@ -275,6 +276,13 @@ class Autonomy:
         if free:
             return min(free, key=lambda p: abs(p.yaw_deg - yaw)).name
         return f"face-{next(self._track_ids)}"
+
+    def _forget(self, key: str) -> None:
+        """A track the robot no longer keeps, and the name it was given: a face found again is a new track (a known
+        person keeps theirs: their id comes back with them)."""
+        del self.tracks[key]
+        if key not in {p.name for p in self.known}:
+            self.renamed.pop(key, None)
 
     def name(self, ident: str) -> str:
         """The one name a person goes by: the teacher's, else their track id."""
@@ -286,7 +294,7 @@ class Autonomy:
     def rename(self, ident: str, name: str) -> dict[str, Any]:
         """Names a tracked person (an empty name gives the id back); every view shows it from the next message."""
         ident, name = ident.strip(), " ".join(name.split())
-        ids = set(self.tracks) | {p.name for p in self.known} | set(self.renamed)
+        ids = set(self.tracks) | {p.name for p in self.known}
         if ident not in ids:
             tracked = ", ".join(sorted(ids)) or "nobody yet"
             return {"success": False, "message": f"no person {ident!r} is tracked; the ids are: {tracked} (the "
