@@ -172,11 +172,13 @@ MESSAGES: dict[str, str] = {
     # supervised autonomy (vr_teleop_server/features/autonomy)
     "vr_teleop_msgs/AttentionTarget": (
         "# Where the robot's attention is, on /vr_teleop/autonomy/attention (on every change, and 1 Hz).\n"
-        "# source: face, voice, both, glance (nobody there: a look around) or empty (no target). who: the person's\n"
-        "# track id (the stand-in's pupils by name) or empty. yaw/pitch: the target's direction in the robot's base\n"
-        "# frame, degrees (yaw positive to the left). has_face: face holds the face's box in the camera image.\n"
-        "Header header\nstring source\nstring who\nfloat64 yaw\nfloat64 pitch\nbool has_face\nFace face\n"
-        "float64 score"
+        "# source: face, voice, both, glance (nobody there: a look around) or empty (no target). id: the person's\n"
+        "# track id (the stand-in's pupils by name, a real robot's faces face-1, face-2...) or empty; who: their\n"
+        "# name, the one every view shows (the id until /vr_teleop/people/rename gives another). yaw/pitch: the\n"
+        "# target's direction in the robot's base frame, degrees (yaw positive to the left). has_face: face holds\n"
+        "# the face's box in the camera image.\n"
+        "Header header\nstring source\nstring id\nstring who\nfloat64 yaw\nfloat64 pitch\nbool has_face\n"
+        "Face face\nfloat64 score"
     ),
     "vr_teleop_msgs/Proposal": (
         "# An action the robot proposes (SPARC), on /vr_teleop/autonomy/proposals. action: a menu item id; label:\n"
@@ -254,7 +256,8 @@ MESSAGES: dict[str, str] = {
         "# usual a head pose arrives (95th percentile of the gaps between arrivals over 5 s less their median).\n"
         "# While the client's operator holds control: watchdog_threshold, the adaptive head-pose silence after\n"
         "# which the robot holds, and watchdog_holds, the holds in the last minute (-1 and 0 otherwise).\n"
-        "# link_quality: good, degraded or poor ('' while nothing is measured); link_warning: why, in words\n"
+        "# link_quality: good, degraded or poor, judged while the client's operator holds control once its head\n"
+        "# poses arrive ('' otherwise, or while nothing is measured); link_warning: why, in words\n"
         "# (README 'Link quality').\n"
         "# dc_*: the poses data channel (cumulative): messages received, refused (not a publish frame, not an\n"
         "# operator stream topic, control not held, or refused as a WebSocket publish would be), dropped as stale\n"
@@ -395,6 +398,11 @@ SERVICES: dict[str, str] = {
     "vr_teleop_msgs/BystanderSpeak": (
         "# A simulated pupil says text (espeak-ng, into the robot's microphone). Simulation only.\n"
         "string who\nstring text\n---\nbool success\nstring message"
+    ),
+    "vr_teleop_msgs/RenamePerson": (
+        "# Names a tracked person: id is their track id (AttentionTarget's id), name what every view shows for\n"
+        "# them from then on (1-40 characters; empty gives the track id back). Operators and supervisors.\n"
+        "string id\nstring name\n---\nbool success\nstring message"
     ),
     "vr_teleop_msgs/BystanderLook": (
         "# A simulated pupil looks at: robot or away. Simulation only.\n"

@@ -283,8 +283,8 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "(attention, glance, proposal:ID) and each part's owner (operator, trial, gesture, autonomy, estop, "
              "none).", "latched, on change",
              {"header": _stamp(), "level": "supervised",
-              "attention": {"header": _stamp(), "source": "both", "who": "child_left", "yaw": 21.5, "pitch": 2.0,
-                            "has_face": True, "face": {"x": 180, "y": 200, "width": 40, "height": 40,
+              "attention": {"header": _stamp(), "source": "both", "id": "child_left", "who": "child_left",
+                            "yaw": 21.5, "pitch": 2.0, "has_face": True, "face": {"x": 180, "y": 200, "width": 40, "height": 40,
                                                        "confidence": 3.1}, "score": 0.78},
               "pending": [], "running": ["attention"],
               "owners": [{"part": "head", "owner": "autonomy"}, {"part": "right_arm", "owner": "none"},
@@ -293,9 +293,15 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "Where the robot's attention is: a face, a voice or both (a speaking face), a glance around when "
              "nobody is there, or empty (teleoperated, or the head is someone else's). yaw/pitch in the base "
              "frame, degrees (yaw + left, pitch + down).", "on change and 1 Hz, latched",
-             {"header": _stamp(), "source": "voice", "who": "child_right", "yaw": -27.3, "pitch": 0.0,
-              "has_face": False, "face": {"x": 0, "y": 0, "width": 0, "height": 0, "confidence": 0.0},
+             {"header": _stamp(), "source": "face", "id": "face-3", "who": "Mia", "yaw": -27.3, "pitch": 4.0,
+              "has_face": True, "face": {"x": 410, "y": 190, "width": 38, "height": 38, "confidence": 0.8},
               "score": 0.55}),
+    Endpoint(names.PEOPLE_RENAME_SERVICE, "vr_teleop_msgs/RenamePerson", "call",
+             "Name a tracked person: every view (the dashboard, the operator's HUD and camera panel, the recording) "
+             "shows the name for that track id from then on. The stand-in's pupils are tracked by their names "
+             "(child_left...), a real robot's faces as face-1, face-2...; an empty name gives the id back. "
+             "Operators and supervisors; an unknown id or a bad name is refused (success false, the reason in "
+             "message).", example={"id": "face-3", "name": "Mia"}),
     Endpoint(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", "subscribe",
              "An action the robot proposes (a menu item id), why, how sure, and what its time-out does. Decide it "
              "with " + names.AUTONOMY_DECIDE_SERVICE + "; its end comes on " + names.AUTONOMY_OUTCOMES_TOPIC + ".",

@@ -177,6 +177,9 @@ AUTONOMY_ATTENTION_TOPIC = "/vr_teleop/autonomy/attention"
 AUTONOMY_PROPOSALS_TOPIC = "/vr_teleop/autonomy/proposals"
 AUTONOMY_DECIDE_SERVICE = "/vr_teleop/autonomy/decide"
 AUTONOMY_OUTCOMES_TOPIC = "/vr_teleop/autonomy/outcomes"
+# The one name of each person the robot tracks (vr_teleop_msgs/RenamePerson: a track id and the name every view
+# shows for it from then on)
+PEOPLE_RENAME_SERVICE = "/vr_teleop/people/rename"
 # The ROS 1 QTrobot's microphone array as LuxAI's qt_respeaker_app publishes it (latched): voice activity
 # (std_msgs/Bool) and the direction of arrival (std_msgs/Int32, the ReSpeaker's own angle in degrees), read by the
 # ros backend and turned into the robot's base frame there.

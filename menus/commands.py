@@ -23,6 +23,8 @@ class NoArgs(_Args):
 
 class EmotionArgs(_Args):
     name: str = Field(min_length=1, description="LuxAI emotion, e.g. happy or QT/happy")
+    say: str = Field("", max_length=200, description="words the robot says as it shows the emotion; the menus fill "
+                     "them in, in the robot's language, from the menu's words file (menu.words)")
 
 
 class SayArgs(_Args):

@@ -13,6 +13,10 @@ An item has exactly one of `command` (with `args`), `submenu` (a list of items) 
 the menus are published: `gestures` from the gesture library, `emotions` from the robot model, `sentences` from
 the text file named by `source`, relative to the menu file). Slots are left, top, right, bottom (each at most
 once per level) or list (drawn in file order). Item ids are unique across every file.
+
+A menu's `words` names the words its emotions say as they are shown, one file per language (emotion_words.txt stands
+for emotion_words.<language>.txt, relative to the menu file), each line `emotion: words`. The reference language's
+file says which emotions speak; every other language's names the same ones.
 """
 
 from __future__ import annotations
@@ -82,6 +86,8 @@ class MenuInfo(_Strict):
     controller: Literal["left", "right", "any"] = "any"
     button: str = ""
     icon: str = ""
+    words: str | None = Field(None, description="the words this menu's emotions say, per language: "
+                              "emotion_words.txt stands for emotion_words.<language>.txt (lines 'emotion: words')")
 
 
 class MenuFile(_Strict):
@@ -147,6 +153,44 @@ def language_sentences(source: Path, language: str) -> list[tuple[str, str]]:
     return list(zip(reference, sentences))
 
 
+def read_words(path: Path) -> dict[str, str]:
+    """`emotion: words` per line; blank lines and lines starting with # are skipped. MenuError names the line."""
+    words: dict[str, str] = {}
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        name, colon, text = line.partition(":")
+        if not colon or not name.strip() or not text.strip():
+            raise MenuError(f"{path}:{number}: write 'emotion: words' (got {line.strip()!r})")
+        if name.strip() in words:
+            raise MenuError(f"{path}:{number}: {name.strip()} has words twice")
+        words[name.strip()] = text.strip()
+    return words
+
+
+def language_words(source: Path, language: str) -> dict[str, str]:
+    """Emotion -> the words it says in `language`. The reference language's file says which emotions speak; MenuError
+    names the file that is missing, or that lacks (or adds) an emotion of the reference's."""
+    reference_path = sentences_file(source, REFERENCE_LANGUAGE)
+    path = sentences_file(source, language)
+    try:
+        reference = read_words(reference_path)
+        words = read_words(path)
+    except FileNotFoundError as exc:
+        raise MenuError(f"no emotion words for {language!r}: {exc.filename} is missing") from None
+    except OSError as exc:
+        raise MenuError(f"cannot read emotion words: {exc}") from None
+    missing = [name for name in reference if name not in words]
+    if missing:
+        raise MenuError(f"{path} has no words for {', '.join(missing)} ({reference_path} has): add a line "
+                        "'emotion: words' for each")
+    extra = [name for name in words if name not in reference]
+    if extra:
+        raise MenuError(f"{path} has words for {', '.join(extra)}, which {reference_path} does not: each "
+                        "language's file names the same emotions")
+    return words
+
+
 class LoadedMenu:
     def __init__(self, path: Path, data: MenuFile) -> None:
         self.path = path
@@ -178,6 +222,11 @@ def _place(doc: Any, loc: list[Any]) -> str:
 
 def load_menu_file(path: Path) -> LoadedMenu:
     data = load_model_file(MenuFile, path, error=MenuError, place=_item_place)
+    if data.menu.words is not None:
+        try:
+            language_words(path.parent / data.menu.words, REFERENCE_LANGUAGE)
+        except MenuError as exc:
+            raise MenuError(f"{path}: menu words: {exc}") from None
     for _parent, _pos, item in walk(data.items, data.menu.id):
         if item.source is not None:
             try:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -34,6 +35,7 @@ from support import (
 from client_protocol import names
 from sim.pupils import pupil
 from vr_teleop_server.features.autonomy import AUTONOMY_NODE
+from vr_teleop_server.features.autonomy.feature import FACE_FRESH_S, FaceTrack
 
 RULES = """
 timeout_s: 2.0
@@ -213,6 +215,64 @@ def test_attention_turns_to_a_pupil_who_speaks_and_then_to_the_next(server, ros)
     assert server.taps.autonomous_commands()  # autonomy moved the head itself
     state.close()
     attention.close()
+
+
+def rename(ros, ident: str, name: str) -> dict:
+    return call(ros, names.PEOPLE_RENAME_SERVICE, "vr_teleop_msgs/RenamePerson", {"id": ident, "name": name})
+
+
+def test_a_pupil_keeps_one_name_and_a_rename_reaches_every_message(server, ros):
+    """A pupil's face is tracked by the pupil's own name, the one its voice has too: never face-N. A rename is in
+    the next attention and state messages, for the face and the voice alike; bad renames are refused."""
+    attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
+    state = Watch(ros, names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState")
+    pupils = {"child_left", "adult_centre", "child_right"}
+    try:
+        speak(ros, "child_left", "I know the answer, it is the biggest planet, Jupiter, and it has many moons.")
+        assert wait_for(lambda: attention.any(lambda m: m["who"] == "child_left" and m["has_face"]), WAIT)
+        with attention.lock:
+            faces = [(m["id"], m["who"]) for m in attention.messages if m["has_face"]]
+        assert faces and all(ident in pupils and who == ident for ident, who in faces), faces  # never face-N
+
+        assert rename(ros, "child_left", "  Mia ") == {"success": True, "message": "child_left is Mia"}
+        assert wait_for(lambda: attention.latest.get("id") != "child_left" or attention.latest["who"] == "Mia", WAIT)
+        assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
+        speak(ros, "child_left", "And Saturn has rings made of ice and rock, you can see them with a telescope.")
+        assert wait_for(lambda: attention.any(lambda m: (m["id"], m["who"]) == ("child_left", "Mia")), WAIT)
+        assert wait_for(lambda: state.any(lambda m: (m["attention"]["id"], m["attention"]["who"])
+                                          == ("child_left", "Mia")), WAIT)
+        with attention.lock:
+            after = attention.messages[[m["who"] for m in attention.messages].index("Mia"):]
+        assert not [m for m in after if m["id"] == "child_left" and m["who"] != "Mia"], after
+
+        refused(rename(ros, "face-999", "Ben"), r"no person 'face-999' is tracked; the ids are: .*child_left")
+        refused(rename(ros, "child_right", "Mia"), r"'Mia' is already the name of child_left")
+        refused(rename(ros, "child_right", "x" * 41), r"at most 40 characters, got 41")
+        assert rename(ros, "child_left", "") == {"success": True, "message": "child_left is child_left"}
+        assert wait_for(lambda: attention.latest.get("id") != "child_left" or attention.latest["who"] == "child_left",
+                        WAIT)
+    finally:
+        server.call(lambda: server.server.autonomy.rename("child_left", ""))
+        assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
+        attention.close()
+        state.close()
+
+
+def test_a_face_nobody_known_explains_is_numbered_renamed_and_forgotten_with_its_name(server, ros):
+    """A real robot's faces (here one behind the stand-in, where no pupil is) are face-N; the name given to one
+    goes when the robot forgets the track, so that the same child found again can be given it anew."""
+    feature = server.server.autonomy
+    ident = server.call(lambda: feature._track_id(170.0))
+    assert re.fullmatch(r"face-\d+", ident), ident
+    stale = server.call(feature.clock.monotonic) - FACE_FRESH_S - 1.0  # tracked, but no candidate for attention
+    server.call(lambda: feature.tracks.__setitem__(ident, FaceTrack(ident, 170.0, 0.0, 1.0, {}, stale, stale)))
+    try:
+        assert rename(ros, ident, "Mia") == {"success": True, "message": f"{ident} is Mia"}
+        assert server.call(lambda: feature.name(ident)) == "Mia"
+    finally:
+        server.call(lambda: feature._forget(ident))
+    assert server.call(lambda: feature.name(ident)) == ident
+    refused(rename(ros, ident, "Ben"), f"no person '{ident}' is tracked")
 
 
 def test_engage_takes_the_head_at_once_the_watchdog_hold_keeps_it_and_release_gives_it_back(server, ros):

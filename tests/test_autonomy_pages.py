@@ -106,7 +106,7 @@ def dashboard_page(browser, server, role: str):
     page.errors = []  # type: ignore[attr-defined]
     page.on("pageerror", lambda exc: page.errors.append(str(exc)))
     page.goto(f"http://127.0.0.1:{server.port}/#token={TOKENS[role]}&camera=jpeg")
-    page.wait_for_function("window.dashboard.autonomy.level !== ''", timeout=SLOW)
+    page.wait_for_function("window.dashboard?.autonomy.level", timeout=SLOW)  # not yet run: wait, do not fail
     return page
 
 
@@ -317,6 +317,59 @@ def test_the_dashboard_decides_with_buttons_and_keys_and_switches_the_level(brow
     finally:
         page.close()
         autonomy.set_level("supervised")
+
+
+def test_one_name_per_pupil_on_both_pages_and_a_rename_seen_in_both(browser, server, autonomy):
+    """Issue 42: the pupil the robot looks at has one name, the same on the dashboard and in the headset (its HUD
+    line and its camera panel's label): the stand-in pupil's own, never a face-N. The supervisor names her on the
+    dashboard, and both pages say the new name. The two other pupils look away, so that hers is the face in view."""
+    bystanders = server.server.bystanders
+    pupils = {"child_left", "adult_centre", "child_right"}
+    for who in ("adult_centre", "child_right"):
+        assert server.call(lambda who=who: bystanders.look(who, "away"))["success"]
+    dashboard = dashboard_page(browser, server, "supervisor")
+    page = operator_page(browser, server, headset=True)
+    hud = "(document.getElementById('hud-autonomy')?.textContent ?? '')"
+    panel = "(document.getElementById('autonomy-attention').textContent)"
+    label = "JSON.stringify(window.operator.autonomy.overlayKey ?? '')"  # the words drawn on the camera panel
+    try:
+        enter_vr(page)
+        page.wait_for_function(f"{hud}.includes('looking at child_left (')", timeout=SLOW)
+        page.wait_for_function(f"{label}.includes('child_left (')", timeout=SLOW)
+        dashboard.wait_for_function(f"{panel}.startsWith('child_left (')", timeout=SLOW)
+        dashboard.wait_for_function("window.dashboard.autonomy.attention?.id === 'child_left'", timeout=SLOW)
+
+        dashboard.wait_for_function("document.getElementById('rename-id').textContent === 'child_left'",
+                                    timeout=SLOW)
+        dashboard.fill("#rename-name", "Mia")  # the form keeps whom it showed as she began typing
+        renamed = dashboard.get_attribute("#rename", "data-id")
+        assert renamed in pupils, renamed  # child_left, unless a pupil's voice took the attention meanwhile
+        dashboard.press("#rename-name", "Enter")
+        page.wait_for_function(f"{hud}.includes('looking at Mia (')", timeout=SLOW)
+        page.wait_for_function(f"{label}.includes('Mia (')", timeout=SLOW)
+        dashboard.wait_for_function(f"{panel}.startsWith('Mia (')", timeout=SLOW)
+        dashboard.wait_for_function(f"document.getElementById('events').textContent.includes('{renamed} is Mia')",
+                                    timeout=SLOW)
+        assert server.call(lambda: autonomy.feature.name(renamed)) == "Mia"
+        screenshot(page, "operator_attention_renamed.png")
+        screenshot(dashboard, "dashboard_attention_renamed.png")
+
+        # a name someone else has is refused, and the dashboard says why
+        dashboard.fill("#rename-name", "Noah")
+        named = dashboard.get_attribute("#rename", "data-id")
+        other = next(p for p in sorted(pupils) if p != named)
+        server.call(lambda: autonomy.feature.rename(other, "Noah"))
+        dashboard.press("#rename-name", "Enter")
+        dashboard.wait_for_selector("#autonomy-refusal:not([hidden])", timeout=SLOW)
+        assert f"'Noah' is already the name of {other}" in dashboard.text_content("#autonomy-refusal")
+        assert page.errors == [] and dashboard.errors == []
+    finally:
+        for who in pupils:
+            server.call(lambda who=who: autonomy.feature.rename(who, ""))
+        for who in ("adult_centre", "child_right"):
+            server.call(lambda who=who: bystanders.look(who, "robot"))
+        page.context.close()
+        dashboard.close()
 
 
 def test_a_spectator_sees_the_proposal_but_its_decision_is_refused(browser, server, autonomy):

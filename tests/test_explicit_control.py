@@ -230,6 +230,9 @@ def test_the_telemetry_tells_the_holder_how_good_its_link_is(ros, headset, state
     def mine() -> dict:
         return next((c for c in telemetry.latest.get("clients", []) if c["client"] == me), {})
 
+    # its round trip measured and its poses flowing, but no control: there is no link to judge yet
+    assert wait_for(lambda: mine().get("ws_rtt", -1) >= 0 and mine()["pose_rate"] > 0, 10), mine()
+    assert (mine()["link_quality"], mine()["link_warning"]) == ("", ""), mine()
     engage(ros)
     assert wait_for(lambda: mine().get("watchdog_threshold", -1) > 0 and mine()["link_quality"], 10), mine()
     entry = mine()
@@ -246,6 +249,7 @@ def test_the_telemetry_tells_the_holder_how_good_its_link_is(ros, headset, state
     call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
     # not holding: no watchdog figures
     assert wait_for(lambda: mine().get("watchdog_threshold") == -1.0 and mine()["watchdog_holds"] == 0, 5), mine()
+    assert (mine()["link_quality"], mine()["link_warning"]) == ("", ""), mine()  # nor a verdict
 
 
 def test_recenter_makes_the_current_head_direction_straight_ahead_for_the_holder_only(sim_server, ros, headset,

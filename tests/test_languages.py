@@ -131,6 +131,60 @@ def test_a_missing_sentence_list_refuses_the_switch_naming_the_file(servers, tmp
         ros.close()
 
 
+def menu_items(ros: roslibpy.Ros, menu: str) -> dict[str, dict]:
+    watch = Watch(ros, names.MENUS_TOPIC, "vr_teleop_msgs/Menus")
+    try:
+        assert wait_for(lambda: watch.latest, 10)
+        return {i["id"]: i for i in watch.latest["items"] if i["menu"] == menu}
+    finally:
+        watch.close()
+
+
+def test_an_emotions_words_are_said_in_the_robots_language(sim):
+    """The emotion menu's surprise says its words (emotion_words.<language>.txt) as the face shows it: English
+    first, German after a switch, heard on the headset's audio topic as espeak-ng's voice of that language says them."""
+    server, ros = sim
+    surprise = menu_items(ros, "emotion")["emotion.surprise"]
+    assert json.loads(surprise["args"]) == {"name": "surprise", "say": "Wow, look at that!"}
+    assert "say" not in json.loads(menu_items(ros, "emotion")["emotion.happy"]["args"])  # happy has no words
+
+    assert select(ros, "speech.language.de")["message"] == "speaking Deutsch"
+    assert wait_for(lambda: json.loads(menu_items(ros, "emotion")["emotion.surprise"]["args"]).get("say")
+                    == "Wow, schau mal!", 10)
+    assert json.loads(menu_items(ros, "emotion")["emotion.all.surprise"]["args"])["say"] == "Wow, schau mal!"
+    audio = Watch(ros, names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData")
+    try:
+        reply = select(ros, "emotion.surprise")
+        assert reply == {"success": True, "message": "showing surprise, saying 'Wow, schau mal!'"}, reply
+        assert server.call(lambda: server.server.robot.standin.emotion) == "surprise"
+        expected = espeak("gmw/de", "Wow, schau mal!")
+        assert wait_for(lambda: sum(len(base64.b64decode(m["data"])) for m in audio.messages) >= 2 * expected.size,
+                        30)
+        with audio.lock:
+            heard = np.concatenate([np.frombuffer(base64.b64decode(m["data"]), "<i2") for m in audio.messages])
+        assert np.array_equal(heard, expected)  # German words in espeak-ng's German voice
+    finally:
+        audio.close()
+
+
+def test_a_missing_emotion_word_refuses_the_switch_naming_the_file(servers, tmp_path):
+    menus = tmp_path / "menus"
+    shutil.copytree(PACKAGED_DIR, menus)
+    german = menus / "emotion_words.de.txt"
+    german.write_text("".join(line for line in german.read_text().splitlines(keepends=True)
+                              if not line.startswith("surprise:")))
+    server = servers(backend="sim", bystander_interval=0, menu_dir=menus)
+    ros = connect(server.port)
+    try:
+        reply = refused(select(ros, "speech.language.de"),
+                        r"cannot switch to Deutsch: .*emotion_words\.de\.txt has no words for surprise "
+                        r"\(.*emotion_words\.en\.txt has\)")
+        assert str(german) in reply["message"]
+        assert json.loads(menu_items(ros, "emotion")["emotion.surprise"]["args"])["say"] == "Wow, look at that!"
+    finally:
+        ros.close()
+
+
 @pytest.mark.slow
 def test_the_ros1_robot_gets_the_language_through_its_speech_config(servers):
     robot = Ros1QTrobot(seconds_per_word=0.05)

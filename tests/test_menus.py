@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from menus import COMMANDS, MenuError, load_menus, walk
+from menus import COMMANDS, MenuError, language_words, load_menus, walk
 from robot_models import load_qtrobot
 from vr_teleop_server.features.menu_service import MenuService
 
@@ -90,3 +90,26 @@ def test_serve_refuses_a_bad_menu_file(tmp_path):
     assert proc.returncode == 2
     assert "motion.yaml" in proc.stderr and "motion.fly" in proc.stderr and "unknown command 'fly'" in proc.stderr
     assert "listening" not in proc.stdout
+
+
+def test_emotion_words_name_the_file_and_line_of_what_is_wrong(tmp_path):
+    """A menu's words file (menu.words) stands for one file per language: the reference (English) one must be
+    there and well formed at load; another language's must name the same emotions (checked at a switch)."""
+    menu = tmp_path / "emotion.yaml"
+    menu.write_text("menu: {id: e, label: E, words: words.txt}\n"
+                    "items:\n- {id: e.sad, label: Sad, command: show_emotion, args: {name: sad}}\n")
+    with pytest.raises(MenuError, match=r"emotion\.yaml: menu words: no emotion words for 'en': .*words\.en\.txt is "
+                                        r"missing"):
+        load_menus(tmp_path)
+    (tmp_path / "words.en.txt").write_text("# what they say\nsad: Oh no.\nsurprise Wow!\n")
+    with pytest.raises(MenuError, match=r"words\.en\.txt:3: write 'emotion: words' \(got 'surprise Wow!'\)"):
+        load_menus(tmp_path)
+    (tmp_path / "words.en.txt").write_text("sad: Oh no.\nsurprise: Wow!\n")
+    assert language_words(tmp_path / "words.txt", "en") == {"sad": "Oh no.", "surprise": "Wow!"}
+    load_menus(tmp_path)
+    (tmp_path / "words.de.txt").write_text("sad: Oh nein.\nhappy: Juhu!\n")
+    with pytest.raises(MenuError, match=r"words\.de\.txt has no words for surprise \(.*words\.en\.txt has\)"):
+        language_words(tmp_path / "words.txt", "de")
+    (tmp_path / "words.de.txt").write_text("sad: Oh nein.\nsurprise: Wow!\nhappy: Juhu!\n")
+    with pytest.raises(MenuError, match=r"words\.de\.txt has words for happy, which .*words\.en\.txt does not"):
+        language_words(tmp_path / "words.txt", "de")

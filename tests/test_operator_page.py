@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import time
 from pathlib import Path
@@ -83,7 +84,11 @@ def take_control_by_key(page) -> None:
     control = "(document.getElementById('hud-control')?.textContent ?? '')"
     page.wait_for_function(f"{control}.startsWith('no one in control')", timeout=SLOW)
     page.keyboard.press("e")
-    page.wait_for_function(f"{control}.startsWith('YOU HAVE CONTROL')", timeout=SLOW)
+    try:
+        page.wait_for_function(f"{control}.startsWith('YOU HAVE CONTROL')", timeout=SLOW)
+    except Exception as exc:  # what the page said instead (a refusal is on its message line)
+        said = page.evaluate("document.getElementById('hud').innerText")
+        raise AssertionError(f"E did not take control; the HUD says: {said!r}") from exc
 
 
 def choose_in_menu(page, hand: str, button: str, title: str, stick: tuple[float, float], item: str) -> None:
@@ -166,8 +171,8 @@ def test_the_head_follows_the_headset_and_the_panel_shows_the_robots_view(browse
         assert abs(standin.joint_positions()["HeadYaw"] - 30.0) <= 2.0
         screenshot(page, "operator_vr_turned.png")
 
-        # The HUD: a round trip in milliseconds, and who holds control.
-        page.wait_for_function("/round trip \\d+ ms/.test((document.getElementById('hud-numbers')?.textContent ?? ''))",
+        # The HUD: a round trip in milliseconds (on the link's line), and who holds control.
+        page.wait_for_function("/round trip \\d+ ms/.test((document.getElementById('hud-link')?.textContent ?? ''))",
                                timeout=SLOW)
         assert state.latest["engaged"] and state.latest["holder"]
         assert "camera frame" in hud(page, "numbers") and "ms old" in hud(page, "numbers")
@@ -402,6 +407,50 @@ def test_the_hud_shows_the_links_quality_and_warns_after_a_hold(browser, sim_ser
                                timeout=SLOW)
         assert hud(page, "link").startswith(("LINK DEGRADED: ", "LINK POOR: "))
         assert page.get_attribute("#hud-link", "class") in ("warning", "error")
+        assert page.errors == []
+    finally:
+        close_page(page)
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 10)
+
+
+# Every state the HUD shows, as it shows it: its lines (id -> text) and whether the view had a camera frame then.
+HUD_LOG = """window.hudLog = [];
+document.addEventListener('DOMContentLoaded', () => {
+  const hud = document.getElementById('hud');
+  new MutationObserver(() => window.hudLog.push({
+    lines: Object.fromEntries([...hud.children].map((p) => [p.id, p.textContent])),
+    frame: !!window.operator && window.operator.camera.frameAge() !== null,
+  })).observe(hud, {childList: true});
+});"""
+
+
+def test_the_hud_never_contradicts_itself(browser, iwer, sim_server):
+    """Issue 42: one figure per line, each from one source, and the link judged only once there is one. Every state
+    the headset's HUD went through, from the page's opening to control held: the round trip on one line at most
+    (the link's, from the telemetry), no camera figure while the view waits for its first frame, and no verdict on
+    the link (good, degraded, poor) before this page holds control."""
+    page = open_page(browser, sim_server, headset=iwer, init_scripts=(HUD_LOG,))
+    try:
+        enter_vr(page)
+        link = "(document.getElementById('hud-link')?.textContent ?? '')"
+        page.wait_for_function(f"/^round trip \\d+ ms$/.test({link})", timeout=SLOW)  # measured, not judged
+        page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+        SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(SCREENSHOTS / "operator_hud_before_control.png"))
+        take_control(page)
+        page.wait_for_function(f"/^(link good · round trip \\d+ ms|LINK (DEGRADED|POOR): .*round trip \\d+ ms.*)$/"
+                               f".test({link})", timeout=SLOW)
+        page.screenshot(path=str(SCREENSHOTS / "operator_hud_in_control.png"))
+        log = page.evaluate("window.hudLog")
+        held = [i for i, s in enumerate(log) if s["lines"].get("hud-control", "").startswith("YOU HAVE CONTROL")]
+        assert held and any(s["frame"] for s in log), log[-1]
+        for s in log:
+            lines = s["lines"]
+            assert sum("round trip" in text for text in lines.values()) <= 1, lines
+            assert not any("no frames yet" in text for text in lines.values()), lines
+            assert ("camera frame" in lines.get("hud-numbers", "")) == s["frame"], s
+        for s in log[:held[0]]:
+            assert re.fullmatch(r"(round trip( \d+ ms|: measuring))?", s["lines"].get("hud-link", "")), s["lines"]
         assert page.errors == []
     finally:
         close_page(page)

@@ -5,7 +5,7 @@ A selection comes as a service call (/vr_teleop/menu/select, vr_teleop_msgs/Menu
 call made on behalf of the selecting client (so "take control" makes *that* client the holder), and announced on
 /vr_teleop/events (source "menu": kind "select", or "menu_failed" with the reason). Generated items (gestures,
 emotions, sentences) are made when the menus are published, and the menus are published again when the gesture
-library changes.
+library changes or the robot's language does (the sentences, and the words an emotion says, are that language's).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from client_protocol import names
 from client_protocol.events import EventKind, EventLevel, MenuFailure, MenuSelection
-from menus import COMMANDS, REFERENCE_LANGUAGE, Item, LoadedMenu, language_sentences, walk
+from menus import COMMANDS, REFERENCE_LANGUAGE, Item, LoadedMenu, language_sentences, language_words, walk
 from robot_models.types import MotorMode
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -76,7 +76,7 @@ class MenuService:
         if item.generate == "gestures":
             rows = [(name, name, "play_gesture", {"name": name}) for name in self._gestures()]
         elif item.generate == "emotions":
-            rows = [(name, name, "show_emotion", {"name": name}) for name in self._emotions]
+            rows = [(name, name, "show_emotion", self._emotion_args({"name": name}, menu)) for name in self._emotions]
         elif item.generate == "clips":
             rows = [(name, name, "play_clip", {"name": name}) for name in self._clips()]
         else:
@@ -103,11 +103,12 @@ class MenuService:
                     continue  # an empty list (no clips yet) is left out: a menu item leads somewhere
                 if item.command in unavailable:
                     continue  # nor is an item that could only be refused
+                args = self._emotion_args(item.args, menu) if item.command == "show_emotion" else item.args
                 items.append({"id": item.id, "menu": menu.info.id, "parent": parent, "label": item.label,
                               "slot": item.slot, "position": position, "icon": item.icon,
-                              "command": item.command or "", "args": json.dumps(item.args) if item.command else ""})
+                              "command": item.command or "", "args": json.dumps(args) if item.command else ""})
                 if item.command:
-                    table[item.id] = (item.command, dict(item.args))
+                    table[item.id] = (item.command, dict(args))
                     labels[item.id] = item.label
                 if item.generate:
                     for pos, (ident, label, command, args) in enumerate(generated):
@@ -123,9 +124,20 @@ class MenuService:
                        "button": m.info.button, "icon": m.info.icon} for m in self.menus],
             "items": items}, latch=True)
 
+    def _emotion_args(self, args: dict[str, Any], menu: LoadedMenu) -> dict[str, Any]:
+        """A show_emotion's args with the words the emotion says in the robot's language (the menu's words file)."""
+        if menu.info.words is None or "say" in args:
+            return dict(args)
+        words = language_words(menu.path.parent / menu.info.words, self._language())
+        said = words.get(str(args["name"]).rpartition("/")[2])
+        return {**args, "say": said} if said else dict(args)
+
     def check_language(self, language: str) -> None:
-        """ValueError (MenuError) naming the file when a menu has no sentence list for `language`."""
+        """ValueError (MenuError) naming the file when a menu has no sentence list, or no emotion words, for
+        `language`."""
         for menu in self.menus:
+            if menu.info.words is not None:
+                language_words(menu.path.parent / menu.info.words, language)
             for _parent, _position, item in walk(menu.items, menu.info.id):
                 if item.source is not None:
                     language_sentences(menu.path.parent / item.source, language)
@@ -199,7 +211,11 @@ class MenuService:
 
     # ---- the commands (one method per name in menus.COMMANDS) --------------------------------------------------
     async def _do_show_emotion(self, a: Any, caller: str) -> str:
-        return await self._luxai(names.EMOTION_SHOW_SERVICE, {"name": a.name}, caller, f"showing {a.name}")
+        shown = await self._luxai(names.EMOTION_SHOW_SERVICE, {"name": a.name}, caller, f"showing {a.name}")
+        if not a.say:
+            return shown
+        response = await self._call(names.SPEECH_SAY_SERVICE, {"message": a.say}, caller)
+        return f"{shown}, saying {a.say!r}" if response.status else f"{shown}; stopped while saying {a.say!r}"
 
     async def _do_say(self, a: Any, caller: str) -> str:
         response = await self._call(names.SPEECH_SAY_SERVICE, {"message": a.text}, caller)

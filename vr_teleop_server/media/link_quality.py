@@ -1,7 +1,9 @@
 """How good one client's link is for teleoperation, in one word and one sentence the operator can act on.
 
-Pure: figures in, verdict out. The telemetry (service.py) calls `assess` for every client at each report; the
-operator page's HUD shows the word and the sentence, and warns when control is degraded.
+Pure: figures in, verdict out. The telemetry (telemetry.py) calls `assess` at each report for a client whose
+operator holds control once its head poses have reached the server (before then there is no link to judge: a
+page that has just opened, on a machine still busy loading it, is not told LINK POOR); the operator page's HUD shows
+the word and the sentence, and warns when control is degraded.
 
 Three levels (README "Link quality"): `good`, `degraded` (control works, but the operator should know: the robot
 lags, or the watchdog had to stretch to the network's jitter, or it held lately), `poor` (control is not to be

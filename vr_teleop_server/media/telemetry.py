@@ -196,9 +196,11 @@ class Telemetry:
                       camera_frame_age=age_sum / age_n if age_n else NOT_KNOWN)
         control = self.control(name)
         jitter = link_quality.pose_jitter(link.poses, now)
-        quality, warning = link_quality.assess(ws_rtt=link.ws_rtt, rtc_rtt=fields.get("rtc_rtt", NOT_KNOWN),
-                                               fraction_lost=fields.get("rtc_fraction_lost", 0.0),
-                                               pose_jitter_s=jitter, control=control)
+        quality, warning = "", ""
+        if control is not None and link.poses:  # a link is judged once there is one: control taken, poses flowing
+            quality, warning = link_quality.assess(ws_rtt=link.ws_rtt, rtc_rtt=fields.get("rtc_rtt", NOT_KNOWN),
+                                                   fraction_lost=fields.get("rtc_fraction_lost", 0.0),
+                                                   pose_jitter_s=jitter, control=control)
         fields.update(pose_jitter=jitter, watchdog_threshold=control.threshold_s if control else NOT_KNOWN,
                       watchdog_holds=control.holds_last_minute if control else 0, link_quality=quality,
                       link_warning=warning)

@@ -354,6 +354,14 @@ class VoiceActivity:
     who: str = ""
 
 
+@dataclass(frozen=True)
+class KnownPerson:
+    """Someone a backend knows by name, and their direction from the robot's base (degrees, positive to the left)."""
+
+    name: str
+    yaw_deg: float
+
+
 class Listeners:
     """Callbacks on the event loop; one that fails is logged and the others still hear."""
 
@@ -564,6 +572,12 @@ class Robot(abc.ABC):
     def _voice_activity(self, activity: VoiceActivity) -> None:
         """For backends, on the event loop: hand a voice report to every listener."""
         self._voice_listeners(activity)
+
+    def known_people(self) -> tuple[KnownPerson, ...]:
+        """The people this backend can tell apart by where they are: the stand-in's simulated pupils (their names
+        are their faces' track ids, and what its microphone array names as `VoiceActivity.who`). A real robot
+        knows nobody: its faces are tracks, named by number until someone renames them."""
+        return ()
 
     # ------------------------------------------------------------------------------------------------ voice
     def play_voice(self, pcm: bytes, sample_rate: int, channels: int) -> None:

@@ -20,7 +20,8 @@ export function outcomeText(o) {
   return `${o.label || o.action || o.id}: ${OUTCOME_WORDS[o.outcome] || o.outcome}${by}${after}`;
 }
 
-/** What the attention target says in words: "Ana (voice and face)". */
+/** What the attention target says in words: "child_left (voice and face)". The name is the server's (`who`: the
+ * track id, or the name it was given with /vr_teleop/people/rename), the one every view shows. */
 export function attentionText(a) {
   if (!a || !a.source) return "nobody";
   const source = {face: "face", voice: "voice", both: "voice and face", glance: "looking around"}[a.source] || a.source;

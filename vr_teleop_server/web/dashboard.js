@@ -458,6 +458,7 @@ function showAutonomy() {
   const a = m.attention;
   $("autonomy-attention").textContent = a?.source
     ? `${attentionText(a)} · yaw ${a.yaw.toFixed(0)}°, pitch ${a.pitch.toFixed(0)}° · score ${a.score.toFixed(2)}` : "nobody";
+  showRename(a);
   $("autonomy-running").textContent = m.running.length ? m.running.join(", ") : "nothing";
   $("autonomy-owners").textContent = m.owners.length ? m.owners.map((o) => `${o.part}: ${o.owner}`).join(", ") : "–";
   const fresh = m.outcomes.filter((o) => !o.logged);  // newest first: logged oldest first so the newest is on top
@@ -506,6 +507,29 @@ function decide(decision) {
     .then((message) => logLine($("events"), `${label}: ${message}`))
     .catch((err) => logLine($("events"), `${decision} refused: ${err.message}`, "error"));
 }
+// Naming the person the robot looks at (/vr_teleop/people/rename): the server's name is the one both pages show.
+// The form names the person it showed when the supervisor began typing, wherever the attention has moved since.
+function showRename(a) {
+  const form = $("rename");
+  if (form.contains(document.activeElement) && form.dataset.id) return;
+  form.dataset.id = a?.id || "";
+  form.hidden = !form.dataset.id;
+  $("rename-id").textContent = form.dataset.id;
+  if (document.activeElement !== $("rename-name")) $("rename-name").placeholder = a?.who || "";
+}
+$("rename").onsubmit = (event) => {
+  event.preventDefault();
+  const id = $("rename").dataset.id, name = $("rename-name").value;
+  ros.call(names.PEOPLE_RENAME_SERVICE, {id, name})
+    .then((r) => {
+      logLine($("events"), r.message);
+      $("rename-name").value = "";
+      $("rename-name").blur();
+      autonomy.refusal = null;
+      showAutonomy();
+    })
+    .catch((err) => autonomy.refused(`rename refused: ${err.message}`));
+};
 $("proposal-accept").onclick = () => decide("accept");
 $("proposal-reject").onclick = () => decide("reject");
 $("proposal-forbid").onclick = () => decide("forbid");

@@ -101,6 +101,7 @@ export const AUTONOMY_ATTENTION_TOPIC = "/vr_teleop/autonomy/attention";
 export const AUTONOMY_PROPOSALS_TOPIC = "/vr_teleop/autonomy/proposals";
 export const AUTONOMY_DECIDE_SERVICE = "/vr_teleop/autonomy/decide";
 export const AUTONOMY_OUTCOMES_TOPIC = "/vr_teleop/autonomy/outcomes";
+export const PEOPLE_RENAME_SERVICE = "/vr_teleop/people/rename";
 export const RESPEAKER_SPEAKING_TOPIC = "/qt_respeaker_app/is_speaking";
 export const RESPEAKER_DIRECTION_TOPIC = "/qt_respeaker_app/sound_direction";
 export const SIM_BYSTANDERS_TOPIC = "/sim/bystanders";

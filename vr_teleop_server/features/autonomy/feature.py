@@ -48,6 +48,7 @@ SITUATION_WINDOW_S = 10.0  # an event stays the situation this long (the teacher
 ATTENTION_REPUBLISH_S = 1.0
 EXECUTE_TIMEOUT_S = 60.0
 MIN_SHOWN_S = 1.0  # a proposal is not replaced sooner: a teacher in a headset must be able to read it
+NAME_MAX = 40  # characters of a person's name (the HUD's line has room for little more)
 BUSY_WAIT_S = 30.0  # an accepted action waits this long at most for its part (someone else's speech) to be free
 ACTION_PARTS = {"say": ("voice",), "show_emotion": ("face",)}  # play_gesture: the robot's parts
 
@@ -61,7 +62,6 @@ class FaceTrack:
     box: dict[str, Any]
     first_seen: float
     last_seen: float
-    who: str = ""
     announced: bool = False  # new_face fired
     away_fired: bool = False
 
@@ -129,6 +129,10 @@ class Autonomy:
         self.pending: dict[str, Proposal] = {}
         self.executing: dict[str, asyncio.Task[None]] = {}
         self.tracks: dict[str, FaceTrack] = {}
+        # One name per person, the one every view shows: a track's id (the stand-in's pupils by their own names, a
+        # real robot's faces face-1, face-2...) unless the teacher renamed it (/vr_teleop/people/rename).
+        self.known = robot.known_people()
+        self.renamed: dict[str, str] = {}
         self._head_history: deque[tuple[float, float, float]] = deque()  # (wall stamp, yaw, pitch)
         self.voice: Voice | None = None
         self._last_voice_end: float | None = None
@@ -166,6 +170,7 @@ class Autonomy:
         bus.declare_topic(names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome", persistent=True)
         bus.provide(names.AUTONOMY_LEVEL_SERVICE, "vr_teleop_msgs/SetAutonomy", self._level_service)
         bus.provide(names.AUTONOMY_DECIDE_SERVICE, "vr_teleop_msgs/DecideProposal", self._decide_service)
+        bus.provide(names.PEOPLE_RENAME_SERVICE, "vr_teleop_msgs/RenamePerson", self._rename_service)
         self._event_token = bus.subscribe(AUTONOMY_NODE, names.EVENT_TOPIC, None, self._on_event)
         self._unlisten = self.robot.on_voice_activity(self._on_voice)
         self.owners.changed.append(self._on_owners)
@@ -199,7 +204,8 @@ class Autonomy:
         elif not on and self._faces_token is not None:
             self.bus.unsubscribe(names.FACES_TOPIC, self._faces_token)
             self._faces_token = None
-            self.tracks.clear()
+            for key in list(self.tracks):
+                self._forget(key)
 
     # ---- the tick -------------------------------------------------------------------------------------------
     async def _run(self) -> None:
@@ -257,11 +263,55 @@ class Autonomy:
                 near.away_fired = False
                 seen.add(near.key)
             else:
-                key = f"face-{next(self._track_ids)}"
+                key = self._track_id(yaw)
                 self.tracks[key] = FaceTrack(key, yaw, pitch, distance, box, now, now)
                 seen.add(key)
         for key in [k for k, t in self.tracks.items() if now - t.last_seen > FACE_FORGET_S]:
-            del self.tracks[key]
+            self._forget(key)
+
+    def _track_id(self, yaw: float) -> str:
+        """A new face's id: the person the backend knows in that direction (the stand-in's pupils), so that the
+        same pupil keeps their name whenever they are found again; else the next number."""
+        free = [p for p in self.known if p.name not in self.tracks and abs(p.yaw_deg - yaw) <= self.cfg.match_deg]
+        if free:
+            return min(free, key=lambda p: abs(p.yaw_deg - yaw)).name
+        return f"face-{next(self._track_ids)}"
+
+    def _forget(self, key: str) -> None:
+        """A track the robot no longer keeps, and the name it was given: a face found again is a new track (a known
+        person keeps theirs: their id comes back with them)."""
+        del self.tracks[key]
+        if key not in {p.name for p in self.known}:
+            self.renamed.pop(key, None)
+
+    def name(self, ident: str) -> str:
+        """The one name a person goes by: the teacher's, else their track id."""
+        return self.renamed.get(ident, ident)
+
+    async def _rename_service(self, request: Any) -> dict[str, Any]:
+        return self.rename(request.id, request.name)
+
+    def rename(self, ident: str, name: str) -> dict[str, Any]:
+        """Names a tracked person (an empty name gives the id back); every view shows it from the next message."""
+        ident, name = ident.strip(), " ".join(name.split())
+        ids = set(self.tracks) | {p.name for p in self.known}
+        if ident not in ids:
+            tracked = ", ".join(sorted(ids)) or "nobody yet"
+            return {"success": False, "message": f"no person {ident!r} is tracked; the ids are: {tracked} (the "
+                                                 f"attention's id on {names.AUTONOMY_ATTENTION_TOPIC})"}
+        if len(name) > NAME_MAX:
+            return {"success": False, "message": f"a name is at most {NAME_MAX} characters, got {len(name)}"}
+        taken = next((other for other in ids if other != ident and self.name(other) == name), None)
+        if name and taken is not None:
+            return {"success": False, "message": f"{name!r} is already the name of {taken}: give another"}
+        if not name or name == ident:
+            self.renamed.pop(ident, None)
+        else:
+            self.renamed[ident] = name
+        now = self.clock.monotonic()
+        self._publish_attention(now, force=True)
+        self._publish_state(force=True)
+        return {"success": True, "message": f"{ident} is {self.name(ident)}"}
 
     def _on_voice(self, activity: VoiceActivity) -> None:
         now = activity.stamp
@@ -281,7 +331,7 @@ class Autonomy:
         voice, self.voice = self.voice, None
         self._last_voice_end = now
         if voice is not None:
-            self._event(now, "speech_ended", speech_s=now - voice.since, who=voice.who)
+            self._event(now, "speech_ended", speech_s=now - voice.since, who=self.name(voice.who))
 
     def _voice_track(self) -> FaceTrack | None:
         """The face the current voice comes from (nearest within match_deg), if any."""
@@ -292,8 +342,6 @@ class Autonomy:
         fresh = [t for t in self.tracks.values() if now - t.last_seen <= FACE_FRESH_S]
         near = min(fresh, key=lambda t: abs(t.yaw - voice.direction), default=None)
         if near is not None and abs(near.yaw - voice.direction) <= self.cfg.match_deg:
-            if voice.who:
-                near.who = voice.who
             return near
         return None
 
@@ -320,7 +368,7 @@ class Autonomy:
         for track in self.tracks.values():
             if not track.announced and track.last_seen - track.first_seen >= NEW_FACE_CONFIRM_S:
                 track.announced = True
-                self._event(now, "new_face", who=track.who)
+                self._event(now, "new_face", who=self.name(track.key))
             gone = now - track.last_seen
             if track.announced and not track.away_fired and gone > FACE_FRESH_S and self.camera is not None:
                 head_yaw = self._head()[0] if head_yaw is None else head_yaw
@@ -328,7 +376,7 @@ class Autonomy:
                 rules = [r for r in self.rules.for_event("looked_away") if gone >= r.away_s]
                 if rules and abs(track.yaw - head_yaw) < half_fov * 0.8:
                     track.away_fired = True
-                    self._event(now, "looked_away", away_s=gone, who=track.who)
+                    self._event(now, "looked_away", away_s=gone, who=self.name(track.key))
 
     def _event(self, now: float, name: str, **detail: Any) -> None:
         situation = Situation(name)
@@ -419,6 +467,8 @@ class Autonomy:
         entry = self.menu_entry(action)
         if entry is None:
             return ()
+        if entry[1] == "show_emotion" and entry[2].get("say"):
+            return ("face", "voice")  # an emotion that says its words never starts over someone else's sentence
         return ACTION_PARTS.get(entry[1], tuple(self.robot.model.parts) if entry[1] == "play_gesture" else ())
 
     def _busy(self, action: str) -> bool:
@@ -615,18 +665,26 @@ class Autonomy:
         out += [f"proposal:{i}" for i in self.executing]
         return out
 
+    def _target_id(self) -> str:
+        """The attention target's person: a face's track id, a voice's speaker when the robot knows them, or ""."""
+        t = self.target
+        if t is None or t.key in self.tracks:
+            return t.key if t is not None else ""
+        return t.key.removeprefix("voice:") if t.key.startswith("voice:") else ""
+
     def _attention_message(self) -> dict[str, Any]:
         t = self.target
         face = self.tracks.get(t.key) if t is not None else None
-        return {"header": {"stamp": self.bus.registry.now()}, "source": t.source if t else "",
-                "who": (face.who or face.key) if face is not None else (t.key.removeprefix("voice:") if t else ""),
+        ident = self._target_id()
+        return {"header": {"stamp": self.bus.registry.now()}, "source": t.source if t else "", "id": ident,
+                "who": self.name(ident) if ident else "",
                 "yaw": round(t.yaw, 3) if t else 0.0, "pitch": round(t.pitch, 3) if t else 0.0,
                 "has_face": face is not None, "face": face.box if face is not None else {},
                 "score": round(t.score, 4) if t else 0.0}
 
     def _publish_attention(self, now: float, force: bool = False) -> None:
         t = self.target
-        key = (t.source, t.key, round(t.yaw / 2), round(t.pitch / 2)) if t else ()
+        key = (t.source, t.key, self.name(self._target_id()), round(t.yaw / 2), round(t.pitch / 2)) if t else ()
         if force or key != self._pub.attention_key or now - self._pub.attention_at >= ATTENTION_REPUBLISH_S:
             self._pub.attention_key, self._pub.attention_at = key, now
             self.bus.publish(names.AUTONOMY_ATTENTION_TOPIC, self._attention_message(), latch=True)
@@ -634,7 +692,7 @@ class Autonomy:
     def _publish_state(self, force: bool = False) -> None:
         t = self.target
         summary = (self.level, tuple((p.id, p.waiting) for p in self.pending.values()), tuple(self.running()),
-                   tuple(self.owners.owners().items()), (t.source, t.key) if t else ())
+                   tuple(self.owners.owners().items()), (t.source, t.key, self.name(self._target_id())) if t else ())
         if not force and summary == self._pub.summary:
             return
         self._pub.summary = summary

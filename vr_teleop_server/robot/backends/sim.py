@@ -14,6 +14,7 @@ from typing import Any
 
 from robot_models import RobotModel, load_qtrobot
 from sim import StandIn
+from sim.pupils import PUPILS
 
 from ..interface import (
     CameraFrame,
@@ -23,6 +24,7 @@ from ..interface import (
     GestureResult,
     HardwareReport,
     JointState,
+    KnownPerson,
     MotorMode,
     MotorStatus,
     NOT_MODELLED,
@@ -225,6 +227,10 @@ class SimRobot(Robot):
         """On the loop: a piece of a simulated pupil's voice reaches the microphone (sim/pupils.py)."""
         for listener in tuple(self._listeners):
             listener(pcm, sample_rate, channels)
+
+    def known_people(self) -> tuple[KnownPerson, ...]:
+        """The classroom's simulated pupils, by name (sim/pupils.py)."""
+        return tuple(KnownPerson(p.name, p.yaw_deg) for p in PUPILS)
 
     # ------------------------------------------------------------------------------------------------ camera
     def add_camera_subscriber(self) -> None:

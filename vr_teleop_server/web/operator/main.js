@@ -28,13 +28,12 @@ const TOPICS = {
 const SERVICES = {
   engage: names.ENGAGE_SERVICE, calibrate: names.CALIBRATE_SERVICE,
   recenter: names.RECENTER_SERVICE,
-  estop: names.ESTOP_SERVICE, select: names.MENU_SELECT_SERVICE, time: names.ROSAPI_GET_TIME_SERVICE,
+  estop: names.ESTOP_SERVICE, select: names.MENU_SELECT_SERVICE,
   whoami: names.WHOAMI_SERVICE,
 };
 const TELEMETRY_TOPIC = names.TELEMETRY_TOPIC;
 const JOY_KEEPALIVE_MS = 33;   // Joy goes out on every change, and at least at 30 Hz
 const HUD_PERIOD_MS = 200;     // the heads-up display is redrawn five times a second
-const RTT_PERIOD_MS = 1000;
 const MESSAGE_KEEP_MS = 8000;
 const PANEL_DISTANCE = 2.0;    // metres from the eyes to the camera panel
 const CAMERA_HFOV_DEG = 80;    // the head camera's horizontal field of view (D435 colour, fx 376 at 640 px):
@@ -54,7 +53,7 @@ const state = {
   connection: null,                    // this rosbridge connection's name (/vr_teleop/whoami), for the telemetry
   link: null,                          // our entry of the newest /vr_teleop/telemetry: the link's quality
   claimHolder: false, engaging: false, pulses: 0, disconnectReason: "",
-  rtt: null, message: null, menusProblem: null, footer: null,
+  message: null, menusProblem: null, footer: null,
   headOn: true, armsOn: true, recording: false,  // the menu switches' states, from the events' typed details
   recordingParts: [],
   zero: {yaw: 0, pitch: 0},            // the operator's head (XR yaw, pitch) when control was taken
@@ -262,13 +261,21 @@ ros.subscribe(TELEMETRY_TOPIC, "vr_teleop_msgs/Telemetry", (msg) => {
   state.link = mine;
 });  // no queue_length: the camera's RenderTimes reads every report of the same subscription
 
+/** The link's one line: the round trip (the HUD's only one: the telemetry's, the worse of the WebSocket's and the peer
+ * connection's, the figure the server judges the link by) and, once there is a link to judge (this page holds control
+ * and its poses have reached the server), the server's verdict. A warning that names the round trip is not given it
+ * twice; one that does not gets it first (the headset's HUD cuts a long line at its end). */
 function linkLine() {
   const l = state.link;
-  if (!l || !l.link_quality) return {id: "link", text: "link: measuring", level: "muted"};
-  const rtt = l.ws_rtt >= 0 ? ` · round trip ${(l.ws_rtt * 1000).toFixed(0)} ms` : "";
-  if (l.link_quality === "good") return {id: "link", text: `link good${rtt}`, level: "ok"};
+  const rtt = l ? Math.max(l.ws_rtt, l.rtc_rtt ?? -1) : -1;
+  if (rtt < 0) return {id: "link", text: "round trip: measuring", level: "muted"};
+  const ms = `round trip ${(rtt * 1000).toFixed(0)} ms`;
+  if (!l.link_quality) return {id: "link", text: holding() ? `${ms} · link: judged once your poses arrive` : ms,
+                               level: "info"};
+  if (l.link_quality === "good") return {id: "link", text: `link good · ${ms}`, level: "ok"};
   const level = l.link_quality === "poor" ? "error" : "warning";
-  return {id: "link", text: `LINK ${l.link_quality.toUpperCase()}: ${l.link_warning}`, level};
+  const why = l.link_warning.includes("round trip") ? l.link_warning : `${ms} · ${l.link_warning}`;
+  return {id: "link", text: `LINK ${l.link_quality.toUpperCase()}: ${why}`, level};
 }
 
 // ---- the robot's state ----------------------------------------------------------------------------------------------
@@ -690,11 +697,12 @@ function xrFrame(frame, now) {
   noteInput(inputKind(sources));
 }
 
-// Which input the headset reports (controllers or hands): said when it changes, and on the HUD.
+// Which input the headset reports (controllers or hands): on the HUD's input line; hands also get a hint of how to
+// use them (the message line does not repeat the input line).
 function noteInput(kind) {
   if (kind === state.input) return;
   state.input = kind;
-  if (kind) say(kind === "hands" ? "hands: pinch to select, hold a fist to move that arm" : `input: ${kind}`, "ok");
+  if (kind === "hands") say("hands: pinch to select, hold a fist to move that arm", "ok");
   menuDirty = true;
 }
 
@@ -787,14 +795,13 @@ function hudLines() {
   if (ros.connected) lines.push(linkLine());
   const clamped = s?.clamped?.length ? s.clamped.join(", ") : "none";
   lines.push({id: "clamped", text: `clamped joints: ${clamped}`, level: s?.clamped?.length ? "warning" : "muted"});
-  const rtt = state.rtt === null ? "–" : `${state.rtt.toFixed(0)} ms`;
+  // No camera figure before the first frame: the view itself says it waits for the robot's camera.
   const age = cameraSource.frameAge();
   const route = cameraSource.path === "WebRTC" && cameraSource.route ? ` via ${cameraSource.route}` : "";
   const path = cameraSource.path ? ` (${cameraSource.road})${route}` : "";
-  const ageText = (age === null ? "no frames yet" : `${Math.max(0, age * 1000).toFixed(0)} ms old`) + path;
+  const frame = age === null ? "" : `camera frame ${Math.max(0, age * 1000).toFixed(0)} ms old${path} · `;
   const talking = audio.status ? ` · ${audio.status}` : "";
-  lines.push({id: "numbers", text: `round trip ${rtt} · camera frame ${ageText} · ${state.fps} fps${talking}`,
-              level: "info"});
+  lines.push({id: "numbers", text: `${frame}${state.fps} fps${talking}`, level: "info"});
   if (state.xr && state.input) lines.push({id: "input", text: `input: ${state.input}`, level: "info"});
   if (!state.xr) {
     lines.push({id: "keys", level: "muted",
@@ -835,19 +842,6 @@ function drawAutonomy() {
   proposalMesh.visible = !!drawn.proposal && !!state.xr;  // the flat view has the page's own card
 }
 
-async function measureRoundTrip() {
-  if (ros.connected) {
-    const t0 = performance.now();
-    try {
-      await ros.call(SERVICES.time, {}, 5000);
-      state.rtt = performance.now() - t0;
-    } catch {
-      state.rtt = null;
-    }
-  } else state.rtt = null;
-  setTimeout(measureRoundTrip, RTT_PERIOD_MS);
-}
-measureRoundTrip();
 setInterval(() => {
   state.fps = state.frames;
   state.frames = 0;
