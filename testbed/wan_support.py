@@ -45,12 +45,15 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def serve(net: Emulator, *extra: str, start_timeout: float = 120.0, env: dict[str, str] | None = None) -> str:
     """Starts the server in the server namespace and returns its URL once it listens (the emulator stops it);
-    `env`: more environment (SSL_CERT_FILE to trust a self-signed relay)."""
+    `env`: more environment (SSL_CERT_FILE to trust a self-signed relay). Teleoperated unless `extra` asks for an
+    autonomy level, as the harness's other servers (testbed/server.py): the head commands these tests judge are the
+    operator's, and attention turning the head before anyone engages is not what a link test measures."""
     log = tempfile.NamedTemporaryFile("w+", prefix="wan-serve-", suffix=".log", delete=False)
     env = environment(**(env or {}))
+    autonomy = () if "--autonomy" in extra else ("--autonomy", "teleoperated")
     proc = net.popen("server", [sys.executable, "-m", "vr_teleop_server.cli", "serve", "--host", net.server_ip,
                                 "--port", str(PORT), "--insecure", "--backend", "sim", "--log-level", "warning",
-                                *extra], stdout=subprocess.PIPE, stderr=log, text=True, env=env, cwd=ROOT)
+                                *autonomy, *extra], stdout=subprocess.PIPE, stderr=log, text=True, env=env, cwd=ROOT)
     result: dict[str, str] = {}
 
     def wait_line() -> None:

@@ -201,10 +201,11 @@ def _udp_socket() -> socket.socket:
     return s
 
 
-def _echo_server(ip: str, port: int, seen: set[int], stop_after: float) -> None:
+def _echo_server(ip: str, port: int, seen: set[int], stop_after: float, bound: threading.Event) -> None:
     s = _udp_socket()
     s.bind((ip, port))
     s.settimeout(stop_after)
+    bound.set()
     try:
         while True:
             data, rx, addr = _kernel_rx(s)
@@ -279,8 +280,9 @@ def test_continent_rtt_jitter_and_loss_match_the_profile() -> None:
         # than asked, as on a real queue), so it is switched off for this part: each probe gets its own delay.
         net.set(keep_order=False)
         seen: set[int] = set()
-        server = net.start_in("server", _echo_server, net.server_ip, 7001, seen, 2.0)
-        time.sleep(0.2)
+        bound = threading.Event()
+        server = net.start_in("server", _echo_server, net.server_ip, 7001, seen, 2.0, bound)
+        assert bound.wait(10)
         net.stats()  # the forwarder's lateness counts from here
         rtt = net.run_in("client", _probe, net.server_ip, 7001, 3000, 0.006, 1.0)
         net.set(keep_order=True)
@@ -299,8 +301,9 @@ def test_continent_rtt_jitter_and_loss_match_the_profile() -> None:
         # Loss: 40 000 probes quickly (about 800 losses each way expected: a 10% error is 2.9 binomial sigmas).
         before = net.stats()["stats"]
         seen = set()
-        server = net.start_in("server", _echo_server, net.server_ip, 7002, seen, 3.0)
-        time.sleep(0.2)
+        bound = threading.Event()
+        server = net.start_in("server", _echo_server, net.server_ip, 7002, seen, 3.0, bound)
+        assert bound.wait(10)
         n = 40_000
         rtt = net.run_in("client", _probe, net.server_ip, 7002, n, 1 / 6000, 1.5)
         server.join()
@@ -315,10 +318,11 @@ def test_continent_rtt_jitter_and_loss_match_the_profile() -> None:
     assert _leftovers(net) == []
 
 
-def _tcp_sink(ip: str, port: int, got: list[tuple[float, int]]) -> None:
+def _tcp_sink(ip: str, port: int, got: list[tuple[float, int]], listening: threading.Event) -> None:
     srv = socket.socket()
     srv.bind((ip, port))
     srv.listen(1)
+    listening.set()
     srv.settimeout(10)
     conn, _ = srv.accept()
     with conn:
@@ -346,8 +350,9 @@ def test_bandwidth_cap_holds_for_a_tcp_transfer() -> None:
         net.set(loss=0.0, delay_ms=20)
         cap_bps = net.params["up"].rate_kbit * 1e3
         got: list[tuple[float, int]] = []
-        sink = net.start_in("server", _tcp_sink, net.server_ip, 7003, got)
-        time.sleep(0.2)
+        listening = threading.Event()
+        sink = net.start_in("server", _tcp_sink, net.server_ip, 7003, got, listening)
+        assert listening.wait(10)
         net.run_in("client", _tcp_send, net.server_ip, 7003, 6.0)
         sink.join()
         t = np.array([g[0] for g in got])
@@ -537,9 +542,7 @@ def test_on_continent_poses_over_the_data_channel_never_hold_and_the_robot_follo
     steps = _head_session(tmp_path, 30.0)
     road = ChannelRoad()
     with Emulator("continent") as net:
-        # the link is what is measured: the server runs without the robot's autonomy and the simulated pupils, whose
-        # face searches and voices compete for the CPU that the test suite's other worker shares on a 2-core machine
-        url = serve(net, "--camera-fps", "5", "--autonomy", "teleoperated", "--bystander-interval", "0")
+        url = serve(net, "--camera-fps", "5")
         observer = Observer(net, url, poses=True)
         got, elapsed = replay_in(net, steps, url, road=road)
         seen = observer.stop()
@@ -550,14 +553,28 @@ def test_on_continent_poses_over_the_data_channel_never_hold_and_the_robot_follo
     last_sent = got.sent_head[-1][0]
     streams = sum(1 for s in steps if s.kind == "publish" and s.topic.startswith("/vr/"))
     assert got.by_road > 0.8 * streams, (got.by_road, streams)  # after engaging, everything took the channel
-    holds = [e for t, e in seen.events if e["kind"] == "watchdog_stalled" and engaged_at <= t <= last_sent]
+    # A hold is the link's unless the operator's client itself sent nothing for most of the watchdog's threshold
+    # just before it: then it is the host's, which stalled the headset this test plays from a thread of its own
+    # process (a real headset shares no one's CPU; the collector's passes are kept out by conftest's freeze, the
+    # scheduler's delays on a machine the suite's other worker keeps busy are not). Each hold's silence is counted.
+    sends = np.array([t for t, _i in got.sent_head])
+
+    def client_silence(t: float) -> float:
+        """The longest gap between the client's head poses overlapping the half second before `t`."""
+        window = sends[max(np.searchsorted(sends, t - 0.5) - 1, 0):np.searchsorted(sends, t)]
+        return float(np.diff(np.append(window, t)).max()) if window.size else 0.5
+
+    stalls = [(e, client_silence(t)) for t, e in seen.events
+              if e["kind"] == "watchdog_stalled" and engaged_at <= t <= last_sent]
+    holds = [(e, quiet) for e, quiet in stalls if quiet < 0.75 * e["detail"]["threshold_s"]]
     sender = road.sender
     head_sent = sum(1 for t, i in got.sent_head if t > engaged_at)
     head_arrived = sum(1 for t, _s in seen.poses if t > engaged_at)
     latency = pose_latencies(steps, got, seen)
     errors = intent_errors(steps, got, seen)
     p50, p95 = np.percentile(errors, [50, 95])
-    print(f"continent, data channel: {len(holds)} holds in {steps[-1].t:.0f} s; head poses arrived "
+    print(f"continent, data channel: {len(holds)} holds in {steps[-1].t:.0f} s (and {len(stalls) - len(holds)} "
+          f"while the client itself was silent); head poses arrived "
           f"{head_arrived}/{head_sent} ({head_arrived / max(head_sent, 1):.0%}); channel frames sent {sender.sent}, "
           f"replaced before sending {sender.replaced}, head poses handed to the WebSocket while it stalled "
           f"{sender.failovers}; pose-to-command p50 {np.percentile(latency, 50) * 1e3:.0f} "
