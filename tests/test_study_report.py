@@ -5,8 +5,8 @@ long-format CSV, the JSON and the charts."""
 from __future__ import annotations
 
 import json
-import re
 import math
+import re
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
