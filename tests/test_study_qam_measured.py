@@ -67,7 +67,7 @@ def classroom_expected(path: Path) -> dict[str, float | None]:
             level = detail["level"]
             start = t if start is None and detail["by"] not in ("", "server") else start
         elif topic == EVENTS and m["kind"] == "engage" and m["source"] == "teleop":
-            teacher += level != "teleoperated"
+            teacher += start is not None and level != "teleoperated"
         elif topic == JOINTS:
             heads.append((t, m["position"][m["name"].index("HeadYaw")]))
         elif topic == BYSTANDERS:
@@ -143,6 +143,9 @@ def test_a_lessons_qam_items_are_those_its_recording_holds(classroom, tmp_path):
     measures = {m["measure"]: m for m in document["measures"]}
     assert all(measures[item]["source"] == "measured" for item in ITEMS)
     assert measures["trial.duration_s"]["source"] == "event log" and measures["sus"]["source"] == "answered"
+    assert sorted((v["participant"], v["condition"], v["measure"]) for v in document["measured"]) \
+        == sorted(zip(rows["participant"], rows["condition"], rows["measure"]))  # each trial's values in the JSON
+    assert {v["unit"] for v in document["measured"] if v["measure"] == "qam.P5"} == {"seconds per completed task"}
     for item in ITEMS:  # the JSON counts each missing value, and says why
         missing = rows[(rows["measure"] == item) & rows["value"].isna()]
         assert sum(measures[item]["missing"].values()) == len(missing)

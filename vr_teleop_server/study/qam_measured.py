@@ -94,7 +94,7 @@ def _lacks(topic: str, what: str) -> str:
 def _classroom(path: Path) -> list[Measured]:
     topics: set[str] = set()
     follow = HeadAndSpeech()
-    outcomes: list[tuple[float, dict[str, Any]]] = []
+    outcomes: list[dict[str, Any]] = []
     takeovers: list[float] = []
     t0: float | None = None
     level = ""
@@ -106,7 +106,7 @@ def _classroom(path: Path) -> list[Measured]:
         if follow.take(rec.topic, t, rec.data):
             continue
         if rec.topic == names.AUTONOMY_OUTCOMES_TOPIC:
-            outcomes.append((t, rec.data))
+            outcomes.append(rec.data)
         elif rec.topic == names.EVENT_TOPIC:
             kind = rec.data.get("kind")
             if kind == EventKind.AUTONOMY_LEVEL.value:
@@ -114,7 +114,8 @@ def _classroom(path: Path) -> list[Measured]:
                 level = str(detail.get("level", level))
                 if t0 is None and detail.get("by") not in (None, "", "server"):
                     t0 = t
-            elif kind == EventKind.ENGAGE.value and rec.data.get("source") == "teleop" and level != "teleoperated":
+            elif kind == EventKind.ENGAGE.value and rec.data.get("source") == "teleop" and t0 is not None \
+                    and level != "teleoperated":  # a takeover in the lesson (in teleoperated she holds control)
                 takeovers.append(t)
     follow.end(last)
     out = [*_initiative(topics, outcomes, takeovers), Measured("P3", None, P3_REASON)]
@@ -143,18 +144,18 @@ def _classroom(path: Path) -> list[Measured]:
                  "share of the pupils' speech time the head pointed at the speaker")]
 
 
-def _initiative(topics: set[str], outcomes: list[tuple[float, dict[str, Any]]],
-                takeovers: list[float]) -> list[Measured]:
+def _initiative(topics: set[str], outcomes: list[dict[str, Any]], takeovers: list[float]) -> list[Measured]:
     if names.AUTONOMY_OUTCOMES_TOPIC not in topics:
         reason = _lacks(names.AUTONOMY_OUTCOMES_TOPIC, "the robot's proposals and the teacher's own actions")
         return [Measured("P1", None, reason), Measured("P2", None, reason)]
-    robot = sum(o.get("initiator") == "robot" and o.get("decided_by") != "autonomy" for _, o in outcomes)
-    teacher = sum(o.get("outcome") == "teacher_initiated" for _, o in outcomes) + len(takeovers)
+    robot = sum(o.get("initiator") == "robot" and o.get("decided_by") != "autonomy" for o in outcomes)
+    teacher = sum(o.get("outcome") == "teacher_initiated" for o in outcomes) + len(takeovers)
     if robot + teacher == 0:
         reason = "no request for assistance either way: nothing to take a percentage of"
         return [Measured("P1", None, reason), Measured("P2", None, reason)]
-    counts = f"{robot} robot's proposals to the teacher, {teacher} of her own actions and interventions"
-    return [Measured("P1", _pct(robot, robot + teacher), counts), Measured("P2", _pct(teacher, robot + teacher), counts)]
+    counts = f"robot: {robot} proposals put to the teacher; teacher: {teacher} own actions and takeovers"
+    total = robot + teacher
+    return [Measured("P1", _pct(robot, total), counts), Measured("P2", _pct(teacher, total), counts)]
 
 
 def _task(path: Path) -> list[Measured]:
@@ -168,8 +169,12 @@ def _task(path: Path) -> list[Measured]:
     if data.t1 is None:
         reason = f"the trial has no final state on {names.STUDY_TRIAL_TOPIC} (cut short)"
         return out + [Measured(i, None, reason) for i in ("P4", "P5", "P6")]
-    result = compute_metrics(data.updates, data.t0, data.t1, interventions=data.interventions,
-                             planned_subtasks=data.planned_subtasks or None)
+    try:
+        result = compute_metrics(data.updates, data.t0, data.t1, interventions=data.interventions,
+                                 planned_subtasks=data.planned_subtasks or None)
+    except ValueError as exc:
+        reason = f"the trial's state updates give no window ({exc})"
+        return out + [Measured(i, None, reason) for i in ("P4", "P5", "P6")]
     planned = result.counts.planned_subtasks or data.planned_subtasks
     done = sum(u.agent == "robot" and u.stop is not None for u in data.updates)
     p4 = (Measured("P4", round(100.0 * result.effectiveness, 4),

@@ -35,8 +35,9 @@ from pydantic import BaseModel
 
 from ..questionnaires.instrument import load_instrument
 from ..questionnaires.stats import Describe, describe
-from .folder import StudyFolder
+from .folder import Participant, StudyFolder, Trial
 from .qam_measured import ITEMS as QAM_ITEMS
+from .qam_measured import UNITS as QAM_UNITS
 from .qam_measured import measure_trial
 
 POWER = 0.8
@@ -107,7 +108,8 @@ def collect(folder: StudyFolder) -> list[Row]:
     return rows
 
 
-def _qam_measured(folder: StudyFolder, p, condition: str, position: int, trial) -> list[Row]:
+def _qam_measured(folder: StudyFolder, p: Participant, condition: str, position: int, trial: Trial | None) \
+        -> list[Row]:
     """QAM's objective items of the participant's completed trial of `condition`, from its recording."""
     if trial is None:
         measured = [(item, None, f"no completed trial of {condition}") for item in QAM_ITEMS]
@@ -180,6 +182,17 @@ class MeasureReport(BaseModel):
     by_position: dict[str, dict[str, float | None]] = {}  # condition -> position -> mean
 
 
+class MeasuredValue(BaseModel):
+    """One value measured from a trial's recording, or None with the reason it is missing."""
+
+    participant: str
+    condition: str
+    measure: str
+    value: float | None
+    unit: str
+    note: str  # the recording and what was measured, or why the value is missing
+
+
 class StudyReport(BaseModel):
     study: str
     design: str
@@ -194,6 +207,7 @@ class StudyReport(BaseModel):
                        "power at alpha .05 (t-test based), not a claim that the effect is real")
     measures: list[MeasureReport]
     without_condition: dict[str, int]  # measure -> values in the long table not compared across conditions
+    measured: list[MeasuredValue] = []  # each trial's values read from its recording (QAM's objective items)
 
 
 def p_text(p: float | None) -> str:
@@ -417,4 +431,7 @@ def analyse(folder: StudyFolder, rows: Sequence[Row], parametric: bool = False) 
         participants=len(folder.participants), withdrawn=sorted(folder.withdrawn), balance=folder.balance(),
         deviations=deviations, unfinished=unfinished, measures=measures,
         without_condition={m: int(others[others["measure"] == m]["value"].notna().sum())
-                           for m in dict.fromkeys(others["measure"])})
+                           for m in dict.fromkeys(others["measure"])},
+        measured=[MeasuredValue(participant=r.participant, condition=r.condition, measure=r.measure, value=r.value,
+                                unit=QAM_UNITS[r.measure.removeprefix("qam.")], note=r.note)
+                  for r in rows if r.source == MEASURED])
