@@ -39,5 +39,5 @@ def test_a_pilot_runs_the_whole_protocol_and_the_report_reads_it(tmp_path):
     assert report.returncode == 0, report.stderr
     assert "== sus ==" in report.stdout and "chi2(2, N = 2)" in report.stdout  # Friedman's, across conditions
     rows = csv.read_text().splitlines()
-    assert rows[0] == "participant,group,condition,position,measure,value"
+    assert rows[0] == "participant,group,condition,position,measure,value,source,note"
     assert sum(",sus," in row for row in rows) == 6

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -200,16 +201,26 @@ def test_cli_report_writes_csv_json_and_one_chart_per_measure(tmp_path, rating, 
     assert "Order effect, by position: chi2(2, N = 4)" in text
     assert "post hoc" in text and '"measures"' not in text  # the full JSON only in the file
     frame = pd.read_csv(out / "long.csv")
-    assert list(frame.columns) == ["participant", "group", "condition", "position", "measure", "value"]
+    assert list(frame.columns) == ["participant", "group", "condition", "position", "measure", "value", "source",
+                                   "note"]
     rating_rows = frame[frame["measure"] == "rating"]
     assert len(rating_rows) == 12 and set(rating_rows["position"]) == {1, 2, 3}
     assert rating_rows.set_index(["participant", "condition"])["value"][("P03", "C")] == 77.5
     qam = frame[frame["measure"].str.startswith("qam.expected.")]
     assert len(qam) == 4 * 33 and qam["value"].isna().all()  # owed, not given: shown as missing
     document = json.loads((out / "r.json").read_text())
-    assert [m["measure"] for m in document["measures"]] == ["trial.duration_s", "rating"]
+    qam_items = [f"qam.P{i}" for i in range(1, 7)]  # QAM's objective items, measured from each trial's recording
+    assert [m["measure"] for m in document["measures"]] == ["trial.duration_s", *qam_items, "rating"]
+    measured = frame[frame["measure"].isin(qam_items)]
+    assert len(measured) == 4 * 3 * 6 and set(measured["source"]) == {"measured"} and measured["value"].isna().all()
+    assert set(frame[frame["measure"] == "rating"]["source"]) == {"answered"}
+    p4 = next(m for m in document["measures"] if m["measure"] == "qam.P4")  # these trials wrote no recording
+    assert sum(p4["missing"].values()) == 12 and len(p4["missing_reasons"]) == 12
+    assert all(re.fullmatch(rf"{g['participant']}/{g['condition']}\.mcap: no recording: {g['condition']}\.mcap "
+                            "was not found", g["reason"]) for g in p4["missing_reasons"])
+    assert "Missing P01 " in text and "(measured from the trial recordings, not answered)" in text
     charts = sorted(p.name for p in (out / "plots").iterdir())
-    assert charts == ["rating.png", "trial.duration_s.png"]
+    assert charts == sorted(["rating.png", "trial.duration_s.png", *(f"{q}.png" for q in qam_items)])
     assert (out / "plots" / "rating.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main(["study", "report", str(path), "--json", "-"]) == 0
     assert json.loads(capsys.readouterr().out)["study"] == "demo"

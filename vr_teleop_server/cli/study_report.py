@@ -53,7 +53,8 @@ def summary(report: StudyReport) -> str:
         out.append(f"Not finished: {u}")
     for m in report.measures:
         out.append("")
-        out.append(f"== {m.measure} ==")
+        out.append(f"== {m.measure} ==" + (" (measured from the trial recordings, not answered)"
+                                            if m.source == "measured" else ""))
         rows = []
         for c, d in m.conditions.items():
             ci = "-" if d.ci95_low is None else f"[{_num(d.ci95_low)}, {_num(d.ci95_high)}]"
@@ -74,6 +75,8 @@ def summary(report: StudyReport) -> str:
             out.append("  Order effect, " + m.order_effect.text)
         for e in m.excluded:
             out.append(f"  Excluded {e.participant}: {e.reason}")
+        for gap in m.missing_reasons:
+            out.append(f"  Missing {gap.participant} {gap.condition}: {gap.reason}")
     if report.without_condition:
         count = sum(report.without_condition.values())
         out.append("")

@@ -13,6 +13,9 @@ descriptive statistics and the tests a reviewer expects (pingouin; see docs/guid
   ANOVA, then Welch's t-tests with Cohen's d.
 - Power (post hoc): per comparison, the n that would reach 80 % power at the observed effect (paired: d_z, the
   mean difference over its SD; between: Cohen's d, n per group), by the t-test's power function.
+- QAM's objective items (`qam.P1` ... `qam.P6`), when the study gives QAM: measured from each completed trial's
+  recording (qam_measured.py), one value per participant and condition with source `measured`; an item the
+  recording cannot give is a missing value with its reason (`note`), never a guess.
 - Missing data is never dropped silently: each measure counts its missing values per condition, and a
   participant missing a condition is excluded from the paired tests with the reason.
 """
@@ -32,11 +35,16 @@ from pydantic import BaseModel
 
 from ..questionnaires.instrument import load_instrument
 from ..questionnaires.stats import Describe, describe
-from .folder import StudyFolder
+from .folder import Participant, StudyFolder, Trial
+from .qam_measured import ITEMS as QAM_ITEMS
+from .qam_measured import UNITS as QAM_UNITS
+from .qam_measured import measure_trial
 
 POWER = 0.8
 ALPHA = 0.05
-CSV_COLUMNS = ("participant", "group", "condition", "position", "measure", "value")
+CSV_COLUMNS = ("participant", "group", "condition", "position", "measure", "value", "source", "note")
+ANSWERED, LOGGED, MEASURED = "answered", "event log", "measured"  # a row's source: a questionnaire, the folder's
+# event log, or the trial's recording
 
 
 @dataclass(frozen=True)
@@ -49,6 +57,8 @@ class Row:
     position: int | None  # the condition's place in the order the participant met them, 1-based
     measure: str
     value: float | None
+    source: str = ANSWERED
+    note: str = ""  # why a value is missing, where the source knows (a measured one); or what was measured
 
 
 def _positions(participant) -> dict[str, int]:
@@ -62,6 +72,7 @@ def collect(folder: StudyFolder) -> list[Row]:
     """The long-format table of a study folder: every value a participant owes, present or missing."""
     plan = folder.plan.protocol.questionnaires
     instruments = {e.name: load_instrument(e.name) for e in (*plan.before_first, *plan.after_each, *plan.after_last)}
+    uses_qam = "qam" in instruments
     rows: list[Row] = []
     for p in folder.participants.values():
         positions = _positions(p)
@@ -71,7 +82,9 @@ def collect(folder: StudyFolder) -> list[Row]:
             duration = None
             if trials and trials[-1].ended is not None:
                 duration = (pd.Timestamp(trials[-1].ended) - pd.Timestamp(trials[-1].started)).total_seconds()
-            rows.append(Row(p.id, p.group, condition, position, "trial.duration_s", duration))
+            rows.append(Row(p.id, p.group, condition, position, "trial.duration_s", duration, LOGGED))
+            if uses_qam:
+                rows.extend(_qam_measured(folder, p, condition, position, trials[-1] if trials else None))
             for entry in plan.after_each:
                 given = next((a for a in p.answers if a.questionnaire == entry.name and a.condition == condition),
                              None)
@@ -93,6 +106,18 @@ def collect(folder: StudyFolder) -> list[Row]:
                     names = {k: f"{prefix}.{k}" for k in values}
                 rows.extend(Row(p.id, p.group, "", None, names[k], v) for k, v in values.items())
     return rows
+
+
+def _qam_measured(folder: StudyFolder, p: Participant, condition: str, position: int, trial: Trial | None) \
+        -> list[Row]:
+    """QAM's objective items of the participant's completed trial of `condition`, from its recording."""
+    if trial is None:
+        measured = [(item, None, f"no completed trial of {condition}") for item in QAM_ITEMS]
+    else:
+        measured = [(m.item, m.value, f"{trial.recording}: {m.how}")
+                    for m in measure_trial(folder.path / trial.recording)]
+    return [Row(p.id, p.group, condition, position, f"qam.{item}", value, MEASURED, note)
+            for item, value, note in measured]
 
 
 def write_csv(rows: Sequence[Row], out) -> None:
@@ -137,8 +162,16 @@ class Excluded(BaseModel):
     reason: str
 
 
+class Missing(BaseModel):
+    participant: str
+    condition: str
+    reason: str
+
+
 class MeasureReport(BaseModel):
     measure: str
+    source: str = ANSWERED  # answered (a questionnaire), event log, or measured (the trial's recording)
+    missing_reasons: list[Missing] = []  # why a value is missing, where its source says
     conditions: dict[str, Describe]
     missing: dict[str, int]
     n_complete: int
@@ -147,6 +180,17 @@ class MeasureReport(BaseModel):
     pairwise: list[Pair]
     order_effect: Test | None = None
     by_position: dict[str, dict[str, float | None]] = {}  # condition -> position -> mean
+
+
+class MeasuredValue(BaseModel):
+    """One value measured from a trial's recording, or None with the reason it is missing."""
+
+    participant: str
+    condition: str
+    measure: str
+    value: float | None
+    unit: str
+    note: str  # the recording and what was measured, or why the value is missing
 
 
 class StudyReport(BaseModel):
@@ -163,6 +207,7 @@ class StudyReport(BaseModel):
                        "power at alpha .05 (t-test based), not a claim that the effect is real")
     measures: list[MeasureReport]
     without_condition: dict[str, int]  # measure -> values in the long table not compared across conditions
+    measured: list[MeasuredValue] = []  # each trial's values read from its recording (QAM's objective items)
 
 
 def p_text(p: float | None) -> str:
@@ -370,7 +415,12 @@ def analyse(folder: StudyFolder, rows: Sequence[Row], parametric: bool = False) 
         subset = compared[compared["measure"] == measure]
         used = [c for c in conditions if (subset["condition"] == c).any()]
         build = _within if design == "within" else _between
-        measures.append(build(measure, subset, used, parametric))
+        result = build(measure, subset, used, parametric)
+        result.source = str(subset["source"].iloc[0])
+        if result.source == MEASURED:
+            result.missing_reasons = [Missing(participant=r.participant, condition=r.condition, reason=r.note)
+                                      for r in subset[subset["value"].isna()].itertuples()]
+        measures.append(result)
     deviations = [{"participant": p.id, "trial": t.number, "condition": t.condition, "reason": t.deviation}
                   for p in folder.participants.values() for t in p.trials if t.deviation]
     unfinished = [f"{p.id} {t.condition}: {t.outcome or 'running'}" for p in folder.participants.values()
@@ -381,4 +431,7 @@ def analyse(folder: StudyFolder, rows: Sequence[Row], parametric: bool = False) 
         participants=len(folder.participants), withdrawn=sorted(folder.withdrawn), balance=folder.balance(),
         deviations=deviations, unfinished=unfinished, measures=measures,
         without_condition={m: int(others[others["measure"] == m]["value"].notna().sum())
-                           for m in dict.fromkeys(others["measure"])})
+                           for m in dict.fromkeys(others["measure"])},
+        measured=[MeasuredValue(participant=r.participant, condition=r.condition, measure=r.measure, value=r.value,
+                                unit=QAM_UNITS[r.measure.removeprefix("qam.")], note=r.note)
+                  for r in rows if r.source == MEASURED])
