@@ -206,7 +206,7 @@ async def test_a_tone_from_the_operator_moves_the_mouth_and_is_logged(media_serv
         face_loud = await drawn_face(robot.standin, lambda voice: voice is not None and voice > 0.5)
         tone.amplitude = 0.0
         await telemetry_of(ros, lambda c: c["client"] == name and c["operator_voice_level"] == 0.0)
-        face_quiet = await drawn_face(robot.standin, lambda voice: voice is None)
+        face_quiet = await drawn_face(robot.standin, lambda voice: not voice)  # silence (0), or none at all
         assert float(np.mean(np.abs(face_loud.astype(float) - face_quiet.astype(float)))) > 0.5, \
             "the mouth did not move with the voice"
         paths = operator_wavs(media_server.settings.audio_dir, name)
@@ -223,16 +223,15 @@ async def test_a_tone_from_the_operator_moves_the_mouth_and_is_logged(media_serv
 
 async def drawn_face(standin, voiced) -> np.ndarray:
     """The face as the render thread next draws it with a voice level that `voiced` takes: it redraws at 12 Hz
-    while the mouth moves with a voice, and once when the voice stops."""
-    faces = []
+    while a voice comes (silence too), and once when it stops."""
+    face = [None]
 
     def drawn() -> bool:
-        image, voice = standin.face_image_with_voice()
-        faces.append(image)
-        return image is not None and voiced(voice)
+        face[0], voice = standin.face_image_with_voice()
+        return face[0] is not None and voiced(voice)
 
     assert await until(drawn, 30), "the face was not drawn so"
-    return faces[-1]
+    return face[0]
 
 
 async def test_telemetry_and_the_clock_are_plausible(media_server: RunningServer) -> None:
