@@ -50,7 +50,7 @@ def test_static_files_are_served_on_the_websocket_port(dashboard_server):
 def test_the_page_shows_live_camera_frames_joints_and_menus(browser, dashboard_server):
     page = open_page(browser, dashboard_server, "supervisor")
     try:
-        page.wait_for_function("window.dashboard.frames >= 3", timeout=20_000)
+        page.wait_for_function("window.dashboard?.frames >= 3", timeout=20_000)
         first = page.get_attribute("#camera", "src")
         mover = RawClient(dashboard_server.url)  # turn the head: the view changes
         mover.send({"op": "auth", "mac": TOKENS["operator"]})
@@ -177,7 +177,7 @@ def test_a_spectator_watches_but_cannot_command(browser, dashboard_server):
     before = standin.emotion
     page = open_page(browser, dashboard_server, "spectator")
     try:
-        page.wait_for_function("window.dashboard.frames >= 1", timeout=20_000)  # watching works
+        page.wait_for_function("window.dashboard?.frames >= 1", timeout=20_000)  # watching works
         page.wait_for_selector("button[data-item='emotion.surprise']")
         page.click("button[data-item='emotion.surprise']")
         page.wait_for_function("document.getElementById('events').textContent.includes('spectator')", timeout=5_000)

@@ -591,7 +591,7 @@ def test_the_dashboard_falls_back_to_the_jpeg_topic(browser, media_server: Runni
     page.add_init_script("delete window.RTCPeerConnection")  # a browser without WebRTC
     try:
         page.goto(f"http://127.0.0.1:{media_server.port}/")
-        page.wait_for_function("window.dashboard.frames >= 3", timeout=30_000)
+        page.wait_for_function("window.dashboard?.frames >= 3", timeout=30_000)
         assert page.evaluate("window.dashboard.camera.path") == "JPEG"
         assert page.is_visible("#camera") and not page.is_visible("#camera-video")
         page.wait_for_function("window.dashboard.camera.ages.length >= 2", timeout=20_000)
