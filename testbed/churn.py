@@ -54,8 +54,8 @@ async def visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict
             published = rng.randrange(1, 20)
             for i in range(published):
                 await ws.send(json.dumps({"op": "publish", "topic": "/churn/shared", "msg": {"data": str(i)}}))
-            # A random stay, counted in frames the server sends back (its own messages on the shared topic come
-            # back to it, after the ones of the others), not in seconds: it leaves with some in flight.
+            # A random stay, counted in the frames the server sends it (the shared topic brings its own messages
+            # back, among the others'), not in seconds: it leaves with some still on their way.
             stay = rng.randrange(0, published + 1)
             await until(lambda: got[0] >= stay or ws.state is not State.OPEN, 30)
             if rng.random() < 0.5:
