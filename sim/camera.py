@@ -212,7 +212,7 @@ class Camera:
                     image = renderer.face(emotion, now if talking else None, voice)
                     drawn_talking = talking
                     next_face_tick = now + 1.0 / face.ANIMATION_HZ
-                    face.drawn(image, version)
+                    face.drawn(image, version, voice)
                 for camera, w, h, fut in snapshots:
                     try:
                         fut.set_result(renderer.snapshot(self._state()[0], camera, w, h))

@@ -29,6 +29,7 @@ class Expression:
         self.version = 0  # bumped on every request that changes the face
         self.applied = -1
         self.image: np.ndarray | None = None
+        self.image_voice: float | None = None  # the voice level `image` shows (None: drawn with no voice)
 
     def set_emotion(self, name: str) -> None:
         emotion = normalise_emotion(name)
@@ -62,16 +63,20 @@ class Expression:
         """The voice level at `now`, None once it has stopped (the caller holds cond)."""
         return self.voice[0] if now - self.voice[1] < self.VOICE_HOLD_S else None
 
-    def drawn(self, image: np.ndarray, version: int) -> None:
-        """The render thread uploaded `image`, drawn for the state as of `version`."""
+    def drawn(self, image: np.ndarray, version: int, voice: float | None) -> None:
+        """The render thread uploaded `image`, drawn for the state as of `version` with the voice level `voice`."""
         with self.cond:
-            self.image = image
+            self.image, self.image_voice = image, voice
             self.applied = max(self.applied, version)
             self.cond.notify_all()
 
     def copy_image(self) -> np.ndarray | None:
         with self.cond:
             return None if self.image is None else self.image.copy()
+
+    def copy_image_with_voice(self) -> tuple[np.ndarray | None, float | None]:
+        with self.cond:
+            return None if self.image is None else self.image.copy(), self.image_voice
 
     def wait_applied(self, timeout: float, stop: threading.Event) -> bool:
         """Block until every change requested so far is drawn (False on timeout, or once `stop` is set)."""

@@ -181,6 +181,11 @@ class StandIn:
         """A copy of the face texture as last uploaded (RGB), or None before the first upload."""
         return self.camera.face.copy_image()
 
+    def face_image_with_voice(self) -> tuple[np.ndarray | None, float | None]:
+        """face_image() and the operator's voice level it was drawn with (None: drawn with no voice), for telling
+        a face drawn while the voice sounds from one drawn after it stopped."""
+        return self.camera.face.copy_image_with_voice()
+
     def wait_face(self, timeout: float = 2.0) -> bool:
         """Block until the render thread has applied every face change requested so far."""
         return self.camera.face.wait_applied(timeout, self._stop)

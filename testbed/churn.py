@@ -15,6 +15,9 @@ import time
 
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
+from websockets.protocol import State
+
+from .waiting import until
 
 
 def owner_counts(app) -> dict[str, int]:
@@ -33,7 +36,8 @@ async def visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict
     leaves: cleanly or by dropping the TCP connection."""
     while time.monotonic() < stop:
         async with connect(url, compression=None, max_size=None, open_timeout=20) as ws:
-            reader = asyncio.create_task(drain(ws))
+            got = [0]
+            reader = asyncio.create_task(drain(ws, got))
             mine = f"/churn/{n}"
             frames = [{"op": "subscribe", "id": "s", "topic": "/churn/shared", "type": "std_msgs/String"},
                       {"op": "subscribe", "id": "s2", "topic": mine, "type": "std_msgs/String",
@@ -47,9 +51,13 @@ async def visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict
                       {"op": "fragment", "id": "half", "data": "{\"op\":", "num": 0, "total": 2}]
             for frame in frames:
                 await ws.send(json.dumps(frame))
-            for i in range(rng.randrange(1, 20)):
+            published = rng.randrange(1, 20)
+            for i in range(published):
                 await ws.send(json.dumps({"op": "publish", "topic": "/churn/shared", "msg": {"data": str(i)}}))
-            await asyncio.sleep(rng.uniform(0.0, 0.3))  # a visitor's random stay: churn is real time
+            # A random stay, counted in the frames the server sends it (the shared topic brings its own messages
+            # back, among the others'), not in seconds: it leaves with some still on their way.
+            stay = rng.randrange(0, published + 1)
+            await until(lambda: got[0] >= stay or ws.state is not State.OPEN, 30)
             if rng.random() < 0.5:
                 ws.transport.abort()  # gone without a closing handshake
                 stats["aborted"] += 1
@@ -57,9 +65,11 @@ async def visitor(url: str, n: int, stop: float, rng: random.Random, stats: dict
         await reader
 
 
-async def drain(ws) -> None:
+async def drain(ws, got: list[int] | None = None) -> None:
+    """Reads whatever comes, counting the frames in `got[0]`."""
     try:
         async for _frame in ws:
-            pass
+            if got is not None:
+                got[0] += 1
     except ConnectionClosed:  # the visitor dropped the connection itself
         pass

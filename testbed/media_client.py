@@ -398,20 +398,18 @@ class LinkShaper:
         self.task = asyncio.ensure_future(self._drain())
 
     async def _drain(self) -> None:
-        loop = asyncio.get_running_loop()
-        next_at = loop.time()
+        link = Pace(self.rate / (8 * 1528), catch_up=False)  # full-size packets' rate; each ticks its own length
         while True:
             original, data = await self._queue.get()
             self.queued -= len(data)
-            next_at = max(next_at, loop.time()) + 8 * (len(data) + 28) / self.rate  # + IP/UDP headers
+            # The link's rate: a packet leaves its size's time (IP/UDP headers too) after the one before it, or at
+            # once on an idle link.
+            await link.tick(8 * (len(data) + 28) / self.rate)
             try:
                 await original(data)
             except ConnectionError:
                 return
             self.sent += 1
-            delay = next_at - loop.time()
-            if delay > 0:
-                await asyncio.sleep(delay)  # the link's rate: a packet takes its size's time to go out
 
     def close(self) -> None:
         self.task.cancel()

@@ -39,18 +39,20 @@ async def until(predicate: Callable[[], Any], timeout: float, interval: float = 
 
 
 class Pace:
-    """Paces a real-time source (a headset at 90 Hz, a microphone's chunks): `wait()` (a thread) or `await tick()`
-    (a loop) after each item. `catch_up`: a late item is followed at once by the next (a microphone's samples keep
-    their rate on average); otherwise the next is a period after the late one (a headset drops frames)."""
+    """Paces a real-time source (a headset at 90 Hz, a microphone's chunks, a link's packets): `wait()` (a thread)
+    or `await tick()` (a loop) after each item. `catch_up`: a late item is followed at once by the next (a
+    microphone's samples keep their rate on average); otherwise the next is a period after the late one (a headset
+    drops frames). `tick(period)`: this item's own length instead (a packet takes its size's time on a link)."""
 
     def __init__(self, hz: float, catch_up: bool = True) -> None:
         self.period = 1.0 / hz
         self.catch_up = catch_up
         self.next = time.monotonic()
 
-    def _left(self) -> float:
+    def _left(self, period: float | None = None) -> float:
         now = time.monotonic()
-        self.next = self.next + self.period if self.catch_up else max(self.next + self.period, now)
+        period = self.period if period is None else period
+        self.next = self.next + period if self.catch_up else max(self.next + period, now)
         return max(0.0, self.next - now)
 
     def wait(self, stop: threading.Event | None = None) -> bool:
@@ -60,5 +62,5 @@ class Pace:
         time.sleep(self._left())  # the source's own pace: what it plays is real time
         return False
 
-    async def tick(self) -> None:
-        await asyncio.sleep(self._left())  # the source's own pace: what it plays is real time
+    async def tick(self, period: float | None = None) -> None:
+        await asyncio.sleep(self._left(period))  # the source's own pace: what it plays is real time

@@ -103,11 +103,22 @@ class Observer:
             raise RuntimeError("the observer could not subscribe")
 
     def stop(self) -> Observed:
-        time.sleep(0.5)  # the last frames
+        """Once the observer has read everything the server sent it before now (it answers "synced" after the
+        server's answer to a call made now: the server sends in order), stops it and returns what it saw."""
+        self._proc.stdin.write(b"sync\n")
+        self._proc.stdin.flush()
+
+        def synced_or_gone() -> bool:
+            with open(self._out.name, "rb") as out:
+                out.seek(max(0, out.seek(0, os.SEEK_END) - 64))
+                return b'"synced"' in out.read() or self._proc.poll() is not None
+
+        if not wait_for(synced_or_gone, READY_TIMEOUT_S) or self._proc.poll() is not None:
+            raise RuntimeError("the observer did not answer")
         self._proc.stdin.close()  # it stops when its stdin closes
         self._proc.wait(10)
         self._out.seek(0)
-        for line in self._out.read().splitlines()[1:]:
+        for line in self._out.read().splitlines()[1:-1]:  # between "ready" and "synced"
             kind, t, value = json.loads(line)
             if kind == "head":
                 self.got.head.append((t, value))
@@ -127,14 +138,17 @@ class Observer:
 async def _observe(url: str, poses: bool) -> None:
     """Prints "ready" once the server has the subscriptions, then one JSON line per head command, event, head pose
     or telemetry report's video frames ([RTP timestamp, render time] pairs): [kind, receive time, value]. The
-    receive time is taken as the package's client hands the message over, as it reads the frame."""
+    receive time is taken as the package's client hands the message over, as it reads the frame. A line on stdin
+    asks for "synced", printed last, once the server has answered a call made then."""
     from vr_teleop_server.client import connect
 
     loop = asyncio.get_running_loop()
     closed = threading.Event()  # set from the thread that reads stdin, seen at once by the callbacks
+    syncs: asyncio.Queue[None] = asyncio.Queue()
 
     def read_stdin() -> None:
-        sys.stdin.read()
+        for _line in sys.stdin:
+            loop.call_soon_threadsafe(syncs.put_nowait, None)
         closed.set()
 
     stdin_closed = loop.run_in_executor(None, read_stdin)
@@ -181,8 +195,19 @@ async def _observe(url: str, poses: bool) -> None:
         # the answer's values are not read, which spares this process the message types' registry.
         await (await client.request(names.ROSAPI_GET_TIME_SERVICE))
         print(json.dumps("ready"), file=out, flush=True)
+
+        async def sync() -> None:
+            await syncs.get()
+            # The answer comes after every message the server sent before it, each handed to its callback; what
+            # comes after it is not written, so that "synced" is the last line.
+            await (await client.request(names.ROSAPI_GET_TIME_SERVICE))
+            closed.set()
+            print(json.dumps("synced"), file=out, flush=True)
+
+        syncing = asyncio.ensure_future(sync())
         await asyncio.wait([stdin_closed, asyncio.ensure_future(client.wait_closed())],
                            return_when=asyncio.FIRST_COMPLETED)
+        syncing.cancel()
     out.flush()
 
 

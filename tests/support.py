@@ -200,6 +200,13 @@ def still(predicate: Callable[[], Any], watch: Watch, messages: int = 15, timeou
     return wait_for(lambda: len(watch.messages) >= seen + messages, timeout) and bool(predicate())
 
 
+def physics_ran(standin, seconds: float, timeout: float = 30.0) -> bool:
+    """Waits until the stand-in's physics has stepped `seconds` of its own time from now: what a joint told to move
+    has had to move in, however far a loaded machine makes the physics trail the wall clock."""
+    start = standin.joint_state().sim_time
+    return wait_for(lambda: standin.joint_state().sim_time >= start + seconds, timeout)
+
+
 def joints(watch: Watch) -> dict[str, float]:
     msg = watch.latest
     return dict(zip(msg.get("name", []), msg.get("position", [])))

@@ -13,7 +13,7 @@ import pytest
 
 from robot_models import load_qtrobot
 from robot_models.types import CameraFrame
-from testbed.server import until
+from testbed.server import Pace, until
 from vr_teleop_server.robot.backends.sim import SimRobot
 from vr_teleop_server.robot.interface import Gesture, MotorMode, Robot, Waypoint
 
@@ -167,9 +167,10 @@ async def test_gesture_plays_its_waypoints_in_time_without_blocking_the_loop(rob
         events.append("wp")
         return send(targets)
 
-    async def ticker():
+    async def ticker():  # another task taking turns on the loop at 100 Hz: what the test looks for
+        pace = Pace(100, catch_up=False)
         while True:
-            await asyncio.sleep(0.01)  # another task taking turns on the loop: what the test looks for
+            await pace.tick()
             events.append("tick")
 
     robot.set_joint_targets = recorded

@@ -59,7 +59,7 @@ def test_the_commands_markers_and_harness_it_names_exist():
     for module, names in ((server, ("in_loop", "server_settings", "RunningServer", "ServerFactory", "wait_for",
                                     "until", "Pace")),
                           (processes, ("serve", "stop", "free_port", "environment")),
-                          (support, ("still", "Headset")), (StandIn, ("wait_camera_stopped",))):
+                          (support, ("still", "physics_ran", "Headset")), (StandIn, ("wait_camera_stopped",))):
         for name in names:
             assert f"{name}" in PAGE and hasattr(module, name), name
 

@@ -4,7 +4,6 @@ with the stand-in; and roles over real sockets."""
 from __future__ import annotations
 
 import json
-import time
 import urllib.request
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import pytest
 
 import roslibpy
 
-from support import Headset, RawClient, RunningServer, call, engage, wait_for
+from support import Headset, RawClient, RunningServer, call, engage, physics_ran, wait_for
 from vr_teleop_server.recording.format import read_recording
 
 TOKENS = {"operator": "op-secret-1", "supervisor": "sup-secret-2", "spectator": "spec-secret-3"}
@@ -51,7 +50,7 @@ def test_static_files_are_served_on_the_websocket_port(dashboard_server):
 def test_the_page_shows_live_camera_frames_joints_and_menus(browser, dashboard_server):
     page = open_page(browser, dashboard_server, "supervisor")
     try:
-        page.wait_for_function("window.dashboard.frames >= 3", timeout=20_000)
+        page.wait_for_function("window.dashboard?.frames >= 3", timeout=20_000)
         first = page.get_attribute("#camera", "src")
         mover = RawClient(dashboard_server.url)  # turn the head: the view changes
         mover.send({"op": "auth", "mac": TOKENS["operator"]})
@@ -115,9 +114,9 @@ def test_a_button_shows_an_emotion_and_escape_stops_the_robot(browser, dashboard
         page.keyboard.press("Escape")
         page.wait_for_function("document.getElementById('teleop-state').textContent.startsWith('estopped')",
                                timeout=5_000)
-        time.sleep(0.3)
+        assert physics_ran(standin, 0.3)  # the head comes to rest where the stop found it
         held = standin.joint_positions()["HeadYaw"]
-        time.sleep(0.8)
+        assert physics_ran(standin, 0.8)  # what it would have moved in, at its cap, had the command gone on
         assert abs(standin.joint_positions()["HeadYaw"] - held) < 1.0 and held < 49
         page.screenshot(path=str(SCREENSHOTS / "estop.png"), full_page=True)
         client.close()
@@ -157,7 +156,7 @@ def test_labels_appear_in_the_recording(browser, dashboard_server):
         page.fill("#label-action", "hand_over_cup")
         page.click("header h1")  # focus off the input, so the keys are shortcuts
         page.keyboard.press("h")
-        time.sleep(0.3)
+        page.wait_for_function("document.querySelectorAll('#labels li').length >= 1")  # the start taken first
         page.keyboard.press("j")
         page.wait_for_function("document.querySelectorAll('#labels li').length >= 2")
     finally:
@@ -178,7 +177,7 @@ def test_a_spectator_watches_but_cannot_command(browser, dashboard_server):
     before = standin.emotion
     page = open_page(browser, dashboard_server, "spectator")
     try:
-        page.wait_for_function("window.dashboard.frames >= 1", timeout=20_000)  # watching works
+        page.wait_for_function("window.dashboard?.frames >= 1", timeout=20_000)  # watching works
         page.wait_for_selector("button[data-item='emotion.surprise']")
         page.click("button[data-item='emotion.surprise']")
         page.wait_for_function("document.getElementById('events').textContent.includes('spectator')", timeout=5_000)

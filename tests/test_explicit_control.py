@@ -158,7 +158,6 @@ def test_second_client_cannot_steal_control(sim_server, ros, headset, state):
             intruder.send({"op": "publish", "topic": "/vr/head/pose",
                            "msg": pose_msg((0, EYE_HEIGHT, 0), IDENTITY)})
         headset.stop()
-        time.sleep(0.2)
         intruder.send({"op": "publish", "topic": "/vr/head/pose", "msg": pose_msg((0, EYE_HEIGHT, 0), IDENTITY)})
         intruder.send({"op": "call_service", "id": "take", "service": "/vr_teleop/control/engage",
                        "args": {"data": True}})

@@ -144,15 +144,18 @@ def test_speech_can_be_stopped_and_configured(sim_server, ros):
 
 def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_server, ros, menus):
     js = Watch(ros, "/qt_robot/joints/state", "sensor_msgs/JointState")
+    recorder = sim_server.server.luxai.recorder
     headset = Headset(ros).start()
     try:
         engage(ros)
         assert select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})["success"]
         for yaw in (0, 10, 20, 30, 20, 0, -15, -30, -15, 0):
             headset.head_orientation = unity_yaw_pitch(yaw)
-            # Each pose held until the robot's head is there (not for a fixed time: a loaded machine is slower).
+            # Each pose held until the robot's head is there (not for a fixed time: a loaded machine is slower),
+            # then for two of the recording's samples (20 a second), so that the recording holds the turn.
             assert wait_for(lambda yaw=yaw: abs(joints(js).get("HeadYaw", 99) - yaw) < 2.0, 30), yaw
-            time.sleep(0.1)  # held a moment; 9 headset frames instead failed the shape check 2 of 3 runs (why: open)
+            samples = recorder.sample_count
+            assert wait_for(lambda: recorder.sample_count >= samples + 2, 30)
         reply = select(ros, "motion.record", {"parts": ["head"], "name": "look_around"})
         assert reply["message"] == "saved as look_around"
     finally:

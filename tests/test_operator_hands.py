@@ -9,12 +9,11 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import time
 
 import numpy as np
 import pytest
 
-from support import wait_for
+from support import physics_ran, wait_for
 from test_operator_page import (ROOT, SLOW, close_page, enter_vr, frames, hud, open_page, screenshot, set_head,
                                 settles, take_control)
 from test_operator_page import iwer  # noqa: F401  (the fixture)
@@ -177,7 +176,7 @@ def test_a_held_fist_is_the_arms_dead_man_and_the_head_follows(browser, iwer, si
         page.wait_for_function("document.getElementById('hud-control')?.textContent.startsWith('YOU HAVE CONTROL')",
                                timeout=SLOW)
         set_head(page, 20.0)  # the head follows with hands as with controllers
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 20.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 20.0, 2.0), standin.joint_positions()
 
         # An open hand moving moves no arm: the Joy's grip stays 0 and the server leaves the arm where it is.
         start = right_arm()
@@ -199,16 +198,16 @@ def test_a_held_fist_is_the_arms_dead_man_and_the_head_follows(browser, iwer, si
         # The hand opens: the arm holds where it is while the hand keeps moving.
         page.evaluate("xrDevice.hands.right.poseId = 'default'")
         page.wait_for_function("!window.operator.state.teleop.right_arm_following", timeout=SLOW)
-        time.sleep(0.5)
+        assert physics_ran(standin, 0.5)  # the arm comes to rest at the last goal it was given
         held = right_arm()
         for position in ([0.2, 1.0, 0.0], [0.4, 1.3, -0.2], [0.1, 1.1, -0.4]):
             aim(page, "right", position, DOWN)
             frames(page, 10)
-        time.sleep(0.5)
+        assert physics_ran(standin, 0.5)  # what the arm would have moved in, had the open hand moved it
         assert moved(held) < 2.0, (held, right_arm())
 
         set_head(page, -15.0)  # the head still follows
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], -15.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", -15.0, 2.0), standin.joint_positions()
         assert moved(held) < 2.0, (held, right_arm())
         screenshot(page, "operator_vr_hands.png")
 

@@ -12,13 +12,12 @@ import json
 import math
 import re
 import subprocess
-import time
 from pathlib import Path
 
 import pytest
 from scipy.spatial.transform import Rotation
 
-from support import RawClient, RunningServer, Headset, engage, wait_for
+from support import RawClient, RunningServer, Headset, engage, physics_ran, wait_for
 from testbed.pages import INSTALL_HEADSET, IWER, READY
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -118,10 +117,12 @@ def take_control(page) -> None:
                            timeout=SLOW)
 
 
-def settles(read, target: float, tolerance: float, timeout: float = 30.0) -> bool:
-    """read() reaches target ± tolerance and is still there a moment later."""
-    return wait_for(lambda: abs(read() - target) <= tolerance and (time.sleep(0.3) or
-                                                                    abs(read() - target) <= tolerance), timeout)
+def settles(standin, joint: str, target: float, tolerance: float, timeout: float = 30.0) -> bool:
+    """The stand-in's `joint` reaches target ± tolerance and is still there after 0.3 s more of its physics (one
+    passing through on its way elsewhere is not)."""
+    def there() -> bool:
+        return abs(standin.joint_positions()[joint] - target) <= tolerance
+    return wait_for(lambda: there() and physics_ran(standin, 0.3) and there(), timeout)
 
 
 def pixels_differ(a: list[int], b: list[int]) -> float:
@@ -155,19 +156,19 @@ def test_the_head_follows_the_headset_and_the_panel_shows_the_robots_view(browse
         page.wait_for_function("window.operator.state.xr.frameRate === 120", timeout=SLOW)  # Quest 3's highest
         take_control(page)
         page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 0.0, 2.0)
+        assert settles(standin, "HeadYaw", 0.0, 2.0)
         before = page.evaluate("window.operator.readPixels()")
         screenshot(page, "operator_vr.png")
 
         set_head(page, 30.0)  # 30 degrees to the left
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 30.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 30.0, 2.0), standin.joint_positions()
         uploaded = page.evaluate("window.operator.camera.uploaded")
         page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
         after = page.evaluate("window.operator.readPixels()")
         assert pixels_differ(before, after) > 5, "the camera panel did not change as the robot's head turned"
 
         set_head(page, 30.0, -10.0)  # and 10 degrees down: QTrobot's HeadPitch is positive looking down
-        assert settles(lambda: standin.joint_positions()["HeadPitch"], 10.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadPitch", 10.0, 2.0), standin.joint_positions()
         assert abs(standin.joint_positions()["HeadYaw"] - 30.0) <= 2.0
         screenshot(page, "operator_vr_turned.png")
 
@@ -182,7 +183,7 @@ def test_the_head_follows_the_headset_and_the_panel_shows_the_robots_view(browse
     # Closing the page holds the robot: the server's watchdog sees the holder go.
     assert wait_for(lambda: state.latest.get("state") == "disconnected" and not state.latest["engaged"], 10)
     held = standin.joint_positions()["HeadYaw"]
-    time.sleep(0.5)
+    assert physics_ran(standin, 0.5)  # what the head would have moved in, had a command come after the hold
     assert abs(standin.joint_positions()["HeadYaw"] - held) < 1.0
 
 
@@ -197,7 +198,7 @@ def test_a_clamped_joint_is_shown_and_felt(browser, iwer, sim_server):
         page.wait_for_function("(document.getElementById('hud-clamped')?.textContent ?? '') === 'clamped joints: HeadYaw'",
                                timeout=SLOW)
         page.wait_for_function(f"window.operator.state.pulses > {pulses}", timeout=SLOW)  # a haptic pulse
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 60.0, 2.0)
+        assert settles(standin, "HeadYaw", 60.0, 2.0)
         set_head(page, 0.0)
         page.wait_for_function("(document.getElementById('hud-clamped')?.textContent ?? '') === 'clamped joints: none'",
                                timeout=SLOW)
@@ -221,7 +222,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         take_control(page)
         standin = sim_server.server.robot.standin
         set_head(page, 20.0)  # the operator faces 20 degrees left of where control was taken
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 20.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 20.0, 2.0), standin.joint_positions()
         page.evaluate("xrDevice.controllers.left.position.set(-0.75, 1.45, 0.0);"
                       "xrDevice.controllers.right.position.set(0.75, 1.45, 0.0)")  # a T-pose
         frames(page, 5)
@@ -232,7 +233,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "calibrate"), 10)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "recenter"), 10)
         # where the operator faces is straight ahead now: the robot's head comes back to the centre
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 0.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 0.0, 2.0), standin.joint_positions()
 
         page.evaluate("xrDevice.controllers.left.updateButtonValue('thumbstick', 1);"
                       "xrDevice.controllers.right.updateButtonValue('thumbstick', 1)")  # both sticks: e-stop
@@ -270,11 +271,11 @@ def test_the_grip_moves_the_right_arm_and_releasing_it_holds(browser, iwer, sim_
 
         page.evaluate("xrDevice.controllers.right.updateButtonValue('squeeze', 0)")
         page.wait_for_function("!window.operator.state.teleop.right_arm_following", timeout=SLOW)
-        time.sleep(0.5)
+        assert physics_ran(standin, 0.5)  # the arm comes to rest at the last goal it was given
         held = right_arm()
         page.evaluate("xrDevice.controllers.right.position.set(0.2, 1.0, 0.0)")  # the hand drops: the arm stays
         frames(page, 30)
-        time.sleep(0.5)
+        assert physics_ran(standin, 0.5)  # what the arm would have moved in, had the dropped hand moved it
         assert max(abs(a - b) for a, b in zip(right_arm(), held)) < 2.0, (held, right_arm())
         assert page.errors == []
     finally:
@@ -368,7 +369,7 @@ def test_the_flat_view_drives_the_head_with_the_mouse(browser, sim_server):
         for i in range(1, 11):
             page.mouse.move(500 - 8 * i, 300)  # drag 80 px to the left: 20 degrees (0.25 degrees a pixel)
         page.mouse.up()
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 20.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 20.0, 2.0), standin.joint_positions()
         # The keyboard drives the menus: A opens the commands menu.
         page.keyboard.press("a")
         page.wait_for_function("document.getElementById('menu-title').textContent === 'Commands'", timeout=SLOW)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import shutil
-import time
 import wave
 from pathlib import Path
 
@@ -95,9 +94,12 @@ def voice_frames(server: RunningServer) -> int:
     return server.call(count)
 
 
-def stopped(read, settle: float = 1.0) -> bool:
+def stopped(page, read, frames: int = 30) -> bool:
+    """read() holds still while the page's panel shows `frames` more camera frames (a second of the server's steady
+    video stream), not over a window of wall-clock time."""
     value = read()
-    time.sleep(settle)
+    uploaded = page.evaluate("window.operator.camera.uploaded")
+    page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + frames}", timeout=SLOW)
     return read() == value
 
 
@@ -111,14 +113,14 @@ def test_the_panel_shows_webrtc_video_that_follows_the_head(browser, iwer, media
         assert peers(media_server) == 1
         assert page.evaluate("window.operator.camera.jpeg") is None  # the JPEG topic was never asked for
         take_control(page)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 0.0, 2.0)
+        assert settles(standin, "HeadYaw", 0.0, 2.0)
         uploaded = page.evaluate("window.operator.camera.uploaded")
         page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
         before = page.evaluate("window.operator.readPixels()")
         screenshot(page, "operator_vr_webrtc.png")
 
         set_head(page, 30.0)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 30.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 30.0, 2.0), standin.joint_positions()
         uploaded = page.evaluate("window.operator.camera.uploaded")
         page.wait_for_function(f"window.operator.camera.uploaded >= {uploaded + 3}", timeout=SLOW)
         after = page.evaluate("window.operator.readPixels()")
@@ -284,7 +286,8 @@ def test_the_robots_audio_comes_over_webrtc_and_plays_once(browser, media_server
           stats.forEach((s) => { if (s.type === 'inbound-rtp' && s.kind === 'audio') e = s.totalAudioEnergy || 0; });
           return e;
         }"""
-        time.sleep(1.0)
+        packets = energy.replace("totalAudioEnergy", "packetsReceived")
+        assert wait_for(lambda: page.evaluate(packets) >= 50, 30)  # the robot's audio flows: a second of 20 ms packets
         quiet = page.evaluate(energy)
         page.keyboard.down("ArrowUp")
         page.keyboard.down("ArrowLeft")  # the diagonal item, Sentences
@@ -328,7 +331,7 @@ def test_the_left_trigger_sends_the_voice_over_webrtc_and_releasing_it_stops(ton
         left_trigger(page, 0.0)
         page.wait_for_function("!(document.getElementById('hud-numbers')?.textContent ?? '').includes('TALKING')",
                                timeout=SLOW)
-        assert wait_for(lambda: stopped(lambda: voice_frames(media_server)), 30), "the voice kept coming"
+        assert wait_for(lambda: stopped(page, lambda: voice_frames(media_server)), 30), "the voice kept coming"
         assert wait_for(lambda: standin.voice_level == 0.0, 10)
         assert page.evaluate("window.operator.camera.path") == "WebRTC"  # the camera went on meanwhile
 
@@ -572,7 +575,7 @@ def test_poses_take_the_data_channel_when_webrtc_is_up_and_rosbridge_when_not(br
                                timeout=SLOW)
         take_control(page)  # engaging takes poses over rosbridge: the channel carries the holder's only
         set_head(page, 25.0)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 25.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 25.0, 2.0), standin.joint_positions()
         channel0, binary0, refused0, handed0, websocket0 = _counts(media_server)
         frames(page, 60)
         channel1, binary1, refused1, handed1, websocket1 = _counts(media_server)
@@ -583,7 +586,7 @@ def test_poses_take_the_data_channel_when_webrtc_is_up_and_rosbridge_when_not(br
         assert websocket1 - websocket0 < (handed1 - handed0) / 10, (websocket0, websocket1, handed0, handed1)
         assert refused1 == refused0 == 0
         set_head(page, -20.0)  # and the robot follows what came over the channel
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], -20.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", -20.0, 2.0), standin.joint_positions()
         assert page.evaluate("window.operator.poses.sent") >= channel1
         assert page.evaluate("window.operator.poses.failovers") == 0
         # the telemetry the page reads says the same: its link's data channel counts the frames
@@ -598,7 +601,7 @@ def test_poses_take_the_data_channel_when_webrtc_is_up_and_rosbridge_when_not(br
         enter_vr(page)
         take_control(page)
         set_head(page, 15.0)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 15.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 15.0, 2.0), standin.joint_positions()
         channel0, _, _, _, websocket0 = _counts(media_server)
         frames(page, 60)
         channel1, _, _, _, websocket1 = _counts(media_server)

@@ -41,7 +41,7 @@ def test_work_in_a_thread_holds_the_clock_until_its_result_is_back():
 
     async def main() -> tuple[float, float, float]:
         loop = asyncio.get_running_loop()
-        ticker = asyncio.ensure_future(asyncio.sleep(1.0))  # a timer the loop would jump to if nothing held it
+        ticker = asyncio.ensure_future(asyncio.sleep(1.0))  # in simulated time: a timer the loop would jump to
         started = threading.Event()
 
         def work() -> float:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 from study_support import EXAMPLE, on_loop, prepared, small_study
-from support import RawClient, RunningServer, bystanders_in_view, wait_for
+from support import RawClient, RunningServer, bystanders_in_view, physics_ran, wait_for
 from testbed.server import until
 
 from vr_teleop_server.client import Client, Refused, connect
@@ -216,10 +216,15 @@ def test_preempt_stops_the_tree_and_the_robot_holds(server):
     study = small_study()
     runtime = prepared(server, study, "autonomous")
     robot = server.server.robot
+    home = robot.joint_state().as_dict()
+
+    def moved() -> float:
+        now = robot.joint_state().as_dict()
+        return max(abs(now[n] - v) for n, v in home.items())
 
     async def preempt(client: Client, rt: TrialRuntime) -> None:
         assert await until(lambda: rt.log.happened("robot", "pick_bottom", "start"), 30)
-        await asyncio.sleep(0.2)
+        assert await until(lambda: moved() > 2.0, 30)  # mid-move: the arm is on its way to the pick
         values = await client.call("/decision/preempt", {})
         assert values["success"]
 
@@ -230,7 +235,7 @@ def test_preempt_stops_the_tree_and_the_robot_holds(server):
     # Holding is the design: the goal is where the robot was at the preempt, nothing sets another, and the arm
     # settles there (judged by the stand-in's own goal, not by how far it drifts in a wall-clock window).
     held = robot.standin.targets()
-    time.sleep(0.5)
+    assert physics_ran(robot.standin, 0.5)  # the robot's own time, in which a goal still being set would change
     assert robot.standin.targets() == held, "something moved the robot's goal after the preempt"
 
     def settled_at_goal() -> bool:
@@ -244,11 +249,23 @@ def test_preempt_stops_the_tree_and_the_robot_holds(server):
 def test_override_moves_a_stalled_action_on_and_counts_as_an_intervention(server):
     study = small_study(autonomous={"stalls": ["handover_front"]})
     runtime = prepared(server, study, "autonomous")
+    # The handover's move returning (the arm got there) is where an action that did not stall stops: in the same
+    # step of the server's loop, so a check run on that loop after it sees the stop, or the stall.
+    moves, move_joints = [], runtime.actions.move_joints
+
+    async def spied(targets, timeout=None):
+        arrived = await move_joints(targets, timeout)
+        if runtime.log.happened("robot", "handover_front", "start"):
+            moves.append(arrived)
+        return arrived
+
+    runtime.actions.move_joints = spied
 
     async def override(client: Client, rt: TrialRuntime) -> None:
         assert await until(lambda: rt.log.happened("robot", "handover_front", "start"), 60)
-        await asyncio.sleep(1.5)  # longer than the move takes: it is the stall that holds the plan
-        assert not rt.log.happened("robot", "handover_front", "stop")
+        assert await until(lambda: moves, 60)  # the move is over: it is the stall that holds the plan
+        stopped = await asyncio.to_thread(server.call, lambda: rt.log.happened("robot", "handover_front", "stop"))
+        assert not stopped
         values = await client.call("/decision/override", {"succeeded": True, "note": "the arm got there"})
         assert "handover_front marked succeeded" in values["message"]
 
@@ -340,7 +357,6 @@ def test_experimenter_labels_through_services_and_the_dashboards_topic(server):
 
     async def label(client: Client, rt: TrialRuntime) -> None:
         await client.call("/study/label/start", {"action": "sneeze"})
-        await asyncio.sleep(0.2)
         await client.call("/study/label/stop", {"action": "sneeze"})
         with pytest.raises(Refused, match="no human action 'sneeze' is running"):
             await client.call("/study/label/stop", {"action": "sneeze"})

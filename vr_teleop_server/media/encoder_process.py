@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import fractions
 import os
-import time
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,7 @@ from worker_process.frame_ring import FrameRing
 NICE = 10  # added to the worker's niceness: the server's loop wins a core over the encoder
 VIDEO_CLOCK_RATE = 90000
 REOPEN_RATIO = 0.15  # an encoder is rebuilt at a new target bitrate (a keyframe) only when it moves more than this
-REOPEN_INTERVAL_S = 1.0  # and at most this often
+REOPEN_INTERVAL_S = 1.0  # and at most this often, in the video's own seconds (its frames' pts)
 GOP_S = 10  # a keyframe at least this often (seconds) without being asked: a viewer that lost one recovers
 ROOT = Path(__file__).resolve().parents[2]  # the directory that holds `worker_process`
 BOOT = ("import importlib.util, sys; sys.path.insert(0, sys.argv[1]); "
@@ -159,7 +158,7 @@ class _Encoder:
         self.opened_at = -1e9
 
     def encode(self, image: Any, keyframe: bool, bitrate: int) -> tuple[bytes, bool]:
-        now = time.monotonic()
+        now = float(image.pts * image.time_base)  # the frame's time: what the viewer sees is rebuilt that seldom
         if self.context is not None and (image.width != self.context.width or image.height != self.context.height
                                          or (abs(bitrate - self.bitrate) > REOPEN_RATIO * self.bitrate
                                              and now - self.opened_at >= REOPEN_INTERVAL_S)):
