@@ -126,6 +126,8 @@ class Autonomy:
                                    pitch_limits=(pitch.lower, pitch.upper), seed=seed)
         self.camera = model.camera
         self.target: Target | None = None
+        self.pupil_changed: list[Callable[[], None]] = []  # called when attended_pupil() changes
+        self._pupil = ""
         self.pending: dict[str, Proposal] = {}
         self.executing: dict[str, asyncio.Task[None]] = {}
         self.tracks: dict[str, FaceTrack] = {}
@@ -624,7 +626,22 @@ class Autonomy:
                 "has_face": face is not None, "face": face.box if face is not None else {},
                 "score": round(t.score, 4) if t else 0.0}
 
+    def attended_pupil(self) -> str:
+        """The name of the person the robot attends to (a face that spoke, or a voice with a name), or ""."""
+        t = self.target
+        if t is None:
+            return ""
+        face = self.tracks.get(t.key)
+        if face is not None:
+            return face.who
+        return t.key.removeprefix("voice:") if t.key.startswith("voice:") else ""
+
     def _publish_attention(self, now: float, force: bool = False) -> None:
+        pupil = self.attended_pupil()
+        if pupil != self._pupil:
+            self._pupil = pupil
+            for changed in self.pupil_changed:
+                changed()
         t = self.target
         key = (t.source, t.key, round(t.yaw / 2), round(t.pitch / 2)) if t else ()
         if force or key != self._pub.attention_key or now - self._pub.attention_at >= ATTENTION_REPUBLISH_S:
