@@ -174,9 +174,10 @@ MESSAGES: dict[str, str] = {
         "# Where the robot's attention is, on /vr_teleop/autonomy/attention (on every change, and 1 Hz).\n"
         "# source: face, voice, both, glance (nobody there: a look around) or empty (no target). who: the person's\n"
         "# track id (the stand-in's pupils by name) or empty. yaw/pitch: the target's direction in the robot's base\n"
-        "# frame, degrees (yaw positive to the left). has_face: face holds the face's box in the camera image.\n"
+        "# frame, degrees (yaw positive to the left). has_face: face holds the face's box in the camera image,\n"
+        "# found in the camera frame frame_seq (its header.seq, as /perception/faces names it; 0 without a face).\n"
         "Header header\nstring source\nstring who\nfloat64 yaw\nfloat64 pitch\nbool has_face\nFace face\n"
-        "float64 score"
+        "uint32 frame_seq\nfloat64 score"
     ),
     "vr_teleop_msgs/Proposal": (
         "# An action the robot proposes (SPARC), on /vr_teleop/autonomy/proposals. action: a menu item id; label:\n"

@@ -285,17 +285,18 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              {"header": _stamp(), "level": "supervised",
               "attention": {"header": _stamp(), "source": "both", "who": "child_left", "yaw": 21.5, "pitch": 2.0,
                             "has_face": True, "face": {"x": 180, "y": 200, "width": 40, "height": 40,
-                                                       "confidence": 3.1}, "score": 0.78},
+                                                       "confidence": 3.1}, "frame_seq": 4211, "score": 0.78},
               "pending": [], "running": ["attention"],
               "owners": [{"part": "head", "owner": "autonomy"}, {"part": "right_arm", "owner": "none"},
                          {"part": "left_arm", "owner": "none"}]}),
     Endpoint(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", "subscribe",
              "Where the robot's attention is: a face, a voice or both (a speaking face), a glance around when "
              "nobody is there, or empty (teleoperated, or the head is someone else's). yaw/pitch in the base "
-             "frame, degrees (yaw + left, pitch + down).", "on change and 1 Hz, latched",
+             "frame, degrees (yaw + left, pitch + down); a face's box with the camera frame it was found in "
+             "(frame_seq).", "on change (a face's box: each detection) and 1 Hz, latched",
              {"header": _stamp(), "source": "voice", "who": "child_right", "yaw": -27.3, "pitch": 0.0,
               "has_face": False, "face": {"x": 0, "y": 0, "width": 0, "height": 0, "confidence": 0.0},
-              "score": 0.55}),
+              "frame_seq": 0, "score": 0.55}),
     Endpoint(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", "subscribe",
              "An action the robot proposes (a menu item id), why, how sure, and what its time-out does. Decide it "
              "with " + names.AUTONOMY_DECIDE_SERVICE + "; its end comes on " + names.AUTONOMY_OUTCOMES_TOPIC + ".",
