@@ -85,7 +85,7 @@ def server(module_servers, tmp_path_factory):
     rules.write_text(RULES)
     running = module_servers(backend="sim", autonomy="supervised", bystander_interval=0, camera_fps=10,
                              autonomy_rules=rules, autonomy_memory=tmp / "memory.json", record=tmp / "session.mcap",
-                             record_camera_fps=0, teacher_name="Ms Weber")
+                             record_camera_fps=0)
     running.taps = Taps(running)
     return running
 
@@ -215,9 +215,14 @@ def test_attention_turns_to_a_pupil_who_speaks_and_then_to_the_next(server, ros)
     attention.close()
 
 
-def test_a_sentence_names_the_pupil_the_robot_attends_to_and_the_teacher(server, ros):
+def test_a_sentence_names_the_pupil_the_robot_attends_to_and_the_teacher(servers):
     """{pupil} and {teacher} in the speech menu's sentences: the label names the pupil attended to, the robot says
-    the sentence filled in (the pupil attended to, or the one picked), an unknown variable is refused."""
+    the sentence filled in (the pupil attended to, or the one picked), an unknown variable is refused. A server of
+    its own: the teacher's selections here would teach the module's server's autonomy."""
+    server = servers(backend="sim", autonomy="supervised", bystander_interval=0, camera_fps=10,
+                     teacher_name="Ms Weber")
+    ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    ros.run(timeout=10)
     said: list[str] = []
     service = server.call(lambda: server.server.bus.services[names.SPEECH_SAY_SERVICE])
     provider = service.provider
@@ -255,6 +260,7 @@ def test_a_sentence_names_the_pupil_the_robot_attends_to_and_the_teacher(server,
         server.call(lambda: setattr(service, "provider", provider))
         attention.close()
         menus.close()
+        ros.close()
 
 
 def test_engage_takes_the_head_at_once_the_watchdog_hold_keeps_it_and_release_gives_it_back(server, ros):
