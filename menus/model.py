@@ -12,8 +12,8 @@ A menu file (YAML) holds one tree:
 An item has exactly one of `command` (with `args`), `submenu` (a list of items) or `generate` (items made when
 the menus are published: `gestures` from the gesture library, `emotions` from the robot model, `sentences` from
 the text file named by `source`, relative to the menu file). A sentence may hold variables, filled in by the server
-when it is said and in the menus' labels: {pupil}, {teacher} (SENTENCE_VARIABLES). Slots are left, top, right, bottom (each at most
-once per level) or list (drawn in file order). Item ids are unique across every file.
+when it is said and in the menus' labels: {pupil}, {teacher} (SENTENCE_VARIABLES). Slots are left, top, right,
+bottom (each at most once per level) or list (drawn in file order). Item ids are unique across every file.
 """
 
 from __future__ import annotations

@@ -305,7 +305,8 @@ class Frames:
 
 
 MARKED = """() => {  // one moment of the dashboard: the box drawn, the frame shown under it, the target it came from
-    const d = window.dashboard, img = document.getElementById('camera'), mark = document.getElementById('attention-mark');
+    const d = window.dashboard, img = document.getElementById('camera');
+    const mark = document.getElementById('attention-mark');
     const r = img.getBoundingClientRect(), m = mark.getBoundingClientRect();
     const scale = Math.min(r.width / img.naturalWidth, r.height / img.naturalHeight);
     return {place: d.attentionPlace, painted: d.camera.painted, src: img.src, attention: d.autonomy.attention,
