@@ -176,9 +176,10 @@ MESSAGES: dict[str, str] = {
         "# track id (the stand-in's pupils by name, a real robot's faces face-1, face-2...) or empty; who: their\n"
         "# name, the one every view shows (the id until /vr_teleop/people/rename gives another). yaw/pitch: the\n"
         "# target's direction in the robot's base frame, degrees (yaw positive to the left). has_face: face holds\n"
-        "# the face's box in the camera image.\n"
+        "# the face's box in the camera image, found in the camera frame frame_seq (its header.seq, as\n"
+        "# /perception/faces names it; 0 without a face).\n"
         "Header header\nstring source\nstring id\nstring who\nfloat64 yaw\nfloat64 pitch\nbool has_face\n"
-        "Face face\nfloat64 score"
+        "Face face\nuint32 frame_seq\nfloat64 score"
     ),
     "vr_teleop_msgs/Proposal": (
         "# An action the robot proposes (SPARC), on /vr_teleop/autonomy/proposals. action: a menu item id; label:\n"

@@ -284,18 +284,20 @@ ENDPOINTS: tuple[Endpoint, ...] = (
              "none).", "latched, on change",
              {"header": _stamp(), "level": "supervised",
               "attention": {"header": _stamp(), "source": "both", "id": "child_left", "who": "child_left",
-                            "yaw": 21.5, "pitch": 2.0, "has_face": True, "face": {"x": 180, "y": 200, "width": 40, "height": 40,
-                                                       "confidence": 3.1}, "score": 0.78},
+                            "yaw": 21.5, "pitch": 2.0, "has_face": True, "face": {"x": 180, "y": 200, "width": 40,
+                                                                                 "height": 40, "confidence": 3.1},
+                            "frame_seq": 4211, "score": 0.78},
               "pending": [], "running": ["attention"],
               "owners": [{"part": "head", "owner": "autonomy"}, {"part": "right_arm", "owner": "none"},
                          {"part": "left_arm", "owner": "none"}]}),
     Endpoint(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", "subscribe",
              "Where the robot's attention is: a face, a voice or both (a speaking face), a glance around when "
              "nobody is there, or empty (teleoperated, or the head is someone else's). yaw/pitch in the base "
-             "frame, degrees (yaw + left, pitch + down).", "on change and 1 Hz, latched",
+             "frame, degrees (yaw + left, pitch + down); a face's box with the camera frame it was found in "
+             "(frame_seq).", "on change (a face's box: each detection) and 1 Hz, latched",
              {"header": _stamp(), "source": "face", "id": "face-3", "who": "Mia", "yaw": -27.3, "pitch": 4.0,
               "has_face": True, "face": {"x": 410, "y": 190, "width": 38, "height": 38, "confidence": 0.8},
-              "score": 0.55}),
+              "frame_seq": 4211, "score": 0.55}),
     Endpoint(names.PEOPLE_RENAME_SERVICE, "vr_teleop_msgs/RenamePerson", "call",
              "Name a tracked person: every view (the dashboard, the operator's HUD and camera panel, the recording) "
              "shows the name for that track id from then on. The stand-in's pupils are tracked by their names "

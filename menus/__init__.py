@@ -2,7 +2,9 @@
 
 from .commands import COMMANDS
 from .model import PACKAGED_DIR, Item, LoadedMenu, MenuError, load_menu_file, load_menus, read_sentences, walk
-from .model import REFERENCE_LANGUAGE, language_sentences, language_words, sentences_file
+from .model import REFERENCE_LANGUAGE, SENTENCE_VARIABLES, fill_sentence, language_sentences, language_words, \
+    sentences_file
 
 __all__ = ["COMMANDS", "PACKAGED_DIR", "Item", "LoadedMenu", "MenuError", "load_menu_file", "load_menus",
-           "read_sentences", "walk", "REFERENCE_LANGUAGE", "language_sentences", "language_words", "sentences_file"]
+           "read_sentences", "walk", "REFERENCE_LANGUAGE", "SENTENCE_VARIABLES", "fill_sentence", "language_sentences",
+           "language_words", "sentences_file"]

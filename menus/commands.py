@@ -29,6 +29,7 @@ class EmotionArgs(_Args):
 
 class SayArgs(_Args):
     text: str = Field(min_length=1, max_length=2000)
+    pupil: str = Field("", max_length=100, description="whom {pupil} names (default: the pupil the robot attends to)")
 
 
 class SpeechConfigArgs(_Args):

@@ -11,8 +11,9 @@ A menu file (YAML) holds one tree:
 
 An item has exactly one of `command` (with `args`), `submenu` (a list of items) or `generate` (items made when
 the menus are published: `gestures` from the gesture library, `emotions` from the robot model, `sentences` from
-the text file named by `source`, relative to the menu file). Slots are left, top, right, bottom (each at most
-once per level) or list (drawn in file order). Item ids are unique across every file.
+the text file named by `source`, relative to the menu file). A sentence may hold variables, filled in by the server
+when it is said and in the menus' labels: {pupil}, {teacher} (SENTENCE_VARIABLES). Slots are left, top, right,
+bottom (each at most once per level) or list (drawn in file order). Item ids are unique across every file.
 
 A menu's `words` names the words its emotions say as they are shown, one file per language (emotion_words.txt stands
 for emotion_words.<language>.txt, relative to the menu file), each line `emotion: words`. The reference language's
@@ -21,6 +22,7 @@ file says which emotions speak; every other language's names the same ones.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
@@ -35,6 +37,10 @@ COMPASS = ("left", "top", "right", "bottom")
 GENERATORS = ("gestures", "emotions", "sentences", "clips")
 REFERENCE_LANGUAGE = "en"  # the sentence list whose lines name the items (speech.sentences.well_done) in every language
 PACKAGED_DIR = Path(__file__).with_name("data")
+# The variables a sentence may hold, as {name}: the server fills them in when the sentence is said.
+SENTENCE_VARIABLES = {"pupil": "the pupil the robot attends to (their name), or the one the teacher picked",
+                      "teacher": "the teacher's name (serve --teacher-name)"}
+_VARIABLE = re.compile(r"\{([^{}]*)\}")
 
 
 class MenuError(ValueError):
@@ -118,9 +124,34 @@ def walk(items: list[Item], parent: str):
 
 
 def read_sentences(path: Path) -> list[str]:
-    """One sentence per line; blank lines and lines starting with # are skipped."""
-    lines = path.read_text(encoding="utf-8").splitlines()
-    return [line.strip() for line in lines if line.strip() and not line.lstrip().startswith("#")]
+    """One sentence per line; blank lines and lines starting with # are skipped. MenuError names the file and the
+    line of a variable that is not one of SENTENCE_VARIABLES."""
+    out = []
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        for name in _VARIABLE.findall(line):
+            if name not in SENTENCE_VARIABLES:
+                raise MenuError(f"{path}:{number}: unknown variable {{{name}}}; a sentence may hold "
+                                f"{', '.join(f'{{{v}}}' for v in SENTENCE_VARIABLES)}")
+        out.append(line.strip())
+    return out
+
+
+def fill_sentence(text: str, values: dict[str, str], *, keep_missing: bool = False) -> str:
+    """`text` with its variables replaced by `values`. ValueError names a variable that is unknown or, unless
+    keep_missing (a label: the variable stays as written), has no value now."""
+    def value(match: re.Match[str]) -> str:
+        name = match.group(1)
+        if name not in SENTENCE_VARIABLES:
+            raise ValueError(f"unknown variable {{{name}}} in {text!r}")
+        if values.get(name):
+            return values[name]
+        if keep_missing:
+            return match.group(0)
+        raise ValueError(f"{{{name}}} has no value now ({SENTENCE_VARIABLES[name]}): {text!r} cannot be said")
+
+    return _VARIABLE.sub(value, text)
 
 
 def sentences_file(source: Path, language: str) -> Path:
@@ -229,8 +260,11 @@ def load_menu_file(path: Path) -> LoadedMenu:
             raise MenuError(f"{path}: menu words: {exc}") from None
     for _parent, _pos, item in walk(data.items, data.menu.id):
         if item.source is not None:
+            source = path.parent / item.source
             try:
-                language_sentences(path.parent / item.source, REFERENCE_LANGUAGE)
+                language_sentences(source, REFERENCE_LANGUAGE)
+                for other in sorted(source.parent.glob(f"{source.stem}.*{source.suffix}")):
+                    read_sentences(other)  # every language's variables, at load
             except MenuError as exc:
                 raise MenuError(f"{path}: item {item.id!r}: {exc}") from None
     return LoadedMenu(path, data)

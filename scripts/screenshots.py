@@ -11,6 +11,7 @@ colours) into the output directory; the names are what the guides link to.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import math
 import os
@@ -33,11 +34,25 @@ INSTALL_HEADSET = ("window.xrDevice = new IWER.XRDevice(IWER.metaQuest3);"
 READY = "window.operator && window.operator.ros.connected && window.operator.state.teleop"
 VIEWPORT = {"width": 1000, "height": 620}
 SLOW = 120_000  # ms: a page, the stand-in and a software renderer share a busy machine
+CALM = 60_000  # ms: how long a picture waits for the link to be good
 # The server's flags per set of pictures: the teleoperation pictures without autonomy turning the head or
 # proposing; the autonomy pictures with a rule that answers a pupil's line and a minute to decide.
 SETS = {"headset": ("--autonomy", "teleoperated"), "flat": ("--autonomy", "teleoperated"),
         "hands": ("--autonomy", "teleoperated"), "comfort": ("--autonomy", "teleoperated"),
         "autonomy": ("--autonomy", "supervised", "--autonomy-rules", "RULES", "--bystander-interval", "0")}
+# The link warnings a picture must not show (Shots.warnings): [text] from the operator page's or the dashboard's state.
+WARNINGS = """(allow) => {
+  if (window.operator) {
+    return window.operator.hud().filter((l) => !allow.includes(l.id) && (l.level === "error"
+      || (l.id === "link" && l.level !== "ok")
+      || (l.id === "control" && l.text.startsWith("YOU HAVE CONTROL") && l.level !== "ok")
+      || (l.id === "numbers" && l.text.includes("no frames yet")))).map((l) => `HUD ${l.id}: ${l.text}`);
+  }
+  const out = [], link = document.getElementById("teleop-link"), age = document.getElementById("camera-age");
+  if (link && link.className && !allow.includes("link")) out.push(`dashboard link: ${link.textContent}`);
+  if (age && age.textContent.includes("no frames yet")) out.push(`dashboard camera: ${age.textContent}`);
+  return out;
+}"""
 AUTONOMY_RULES = """timeout_s: 60
 on_timeout: drop
 rules:
@@ -89,21 +104,35 @@ class Shots:
         self.browser, self.server, self.out = browser, server, out
         self.written: list[Path] = []
 
-    def save(self, page, name: str, stable: str = "", **options) -> None:
+    def save(self, page, name: str, stable: str = "", allow: tuple[str, ...] = (), **options) -> None:
         """A PNG of the page in 256 colours (dithered): a third of the full-colour PNG's size, text stays sharp.
-        stable: a JS condition that must hold before and after the picture (retaken until it does, ten times)."""
+        stable: a JS condition that must hold before and after the picture (retaken until it does, ten times).
+        Refuses (SystemExit) a picture that shows a link warning, read from the page's state just before and just
+        after it is taken; allow: the warnings (HUD line ids) the picture is meant to show."""
         for _ in range(10):
             if stable:
                 page.wait_for_function(stable, timeout=SLOW)
+            warnings = self.warnings(page, allow)
             png = page.screenshot(**options)
+            warnings += [w for w in self.warnings(page, allow) if w not in warnings]
             if not stable or page.evaluate(stable):
                 break
+        if warnings:
+            raise SystemExit(f"{name}.png not written: the picture would show a link warning ({'; '.join(warnings)})."
+                             " The machine is probably too busy for a clean link: run it again when it is quiet.")
         path = self.out / f"{name}.png"
         image = Image.open(io.BytesIO(png)).convert("RGB")
         image.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(
             path, optimize=True)
         self.written.append(path)
         print(f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}: {path.stat().st_size // 1024} KiB")
+
+    @staticmethod
+    def warnings(page, allow: tuple[str, ...] = ()) -> list[str]:
+        """What the page shows now that a picture for the docs must not: the operator page's HUD lines (from
+        window.operator.hud(), what its canvas and its DOM copy show) that are errors, a link that is not good,
+        control not active, no camera frames; the dashboard's operator link when degraded or poor, no frames."""
+        return page.evaluate(WARNINGS, list(allow))
 
     def operator(self, headset: bool):
         context = self.browser.new_context(viewport=VIEWPORT)
@@ -128,14 +157,12 @@ class Shots:
 
     @staticmethod
     def calm(page) -> None:
-        """Waits a while for the HUD to say the link is good (on a busy machine it may stay degraded: then as is)."""
+        """Waits a while for the HUD to say the link is good; if it does not, save() refuses the picture."""
         from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
-        try:
-            page.wait_for_function("(document.getElementById('hud-link')?.textContent ?? '').startsWith('link good')",
-                                   timeout=20_000)
-        except PlaywrightTimeout:
-            print("the link stayed degraded (a busy machine): the picture shows it so")
+        with contextlib.suppress(PlaywrightTimeout):
+            page.wait_for_function("window.operator.hud().some((l) => l.id === 'link' && l.level === 'ok')",
+                                   timeout=CALM)
 
     def wait_control(self, page) -> None:
         page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '')"
@@ -148,6 +175,7 @@ class Shots:
         page = self.operator(headset=True)
         try:
             page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+            self.calm(page)
             self.save(page, "operator-enter-vr")
             page.get_by_role("button", name="Enter VR").click()
             page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
@@ -175,7 +203,7 @@ class Shots:
             page.wait_for_function("/held \\d+ times? in/.test(document.getElementById('hud-link')?.textContent ?? '')",
                                    timeout=SLOW)
             self.frames(page, 10)
-            self.save(page, "operator-vr-hud-warning")
+            self.save(page, "operator-vr-hud-warning", allow=("link", "control"))  # the hold it shows
             self.press(page, "right", "trigger")  # release control
         finally:
             page.context.close()

@@ -275,6 +275,54 @@ def test_a_face_nobody_known_explains_is_numbered_renamed_and_forgotten_with_its
     refused(rename(ros, ident, "Ben"), f"no person '{ident}' is tracked")
 
 
+def test_a_sentence_names_the_pupil_the_robot_attends_to_and_the_teacher(servers):
+    """{pupil} and {teacher} in the speech menu's sentences: the label names the pupil attended to, the robot says
+    the sentence filled in (the pupil attended to, or the one picked), an unknown variable is refused. A server of
+    its own: the teacher's selections here would teach the module's server's autonomy."""
+    server = servers(backend="sim", autonomy="supervised", bystander_interval=0, camera_fps=10,
+                     teacher_name="Ms Weber")
+    ros = roslibpy.Ros(host="127.0.0.1", port=server.port)
+    ros.run(timeout=10)
+    said: list[str] = []
+    service = server.call(lambda: server.server.bus.services[names.SPEECH_SAY_SERVICE])
+    provider = service.provider
+
+    async def spy(request, timeout):  # what the robot is asked to say
+        said.append(request.message)
+        return await provider(request, timeout)
+
+    server.call(lambda: setattr(service, "provider", spy))
+    attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
+    menus = Watch(ros, names.MENUS_TOPIC, "vr_teleop_msgs/Menus")
+    item = "speech.sentences.pupil_what_do_you_think"
+
+    def select(args: dict | None = None) -> dict:
+        return roslibpy.Service(ros, names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect").call(
+            roslibpy.ServiceRequest({"id": item, "args": json.dumps(args) if args else ""}), timeout=WAIT)
+
+    def label() -> str:
+        return next((i["label"] for i in menus.latest.get("items", []) if i["id"] == item), "")
+
+    try:
+        speak(ros, "child_left", "I know the answer, it is the biggest planet, Jupiter, and it has many moons.")
+        assert wait_for(lambda: attention.latest.get("who") == "child_left", WAIT), attention.latest
+        assert wait_for(lambda: label() == "child_left, what do you think?", WAIT), label()  # the panels show it
+        assert wait_for(lambda: server.call(lambda: not server.server.bystanders.speaking), WAIT)
+        attended = server.call(lambda: server.server.autonomy.attended_pupil())
+        reply = select()
+        assert reply == {"success": True, "message": f"said '{attended}, what do you think?'"}, reply
+        assert said[-1] == f"{attended}, what do you think?" and attended == "child_left", said
+        assert select({"pupil": "Ana"})["message"] == "said 'Ana, what do you think?'"  # the teacher's pick
+        assert select({"text": "Thank you, {teacher}."})["message"] == "said 'Thank you, Ms Weber.'"
+        refused(select({"text": "Thank you, {lehrer}."}), r"unknown variable \{lehrer\}")
+        assert said[-3:] == ["child_left, what do you think?", "Ana, what do you think?", "Thank you, Ms Weber."]
+    finally:
+        server.call(lambda: setattr(service, "provider", provider))
+        attention.close()
+        menus.close()
+        ros.close()
+
+
 def test_engage_takes_the_head_at_once_the_watchdog_hold_keeps_it_and_release_gives_it_back(server, ros):
     autonomy = Watch(ros, names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState")
     headset = Headset(ros).start()

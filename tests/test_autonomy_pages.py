@@ -9,13 +9,17 @@ read from the server's side (the outcomes topic, the level in its state).
 
 from __future__ import annotations
 
+import base64
 import json
 import subprocess
+import threading
 from pathlib import Path
 
 import pytest
 
 from support import RawClient, RunningServer, wait_for
+
+from client_protocol import names
 from test_operator_page import INSTALL_HEADSET, IWER, READY, SLOW, choose_in_menu, enter_vr, frames, press
 from vr_teleop_server.features.autonomy.learner import Situation
 from vr_teleop_server.settings import ServerSettings
@@ -269,6 +273,77 @@ DRAWN = """() => {  // the target drawn last is on the overlay: the face box's l
     const y = Math.min(c.height - 24, Math.max(24, place.v * c.height));
     return (place.inside ? at(x + 26, y) : at(x, y)) > 0;
 }"""
+
+
+class Frames:
+    """The camera frames and the face detector's boxes as the server publishes them (its bus), by frame seq."""
+
+    OWNER = "test-autonomy-pages-frames"
+    KEEP = 600
+
+    def __init__(self, server: RunningServer) -> None:
+        self.server, self.lock = server, threading.Lock()
+        self.jpegs: dict[int, bytes] = {}
+        self.faces: dict[int, list[dict]] = {}
+        bus = server.server.bus
+        self.tokens = server.call(lambda: [
+            (names.CAMERA_TOPIC, bus.subscribe(self.OWNER, names.CAMERA_TOPIC, None, self._frame)),
+            (names.FACES_TOPIC, bus.subscribe(self.OWNER, names.FACES_TOPIC, None, self._faces))])
+
+    def _frame(self, published) -> None:
+        with self.lock:
+            self.jpegs[published.data["header"]["seq"]] = published.data["data"]
+            while len(self.jpegs) > self.KEEP:
+                del self.jpegs[next(iter(self.jpegs))]
+
+    def _faces(self, published) -> None:
+        with self.lock:
+            self.faces[published.data["frame_seq"]] = published.data["faces"]
+
+    def close(self) -> None:
+        self.server.call(lambda: [self.server.server.bus.unsubscribe(t, k) for t, k in self.tokens])
+
+
+MARKED = """() => {  // one moment of the dashboard: the box drawn, the frame shown under it, the target it came from
+    const d = window.dashboard, img = document.getElementById('camera');
+    const mark = document.getElementById('attention-mark');
+    const r = img.getBoundingClientRect(), m = mark.getBoundingClientRect();
+    const scale = Math.min(r.width / img.naturalWidth, r.height / img.naturalHeight);
+    return {place: d.attentionPlace, painted: d.camera.painted, src: img.src, attention: d.autonomy.attention,
+            hidden: mark.hidden, kind: mark.className, size: [img.naturalWidth, img.naturalHeight],
+            mark: [(m.left - r.left - (r.width - img.naturalWidth * scale) / 2) / scale,
+                   (m.top - r.top - (r.height - img.naturalHeight * scale) / 2) / scale,
+                   m.width / scale, m.height / scale]};
+}"""
+
+
+def test_the_dashboard_draws_the_attended_faces_box_over_the_frame_it_was_found_in(browser, server):
+    """Issue 42: the box and the picture under it come from the same capture, box after box as detection goes on
+    (the stand-in's pupils face the robot: attention finds a face by itself)."""
+    frames = Frames(server)
+    page = dashboard_page(browser, server, "supervisor")
+    seen: set[int] = set()
+    try:
+        for _ in range(3):  # three boxes, each from a later frame than the one before
+            page.wait_for_function(f"window.dashboard.attentionPlace?.kind === 'face' && !document.getElementById("
+                                   f"'attention-mark').hidden && window.dashboard.attentionPlace.frameSeq > "
+                                   f"{max(seen, default=0)}", timeout=SLOW)
+            m = page.evaluate(MARKED)
+            seq = m["place"]["frameSeq"]
+            assert not m["hidden"] and m["kind"] == "face", m["kind"]
+            assert seq == m["painted"] == m["attention"]["frame_seq"], (seq, m["painted"], m["attention"])
+            with frames.lock:  # the picture shown is that frame's JPEG, byte for byte
+                jpeg, found = frames.jpegs.get(seq), frames.faces.get(seq, [])
+            assert jpeg is not None and m["src"] == "data:image/jpeg;base64," + base64.b64encode(jpeg).decode()
+            face = m["attention"]["face"]  # the box is one the detector found in that very frame
+            assert any(all(f[k] == face[k] for k in ("x", "y", "width", "height")) for f in found), (face, found)
+            assert m["mark"] == pytest.approx([face["x"], face["y"], face["width"], face["height"]], abs=2), m
+            seen.add(seq)
+        screenshot(page, "dashboard_attention_box.png")
+        assert page.errors == []
+    finally:
+        page.close()
+        frames.close()
 
 
 def test_the_flat_view_decides_with_the_arrow_keys_and_the_cards_buttons(browser, server, autonomy):

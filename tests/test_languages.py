@@ -22,7 +22,7 @@ from testbed.ros1_rosbridge import Ros1QTrobot
 from support import Watch, call, refused, wait_for
 
 from client_protocol import names
-from menus import PACKAGED_DIR
+from menus import PACKAGED_DIR, read_sentences
 
 TEXT = "Gut gemacht!"
 
@@ -126,7 +126,9 @@ def test_a_missing_sentence_list_refuses_the_switch_naming_the_file(servers, tmp
         assert wait_for(lambda: language.latest.get("data") == "en", 10)  # nothing changed
         assert speech_items(ros)["speech.sentences.well_done"]["label"] == "Well done!"
         (menus / "sentences.fr.txt").write_text("Bravo !\n")
-        refused(select(ros, "speech.language.fr"), r"sentences\.fr\.txt holds 1 sentences and .*sentences\.en\.txt 7")
+        english = len(read_sentences(menus / "sentences.en.txt"))
+        refused(select(ros, "speech.language.fr"),
+                rf"sentences\.fr\.txt holds 1 sentences and .*sentences\.en\.txt {english}:")
     finally:
         ros.close()
 

@@ -76,6 +76,20 @@ def test_bad_menu_file_names_file_item_and_problem(tmp_path, body, where, proble
     assert str(tmp_path / "bad.yaml") in message and where in message and problem in message, message
 
 
+def test_an_unknown_sentence_variable_names_the_file_and_the_line_at_load(tmp_path):
+    """Every language's list is checked when the menus load, not when the robot switches to it."""
+    (tmp_path / "s.yaml").write_text(GOOD_HEADER + "- {id: a, label: A, generate: sentences, source: lines.txt}\n")
+    (tmp_path / "lines.en.txt").write_text("# a comment\nWell done, {pupil}!\nThank you, {teacher}.\n")
+    (tmp_path / "lines.de.txt").write_text("# ein Kommentar\nGut gemacht, {pupil}!\nDanke, {lehrer}.\n")
+    with pytest.raises(MenuError) as info:
+        load_menus(tmp_path)
+    message = str(info.value)
+    assert f"{tmp_path / 'lines.de.txt'}:3: unknown variable {{lehrer}}" in message, message
+    assert "{pupil}, {teacher}" in message and str(tmp_path / "s.yaml") in message, message
+    (tmp_path / "lines.de.txt").write_text("Gut gemacht, {pupil}!\nDanke, {teacher}.\n")
+    assert load_menus(tmp_path)[0].info.id == "m"
+
+
 def test_duplicate_ids_across_files_name_both(tmp_path):
     (tmp_path / "a.yaml").write_text("menu: {id: one, label: One}\nitems:\n- {id: x, label: X, command: estop}\n")
     (tmp_path / "b.yaml").write_text("menu: {id: two, label: Two}\nitems:\n- {id: x, label: X, command: estop}\n")

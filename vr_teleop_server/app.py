@@ -239,7 +239,9 @@ class TeleopServer:
         menu = MenuService(self.bus, self.menus, gestures=self.luxai.gesture_names, emotions=self.model.emotions,
                            status=lambda which: panels[which](), luxai=self.luxai, language=lambda: speaker.language,
                            clips=clips.names,
-                           unavailable=lambda: set() if clips.directory is not None else {"record_clip"})
+                           unavailable=lambda: set() if clips.directory is not None else {"record_clip"},
+                           variables=lambda: {"pupil": self.autonomy.attended_pupil() if self.autonomy else "",
+                                              "teacher": s.teacher_name})
         speaker.language_checks.append(menu.check_language)  # a missing sentence list refuses the switch
         speaker.language_changed.append(menu.publish)
         clips.changed.append(menu.publish)
@@ -257,6 +259,7 @@ class TeleopServer:
         self.autonomy = Autonomy(self.bus, robot, self.owners, level=s.autonomy, attention=self.attention_config,
                                  rules=self.autonomy_rules, learner=self.learner, menu_entry=menu.entry,
                                  may_decide=self._audience, operator_of=self._operator, clock=self.clock)
+        self.autonomy.pupil_changed.append(menu.publish)  # the sentences' labels name the pupil attended to
         self._start(self.autonomy)
 
     async def start(self) -> None:

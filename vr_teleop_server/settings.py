@@ -53,6 +53,9 @@ class ServerSettings(CoreSettings):
                           "no clips are kept")
     motivation_config: Annotated[Path | None, Cli("files", metavar="FILE")] = Field(
         None, description="motivation variables: limits and dynamics (default: the packaged motivation.yaml)")
+    teacher_name: Annotated[str, Cli("server", metavar="NAME")] = Field(
+        "", max_length=100, description="the teacher's name, which {teacher} in the speech menu's sentences says "
+                                        "(a sentence with {teacher} is refused while it is empty)")
     bystander_interval: Annotated[float, Cli("sim", metavar="S")] = Field(
         20.0, ge=0, description="the stand-in's simulated pupils take turns saying a line every S seconds, heard in "
                                 "the robot's microphone and reported as voice activity; 0: never")

@@ -21,7 +21,8 @@ from pydantic import ValidationError
 
 from client_protocol import names
 from client_protocol.events import EventKind, EventLevel, MenuFailure, MenuSelection
-from menus import COMMANDS, REFERENCE_LANGUAGE, Item, LoadedMenu, language_sentences, language_words, walk
+from menus import (COMMANDS, REFERENCE_LANGUAGE, Item, LoadedMenu, fill_sentence, language_sentences, language_words,
+                   walk)
 from robot_models.types import MotorMode
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -41,7 +42,8 @@ class MenuService:
     def __init__(self, bus: Bus, menus: list[LoadedMenu], *, gestures: Callable[[], list[str]],
                  emotions: tuple[str, ...], status: Callable[[str], dict[str, Any]],
                  luxai: Any | None, language: Callable[[], str] = lambda: REFERENCE_LANGUAGE,
-                 clips: Callable[[], list[str]] = list, unavailable: Callable[[], set[str]] = set) -> None:
+                 clips: Callable[[], list[str]] = list, unavailable: Callable[[], set[str]] = set,
+                 variables: Callable[[], dict[str, str]] = dict) -> None:
         self.bus = bus
         self.menus = menus
         self._gestures = gestures
@@ -51,6 +53,7 @@ class MenuService:
         self._language = language  # the robot's language: the sentences are that language's list
         self._clips = clips
         self._unavailable = unavailable  # commands this server cannot run (no clip library): their items are left out
+        self._variables = variables  # the sentences' variables' values now ({pupil}, {teacher}); publish() on a change
         self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
         self._labels: dict[str, str] = {}
         self._arms_on = True
@@ -81,7 +84,8 @@ class MenuService:
             rows = [(name, name, "play_clip", {"name": name}) for name in self._clips()]
         else:
             pairs = language_sentences(menu.path.parent / str(item.source), self._language())
-            rows = [(key, text, "say", {"text": text}) for key, text in pairs]
+            values = self._variables()  # the label filled in as it would be said now; the item keeps the variables
+            rows = [(key, fill_sentence(text, values, keep_missing=True), "say", {"text": text}) for key, text in pairs]
         out, seen = [], set()
         for key, label, command, args in rows:
             ident = f"{item.id}.{_slug(key)}"
@@ -218,8 +222,12 @@ class MenuService:
         return f"{shown}, saying {a.say!r}" if response.status else f"{shown}; stopped while saying {a.say!r}"
 
     async def _do_say(self, a: Any, caller: str) -> str:
-        response = await self._call(names.SPEECH_SAY_SERVICE, {"message": a.text}, caller)
-        return f"said {a.text!r}" if response.status else f"stopped while saying {a.text!r}"
+        try:  # the variables as they are now; {pupil} the one picked, if any
+            text = fill_sentence(a.text, {**self._variables(), **({"pupil": a.pupil} if a.pupil else {})})
+        except ValueError as exc:
+            raise BusError(str(exc)) from None
+        response = await self._call(names.SPEECH_SAY_SERVICE, {"message": text}, caller)
+        return f"said {text!r}" if response.status else f"stopped while saying {text!r}"
 
     async def _do_stop_speech(self, _a: Any, caller: str) -> str:
         return await self._luxai(names.SPEECH_STOP_SERVICE, {}, caller, "speech stopped")

@@ -79,17 +79,43 @@ function useJpeg(reason) {
   camera.jpeg = true;
   ros.subscribe(names.CAMERA_TOPIC, "sensor_msgs/CompressedImage", (msg) => {
     if (camera.path !== "JPEG") return;
-    const img = $("camera");
-    img.src = `data:image/jpeg;base64,${msg.data}`;
     const s = msg.header.stamp;
-    const rendered = (s.secs ?? s.sec) + (s.nsecs ?? s.nanosec) / 1e9;
-    img.decode().then(() => {
-      showAge(clock.now() - rendered);
-      keep(camera.decodedAges, clock.now() - rendered);
-      requestAnimationFrame(() => keep(camera.paintedAges, clock.now() - rendered));
-    }, () => {});
+    const frame = {seq: msg.header.seq, src: `data:image/jpeg;base64,${msg.data}`,
+                   rendered: (s.secs ?? s.sec) + (s.nsecs ?? s.nanosec) / 1e9};
+    recentFrames.set(frame.seq, frame);
+    camera.newest = frame.seq;
+    if (recentFrames.size > RECENT_FRAMES) recentFrames.delete(recentFrames.keys().next().value);
     window.dashboard.frames += 1;
+    showFrame(attendedFrame() ?? frame);
   }, {throttle_rate: 0, queue_length: 1});
+}
+// The attention box and the picture come from the same capture: the JPEG frames of the last few seconds are kept
+// by header.seq, and while the robot attends to a face the view shows the frame its box was found in (the
+// AttentionTarget's frame_seq, republished at each detection), the box over it; otherwise the newest frame.
+const RECENT_FRAMES = 90;  // at 30 fps, three seconds: longer than a face search takes on a busy machine
+const recentFrames = new Map();  // seq -> {seq, src, rendered}, oldest first
+camera.shown = null;  // the frame the view shows (or is decoding): {seq, src, rendered}
+camera.painted = null;  // the seq of the frame the view shows, once decoded
+function attendedFrame() {
+  const a = autonomy.attention;
+  return a?.source && a.has_face && a.frame_seq ? recentFrames.get(a.frame_seq) ?? null : null;
+}
+function showFrame(frame) {
+  if (camera.shown?.seq === frame.seq) return;
+  camera.shown = frame;
+  const img = $("camera");
+  img.src = frame.src;
+  img.decode().then(() => {
+    if (camera.shown !== frame) return;  // a newer one came while this one decoded
+    camera.painted = frame.seq;
+    const age = clock.now() - frame.rendered;
+    showAge(age);
+    if (frame.seq === camera.newest) {  // the transport's figures (bench/media.py): a frame held for its box is not
+      keep(camera.decodedAges, age);
+      requestAnimationFrame(() => keep(camera.paintedAges, clock.now() - frame.rendered));
+    }
+    markAttention();  // the box for this frame, or none
+  }, () => {});
 }
 function onVideoFrame(now, meta) {
   window.dashboard.videoFrames += 1;
@@ -469,14 +495,24 @@ function showAutonomy() {
   }
   markAttention();
 }
-// The attention target over the camera picture: a box round the face, or a ring where it looks.
+// The attention target over the camera picture: a box round the face, over the frame the face was found in (JPEG:
+// recentFrames; WebRTC video cannot be held on a past frame, so there a face is marked by its direction, as a
+// voice is), or a ring where it looks.
 function markAttention() {
   const media = camera.path === "WebRTC" ? $("camera-video") : $("camera");
+  const mark = $("attention-mark");
+  let attention = autonomy.attention;
+  if (attention?.has_face && media.tagName !== "VIDEO") {
+    const frame = attendedFrame();
+    if (frame && camera.painted !== frame.seq) { showFrame(frame); return; }  // marked once it is decoded
+    if (!frame) attention = null;  // its frame is not here (yet, or any more): no box over another picture
+  } else if (attention?.has_face) {
+    attention = {...attention, has_face: false};
+  }
   const image = media.tagName === "VIDEO" ? {width: media.videoWidth, height: media.videoHeight}
     : {width: media.naturalWidth, height: media.naturalHeight};
-  const place = image.width ? attentionInImage(autonomy.attention, robotHead, CAMERA_HFOV_DEG, image) : null;
-  const mark = $("attention-mark");
-  window.dashboard.attentionPlace = place;
+  const place = image.width ? attentionInImage(attention, robotHead, CAMERA_HFOV_DEG, image) : null;
+  window.dashboard.attentionPlace = place && place.kind === "face" ? {...place, frameSeq: attention.frame_seq} : place;
   if (!place || (place.kind === "direction" && !place.inside)) { mark.hidden = true; return; }
   const box = media.getBoundingClientRect(), frame = media.parentElement.getBoundingClientRect();
   const scale = Math.min(box.width / image.width, box.height / image.height);  // object-fit: contain
@@ -485,7 +521,7 @@ function markAttention() {
   const w = image.width * scale, h = image.height * scale;
   mark.hidden = false;
   mark.className = place.kind;
-  mark.firstChild.textContent = attentionText(autonomy.attention);
+  mark.firstChild.textContent = attentionText(attention);
   if (place.kind === "face") {
     Object.assign(mark.style, {left: `${left + place.box.u * w}px`, top: `${top + place.box.v * h}px`,
                                width: `${place.box.w * w}px`, height: `${place.box.h * h}px`});

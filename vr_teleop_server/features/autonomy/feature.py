@@ -62,6 +62,7 @@ class FaceTrack:
     box: dict[str, Any]
     first_seen: float
     last_seen: float
+    frame_seq: int = 0  # the camera frame (header.seq) the box was found in
     announced: bool = False  # new_face fired
     away_fired: bool = False
 
@@ -126,6 +127,8 @@ class Autonomy:
                                    pitch_limits=(pitch.lower, pitch.upper), seed=seed)
         self.camera = model.camera
         self.target: Target | None = None
+        self.pupil_changed: list[Callable[[], None]] = []  # called when attended_pupil() changes
+        self._pupil = ""
         self.pending: dict[str, Proposal] = {}
         self.executing: dict[str, asyncio.Task[None]] = {}
         self.tracks: dict[str, FaceTrack] = {}
@@ -260,11 +263,12 @@ class Autonomy:
             near = min(free, key=lambda t: abs(t.yaw - yaw), default=None)
             if near is not None and abs(near.yaw - yaw) <= self.cfg.match_deg:
                 near.yaw, near.pitch, near.distance, near.box, near.last_seen = yaw, pitch, distance, box, now
+                near.frame_seq = msg["frame_seq"]
                 near.away_fired = False
                 seen.add(near.key)
             else:
                 key = self._track_id(yaw)
-                self.tracks[key] = FaceTrack(key, yaw, pitch, distance, box, now, now)
+                self.tracks[key] = FaceTrack(key, yaw, pitch, distance, box, now, now, msg["frame_seq"])
                 seen.add(key)
         for key in [k for k, t in self.tracks.items() if now - t.last_seen > FACE_FORGET_S]:
             self._forget(key)
@@ -680,11 +684,23 @@ class Autonomy:
                 "who": self.name(ident) if ident else "",
                 "yaw": round(t.yaw, 3) if t else 0.0, "pitch": round(t.pitch, 3) if t else 0.0,
                 "has_face": face is not None, "face": face.box if face is not None else {},
-                "score": round(t.score, 4) if t else 0.0}
+                "frame_seq": face.frame_seq if face is not None else 0, "score": round(t.score, 4) if t else 0.0}
+
+    def attended_pupil(self) -> str:
+        """The name of the person the robot attends to (the one every view shows), or ""."""
+        ident = self._target_id()
+        return self.name(ident) if ident else ""
 
     def _publish_attention(self, now: float, force: bool = False) -> None:
+        pupil = self.attended_pupil()
+        if pupil != self._pupil:
+            self._pupil = pupil
+            for changed in self.pupil_changed:
+                changed()
         t = self.target
-        key = (t.source, t.key, self.name(self._target_id()), round(t.yaw / 2), round(t.pitch / 2)) if t else ()
+        face = self.tracks.get(t.key) if t else None  # each new box of the attended face: the pages draw it
+        key = (t.source, t.key, self.name(self._target_id()), round(t.yaw / 2), round(t.pitch / 2),
+               face.frame_seq if face else 0) if t else ()
         if force or key != self._pub.attention_key or now - self._pub.attention_at >= ATTENTION_REPUBLISH_S:
             self._pub.attention_key, self._pub.attention_at = key, now
             self.bus.publish(names.AUTONOMY_ATTENTION_TOPIC, self._attention_message(), latch=True)

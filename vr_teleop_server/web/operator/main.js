@@ -751,6 +751,7 @@ function menuHint() {
 // ---- the heads-up display -------------------------------------------------------------------------------------
 let hudText = "";
 let hudAt = 0;
+let hudShown = [];  // the lines drawn last: what the HUD (its canvas and its DOM copy) shows now
 function hudLines() {
   const lines = [];
   const s = state.teleop;
@@ -822,6 +823,7 @@ function updateHud(force = false) {
   const text = JSON.stringify(lines);
   if (text === hudText) return;
   hudText = text;
+  hudShown = lines;
   drawHud(hudCanvas, lines);
   hudTexture.needsUpdate = true;
   $("hud").replaceChildren(...lines.map((l) => {
@@ -1015,6 +1017,7 @@ $("estop").addEventListener("click", estop);
 window.operator = {
   ros, state, nav, camera: cameraSource, audio, poses: poseChannel, autonomy, proposalMesh, attentionCanvas,
   hands: handActions, comfort,
+  hud: () => hudShown.map((l) => ({...l})),  // [{id, text, level}]: what the HUD shows (scripts/screenshots.py)
   readPixels: (at = null, size = 64) => new Promise((resolve) => pixelRequests.push({resolve, at, size})),
   statusCanvas, statusPoint, statusPanels: {motorBar, motivationBar, hardwareRow, dialogRow, dialogFace,
                                             hardwareRows: () => hardwareRows(state.robotHardware, state.hardware, t)},
