@@ -16,6 +16,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+# pilots of whole lessons in subprocesses: seconds idle, minutes on a loaded machine (the timeout only catches a hang)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 ROOT = Path(__file__).resolve().parent.parent
 CLI = [sys.executable, "-m", "vr_teleop_server.cli", "study"]
 ITEMS = [f"qam.P{i}" for i in range(1, 7)]
