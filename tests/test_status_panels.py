@@ -207,6 +207,7 @@ const items = [
 ];
 const choices = dialogChoices(items);
 out.choices = [choices.sentences.map((c) => c.id), choices.faces.map((c) => c.id)];
+out.args = [choices.sentences.map((c) => c.args), choices.faces.map((c) => c.args)];
 out.moved = [moveDialog({{sentence: 0, face: 0}}, choices, -1, 1), moveDialog({{sentence: 1, face: 1}}, choices, 1, 1)];
 const t = (key, vars = {{}}) => key + (Object.keys(vars).length ? JSON.stringify(vars) : "");
 const ros1 = {{backend: "ros", source: "measured", connected: false, motors: 8, has_motor_temperature: true,
@@ -220,6 +221,7 @@ console.log(JSON.stringify(out));
     result = subprocess.run(["node", str(script)], capture_output=True, text=True, timeout=60)
     assert result.returncode == 0, result.stderr
     out = json.loads(result.stdout)
+    assert out["args"] == [["", ""], ['{"say":""}', '{"say":""}']]  # a dialog's face says no words of its own
     assert out["one"] == 0  # one value: no trend yet
     assert out["two"] == [-1, 0, 0]  # 0.1 of 90 falls; 0.05 of 90 (under 0.09) is steady
     assert out["later"] == [0, 1]  # the fall is older than five seconds; curiosity just rose by 0.5

@@ -312,7 +312,7 @@ $("dialog-say").onclick = async () => {
   panels.dialog.result = {text: t("panel.dialog_sent", {face: face.label}), level: "ok"};
   drawDialogPanel();
   const results = await Promise.allSettled([face, sentence].map((item) =>
-    ros.call(names.MENU_SELECT_SERVICE, {id: item.id, args: ""})
+    ros.call(names.MENU_SELECT_SERVICE, {id: item.id, args: item.args})
       .then((r) => logLine($("events"), `${item.id}: ${r.message}`))));
   const refused = results.find((r) => r.status === "rejected");
   if (refused) {

@@ -325,8 +325,10 @@ export function drawHardware(canvas, robot, server, t, hint) {
  * robot's language, as the server filled them in) and each face once, the quick ones first. {sentences: [{id,
  * label}], faces: [{id, label, name}]}: the ids are the menus' own items, run through /vr_teleop/menu/select. */
 export function dialogChoices(items) {
+  // each choice's `args` for /vr_teleop/menu/select: the face is shown without the words its emotion says alone,
+  // since the chosen sentence is what the robot says with it
   const sentences = items.filter((i) => i.parent === "speech.sentences" && i.command === "say")
-    .sort((a, b) => a.position - b.position).map((i) => ({id: i.id, label: i.label}));
+    .sort((a, b) => a.position - b.position).map((i) => ({id: i.id, label: i.label, args: ""}));
   const faces = [], seen = new Set();
   for (const item of items) {
     if (item.command !== "show_emotion") continue;
@@ -334,7 +336,7 @@ export function dialogChoices(items) {
     try { name = String(JSON.parse(item.args || "{}").name || ""); } catch { continue; }
     if (!name || seen.has(name)) continue;
     seen.add(name);
-    faces.push({id: item.id, label: item.label, name});
+    faces.push({id: item.id, label: item.label, name, args: JSON.stringify({say: ""})});
   }
   return {sentences, faces};
 }

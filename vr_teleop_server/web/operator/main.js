@@ -412,7 +412,7 @@ async function pickDialog() {
   state.dialogResult = {text: t("panel.dialog_sent", {face: face.label}), level: "ok"};
   statusDirty = true;
   const results = await Promise.allSettled([face, sentence].map((item) =>
-    ros.call(SERVICES.select, {id: item.id, args: ""})));
+    ros.call(SERVICES.select, {id: item.id, args: item.args})));
   const refused = results.find((r) => r.status === "rejected");
   if (refused) {
     state.dialogResult = {text: t("panel.dialog_failed", {reason: refused.reason.message}), level: "error"};
