@@ -279,10 +279,10 @@ def test_the_checks_catch_a_bad_tree(tmp_path):
 # A test waits for an event the design guarantees (testbed.waiting's wait_for/until, a message, an acknowledgement, a
 # sequence number) or runs on the simulated clock; a real-time source is paced by testbed.waiting.Pace. A sleep left
 # says in a comment on its line why nothing else can work. A sleep on the simulated clock (its comment says
-# "simulated time") waits for no wall-clock time and is not counted. The bound is 10: 5 outside
-# tests/test_netem.py and tests/test_nat_turn.py (testbed/waiting.py's two polls and Pace's two waits, and
-# test_sim_standin.py's stall of the physics), plus the 11 those two files hold today, to come down to 5 there.
-SLEEPS_ALLOWED = 16
+# "simulated time") waits for no wall-clock time and is not counted. The bound is 10; 8 are left:
+# testbed/waiting.py's two polls and Pace's two waits, test_sim_standin.py's stall of the physics, and test_netem.py's
+# packet spacing and its outage's two moments (a link down for 2 s, 7 s into the session).
+SLEEPS_ALLOWED = 8
 SIMULATED = "simulated time"
 
 

@@ -37,6 +37,7 @@ import pytest
 from netem import EDGES, Edge, Emulator, cleanup_leftovers, edges_available, list_namespaces
 from testbed.pages import operator_in_namespace
 from testbed.processes import environment
+from testbed.waiting import wait_for
 from vr_teleop_server.core.certs import make_authority, make_certificate
 from vr_teleop_server.media.turn import credentials
 
@@ -172,8 +173,8 @@ def drive(origin: str, take_control: bool, until: str = "", home: Path | None = 
                 page.wait_for_function("window.operator.poses.stats().sent > 20", timeout=WAIT_MS)
                 # until the server's telemetry (every 0.5 s) says its channel received them
                 page.wait_for_function("(window.operator.state.link?.dc_received ?? 0) > 0", timeout=WAIT_MS)
-            else:
-                time.sleep(2.0)
+            else:  # until the server's telemetry says the poses arrive (over rosbridge)
+                page.wait_for_function("(window.operator.state.link?.pose_rate ?? 0) > 0", timeout=WAIT_MS)
             out["poses"] = page.evaluate("window.operator.poses.stats()")
         out.update(page.evaluate("""(() => { const c = window.operator.camera; return {
             route: c.route, audio: c.audioViaWebRtc, video: c.video ? c.video.received : 0,
@@ -263,9 +264,7 @@ def test_the_edges_forward_filter_and_map_as_a_home_and_a_school_do(world) -> No
                                     "s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1); "
                                     f"s.bind(('{net.server_ip}', {PORT})); s.listen(); time.sleep(600)"])
     try:
-        deadline = time.monotonic() + 60
-        while net.run_in("server", _connect, net.server_ip, PORT) != 0 and time.monotonic() < deadline:
-            time.sleep(0.2)
+        assert wait_for(lambda: net.run_in("server", _connect, net.server_ip, PORT) == 0, 60)  # it listens
         # the school's forwarded port reaches the server; its own address does not, from outside
         assert net.run_in("client", _connect, net.public_ip, PORT) == 0
         assert net.run_in("client", _connect, net.server_ip, PORT) != 0

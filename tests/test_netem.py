@@ -26,6 +26,7 @@ import pytest
 
 from netem import (DIRECTIONS, Direction, DirectionParams, Emulator, Stacked, available, cleanup_leftovers,
                    load_profiles)
+from testbed.waiting import Pace, wait_for
 
 
 def needs_netns(test):
@@ -238,12 +239,10 @@ def _probe(ip: str, port: int, count: int, spacing: float, drain: float) -> dict
 
     receiver = threading.Thread(target=receive, daemon=True)
     receiver.start()
-    t0 = time.monotonic()
+    pace = Pace(1.0 / spacing)  # late probes go out at once: the mean rate is kept
     for seq in range(count):
-        delay = t0 + seq * spacing - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
         s.send(PROBE.pack(seq, time.time(), 0.0, 0.0))
+        pace.wait()
     receiver.join()
     s.close()
     return path
@@ -390,8 +389,13 @@ def test_leftovers_of_a_killed_run_are_cleaned_up() -> None:
     client_ns, server_ns, forwarder = done.stdout.split()
     names = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
     assert client_ns in names and server_ns in names
-    time.sleep(0.5)
-    assert not os.path.exists(f"/proc/{forwarder}") or "zombie" in open(f"/proc/{forwarder}/status").read().lower()
+    def gone() -> bool:  # the forwarder exits once its stdin closes with its parent (a zombie until reaped)
+        try:
+            return "zombie" in open(f"/proc/{forwarder}/status").read().lower()
+        except FileNotFoundError:
+            return True
+
+    assert wait_for(gone, 30)
     removed = cleanup_leftovers()
     assert client_ns in removed and server_ns in removed
     names = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
@@ -502,10 +506,10 @@ def test_a_link_down_for_2_s_holds_within_the_ceiling_and_resumes_only_on_fresh_
         cut: dict[str, float] = {}
 
         def outage() -> None:
-            time.sleep(7.0)
+            time.sleep(7.0)  # the scenario's own clock: the link goes down 7 s into the 16 s session
             net.set(down=True)
             cut["down"] = time.monotonic()
-            time.sleep(2.0)
+            time.sleep(2.0)  # the scenario's own clock: what is tested is a link down for 2 s
             net.set(down=False)
             cut["up"] = time.monotonic()
 
