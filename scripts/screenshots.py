@@ -140,7 +140,7 @@ class Shots:
         if headset:
             page.add_init_script(path=str(IWER))
             page.add_init_script(script=INSTALL_HEADSET)
-        page.goto(f"http://127.0.0.1:{self.server.port}/operator#camera=jpeg")
+        page.goto(f"http://127.0.0.1:{self.server.port}/operator")  # the camera as a teacher gets it: WebRTC video
         page.wait_for_function(READY, timeout=SLOW)
         return page
 

@@ -69,7 +69,7 @@ def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_wher
 
         # The robot's head follows: no vignette; the reticle where the robot looks, which is where we look.
         set_head(page, 20.0)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 20.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 20.0, 2.0), standin.joint_positions()
         frames(page, 10)
         c = settled(page)
         assert c["active"] and c["lagDeg"] < 5.0 and c["strength"] == 0 and not c["vignetteVisible"], c
@@ -79,7 +79,7 @@ def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_wher
 
         # 70 degrees: the robot's head stops at its 60 degree limit, 10 behind: a faint, wide vignette.
         set_head(page, 70.0)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], HEAD_YAW_LIMIT, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", HEAD_YAW_LIMIT, 2.0), standin.joint_positions()
         page.wait_for_function(f"{COMFORT}.vignetteVisible", timeout=SLOW)
         faint = settled(page)
         assert 7.0 < faint["lagDeg"] < 13.0 and 0 < faint["strength"] < 0.5, faint
@@ -87,7 +87,7 @@ def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_wher
         # 85 degrees left and 10 down: 25 behind, the vignette at its darkest and narrowest; the reticle stays with
         # the robot's head (60 left, 10 down), not with ours.
         set_head(page, 85.0, -10.0)
-        assert settles(lambda: standin.joint_positions()["HeadPitch"], 10.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadPitch", 10.0, 2.0), standin.joint_positions()
         page.wait_for_function(f"{COMFORT}.strength > 0.95", timeout=SLOW)
         full = settled(page)
         assert full["lagDeg"] > 22.0, full
@@ -126,7 +126,7 @@ def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_wher
 
         # Back within the limit: the robot's head catches up, the vignette goes.
         set_head(page, 0.0)
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], 0.0, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", 0.0, 2.0), standin.joint_positions()
         page.wait_for_function(f"!{COMFORT}.vignetteVisible", timeout=SLOW)
         assert comfort(page)["reticleVisible"]
         assert page.errors == []
@@ -146,7 +146,7 @@ def test_the_address_and_the_checkbox_switch_it_on_the_flat_page(browser, sim_se
         for i in range(1, 18):
             page.mouse.move(880 - 20 * i, 300)
         page.mouse.up()
-        assert settles(lambda: standin.joint_positions()["HeadYaw"], HEAD_YAW_LIMIT, 2.0), standin.joint_positions()
+        assert settles(standin, "HeadYaw", HEAD_YAW_LIMIT, 2.0), standin.joint_positions()
         frames(page, 10)
         c = settled(page)
         assert c["active"] and c["lagDeg"] > 20 and c["strength"] == 0 and not c["vignetteVisible"], c

@@ -179,11 +179,19 @@ def menu_item_ids(menu_dir: Path | None = None) -> list[str]:
     return [i for i in ids if i not in last] + [i for i in last if i in ids]
 
 
+TOUR_PUPIL = "child_left"  # the stand-in's pupil on the left: a teleoperated server attends to nobody
+
+
 def menu_tour(s: Session, rng: np.random.Generator, ids: list[str] | None = None, spacing: float = 1.5) -> None:
     t = max(s.head.end_time, 1.0)
     ids = ids if ids is not None else menu_item_ids()
     for item in ids:
-        args = json.dumps({"name": "synth_menu_tour"}) if item == "motion.record" else ""
+        if item == "motion.record":
+            args = json.dumps({"name": "synth_menu_tour"})
+        elif item.startswith("speech.sentences."):  # the teacher picks whom a sentence's {pupil} names
+            args = json.dumps({"pupil": TOUR_PUPIL})
+        else:
+            args = ""
         s.call(t, names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", {"id": item, "args": args})
         if item in TOGGLES:  # select it again: stop and save, or switch back on
             t += spacing
