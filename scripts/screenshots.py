@@ -44,7 +44,7 @@ SETS = {"headset": ("--autonomy", "teleoperated"), "flat": ("--autonomy", "teleo
 WARNINGS = """(allow) => {
   if (window.operator) {
     return window.operator.hud().filter((l) => !allow.includes(l.id) && (l.level === "error"
-      || (l.id === "link" && l.level !== "ok")
+      || (l.id === "link" && l.level === "warning")
       || (l.id === "control" && l.text.startsWith("YOU HAVE CONTROL") && l.level !== "ok")
       || (l.id === "numbers" && l.text.includes("no frames yet")))).map((l) => `HUD ${l.id}: ${l.text}`);
   }
@@ -157,12 +157,14 @@ class Shots:
 
     @staticmethod
     def calm(page) -> None:
-        """Waits a while for the HUD to say the link is good; if it does not, save() refuses the picture."""
+        """Waits a while for the HUD's link line to be calm: judged good, or not judged yet (before anyone holds
+        control the link has no verdict, and its line is the round trip alone); if it is not, save() refuses the
+        picture."""
         from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
         with contextlib.suppress(PlaywrightTimeout):
-            page.wait_for_function("window.operator.hud().some((l) => l.id === 'link' && l.level === 'ok')",
-                                   timeout=CALM)
+            page.wait_for_function("window.operator.hud().some((l) => l.id === 'link' && ['ok', 'info']"
+                                   ".includes(l.level))", timeout=CALM)
 
     def wait_control(self, page) -> None:
         page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '')"
@@ -319,8 +321,10 @@ class Shots:
                     }
                     return now - r.since > 2000 && !document.getElementById('attention-mark').hidden;
                 })()"""
+                left = min(camera["x"], panel["x"])  # the two panels, wherever the layout puts them
+                right = max(camera["x"] + camera["width"], panel["x"] + panel["width"])
                 self.save(dashboard, "dashboard-autonomy", stable=rest,
-                          clip={"x": panel["x"], "y": top, "width": panel["width"], "height": bottom - top})
+                          clip={"x": left, "y": top, "width": right - left, "height": bottom - top})
             finally:
                 dashboard.context.close()
         finally:
@@ -332,6 +336,8 @@ class Shots:
         page.evaluate(f"window.operator.ros.call('/sim/bystanders/speak', {{who: {who!r}, text: {text!r}}})")
 
     def dashboard(self) -> None:
+        from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
         context = self.browser.new_context(viewport={"width": 1400, "height": 1000})
         page = context.new_page()
         try:
@@ -341,6 +347,8 @@ class Shots:
             page.wait_for_function("document.getElementById('teleop-state').textContent.startsWith('active')",
                                    timeout=SLOW)
             time.sleep(1.0)  # a second of gauges and events
+            with contextlib.suppress(PlaywrightTimeout):  # the operator's link judged calm, else save() refuses
+                page.wait_for_function("!document.getElementById('teleop-link')?.className", timeout=CALM)
             self.save(page, "dashboard", full_page=True)
         finally:
             context.close()
