@@ -39,6 +39,7 @@ CALM = 60_000  # ms: how long a picture waits for the link to be good
 # proposing; the autonomy pictures with a rule that answers a pupil's line and a minute to decide.
 SETS = {"headset": ("--autonomy", "teleoperated"), "flat": ("--autonomy", "teleoperated"),
         "hands": ("--autonomy", "teleoperated"), "comfort": ("--autonomy", "teleoperated"),
+        "status": ("--autonomy", "teleoperated"),
         "autonomy": ("--autonomy", "supervised", "--autonomy-rules", "RULES", "--bystander-interval", "0")}
 # The link warnings a picture must not show (Shots.warnings): [text] from the operator page's or the dashboard's state.
 WARNINGS = """(allow) => {
@@ -351,6 +352,45 @@ class Shots:
         finally:
             context.close()
 
+    def status(self) -> None:
+        """The status panels in the headset, each opened from the left controller's Status menu (X) over the reduced
+        camera view, and the same panels on the dashboard."""
+        page = self.operator(headset=True)
+        try:
+            page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
+            page.get_by_role("button", name="Enter VR").click()
+            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                                   timeout=SLOW)
+            for name, stick in (("motors", (0, 1)), ("motivation", (1, 0)), ("hardware", (-1, 0)),
+                                ("dialog", (0, -1))):
+                self.press(page, "left", "x-button")
+                page.wait_for_function("document.getElementById('menu-title').textContent === 'Status'",
+                                       timeout=SLOW)
+                page.evaluate(f"xrDevice.controllers.left.updateAxes('thumbstick', {stick[0]}, {stick[1]})")
+                page.wait_for_function("window.operator.nav.level.entries[window.operator.nav.highlight]?.item.id"
+                                       f" === 'status.{name}'", timeout=SLOW)
+                page.evaluate("xrDevice.controllers.left.updateAxes('thumbstick', 0, 0)")
+                self.press(page, "left", "trigger")
+                page.wait_for_function(f"window.operator.state.statusPanel === '{name}' && !window.operator.nav.open",
+                                       timeout=SLOW)
+                self.calm(page)
+                self.frames(page, 10)
+                self.save(page, f"operator-status-{name}")
+                self.press(page, "right", "b-button")  # B closes it
+                page.wait_for_function("window.operator.state.statusPanel === null", timeout=SLOW)
+            dashboard = self.browser.new_context(viewport={"width": 1400, "height": 1000}).new_page()
+            try:
+                dashboard.goto(f"http://127.0.0.1:{self.server.port}/#camera=jpeg")
+                dashboard.wait_for_function("window.dashboard.frames >= 3", timeout=SLOW)
+                panels = dashboard.locator("#status-panels")
+                dashboard.evaluate("window.scrollTo(0, 0)")  # the box in the page's coordinates, as full_page's
+                box = panels.bounding_box()
+                self.save(dashboard, "dashboard-status-panels", full_page=True, clip=box)
+            finally:
+                dashboard.context.close()
+        finally:
+            page.context.close()
+
     def flat(self) -> None:
         """The page without a headset: E takes control, the mouse turns the head, A opens the commands menu."""
         page = self.operator(headset=False)
@@ -403,7 +443,7 @@ def main(argv: list[str] | None = None) -> int:
                     shots = Shots(browser, server, args.out)
                     steps: dict[str, Callable[[], None]] = {"headset": shots.headset, "flat": shots.flat,
                                                             "autonomy": shots.autonomy, "hands": shots.hands,
-                                                            "comfort": shots.comfort}
+                                                            "comfort": shots.comfort, "status": shots.status}
                     for name in args.only:
                         if SETS[name] == flags:
                             steps[name]()
