@@ -563,7 +563,7 @@ def test_the_dashboard_shows_webrtc_video(browser, media_server: RunningServer) 
     page.on("pageerror", lambda exc: errors.append(str(exc)))
     try:
         page.goto(f"http://127.0.0.1:{media_server.port}/#camera=webrtc")
-        page.wait_for_function("window.dashboard.videoFrames >= 10", timeout=30_000)  # requestVideoFrameCallback
+        page.wait_for_function("window.dashboard?.videoFrames >= 10", timeout=30_000)  # requestVideoFrameCallback
         assert page.evaluate("window.dashboard.camera.path") == "WebRTC"
         size = page.evaluate("[document.getElementById('camera-video').videoWidth, "
                              "document.getElementById('camera-video').videoHeight]")
