@@ -163,19 +163,25 @@ def sentences_file(source: Path, language: str) -> Path:
     return path
 
 
+def _read_with_reference(source: Path, language: str, read: Callable[[Path], Any], kind: str,
+                         what: str) -> tuple[Path, Any, Path, Any]:
+    """The reference language's file of `source` and `language`'s, each read by `read`: (reference path, its
+    contents, path, its contents). MenuError names a missing file."""
+    reference_path, path = sentences_file(source, REFERENCE_LANGUAGE), sentences_file(source, language)
+    try:
+        return reference_path, read(reference_path), path, read(path)
+    except FileNotFoundError as exc:
+        raise MenuError(f"no {kind} for {language!r}: {exc.filename} is missing") from None
+    except OSError as exc:
+        raise MenuError(f"cannot read {what}: {exc}") from None
+
+
 def language_sentences(source: Path, language: str) -> list[tuple[str, str]]:
     """(reference sentence, sentence in `language`) line by line: the items keep the reference's ids in every
     language, so autonomy rules and recordings name the same item whatever the robot speaks. MenuError names the
     file that is missing or does not match the reference line for line."""
-    reference_path = sentences_file(source, REFERENCE_LANGUAGE)
-    path = sentences_file(source, language)
-    try:
-        reference = read_sentences(reference_path)
-        sentences = read_sentences(path)
-    except FileNotFoundError as exc:
-        raise MenuError(f"no sentence list for {language!r}: {exc.filename} is missing") from None
-    except OSError as exc:
-        raise MenuError(f"cannot read sentences: {exc}") from None
+    reference_path, reference, path, sentences = _read_with_reference(source, language, read_sentences,
+                                                                      "sentence list", "sentences")
     if not reference:
         raise MenuError(f"{reference_path} holds no sentences")
     if len(sentences) != len(reference):
@@ -202,15 +208,8 @@ def read_words(path: Path) -> dict[str, str]:
 def language_words(source: Path, language: str) -> dict[str, str]:
     """Emotion -> the words it says in `language`. The reference language's file says which emotions speak; MenuError
     names the file that is missing, or that lacks (or adds) an emotion of the reference's."""
-    reference_path = sentences_file(source, REFERENCE_LANGUAGE)
-    path = sentences_file(source, language)
-    try:
-        reference = read_words(reference_path)
-        words = read_words(path)
-    except FileNotFoundError as exc:
-        raise MenuError(f"no emotion words for {language!r}: {exc.filename} is missing") from None
-    except OSError as exc:
-        raise MenuError(f"cannot read emotion words: {exc}") from None
+    reference_path, reference, path, words = _read_with_reference(source, language, read_words, "emotion words",
+                                                                  "emotion words")
     missing = [name for name in reference if name not in words]
     if missing:
         raise MenuError(f"{path} has no words for {', '.join(missing)} ({reference_path} has): add a line "

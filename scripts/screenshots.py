@@ -146,6 +146,12 @@ class Shots:
         return page
 
     @staticmethod
+    def enter_vr(page) -> None:
+        page.get_by_role("button", name="Enter VR").click()
+        page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
+                               timeout=SLOW)
+
+    @staticmethod
     def frames(page, n: int = 3) -> None:
         start = page.evaluate("window.operator.state.frameCount")
         page.wait_for_function(f"window.operator.state.frameCount >= {start + n}", timeout=SLOW)
@@ -181,9 +187,7 @@ class Shots:
             self.calm(page)
             self.save(page, "operator-enter-vr")
             self.dashboard()  # before anyone holds control: a headless headset's poses come too unevenly for a good link
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=SLOW)
+            self.enter_vr(page)
             self.press(page, "right", "trigger")  # the right trigger takes control
             self.wait_control(page)
             page.wait_for_function("window.operator.camera.uploaded >= 10", timeout=SLOW)
@@ -234,9 +238,7 @@ class Shots:
         """The controllers put down: the hands' ray on the ring of menus a pinch on the HUD opened."""
         page = self.operator(headset=True)
         try:
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=SLOW)
+            self.enter_vr(page)
             page.wait_for_function("window.operator.nav.tree !== null", timeout=SLOW)
             page.evaluate("xrDevice.primaryInputMode = 'hand'")
             page.wait_for_function("document.getElementById('hud-input')?.textContent === 'input: hands'",
@@ -261,9 +263,7 @@ class Shots:
         mode = "window.operator.ros.call('/qt_robot/motors/setControlMode', {parts: ['head'], mode: %d})"
         try:
             page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=SLOW)
+            self.enter_vr(page)
             self.press(page, "right", "trigger")
             self.wait_control(page)
             page.evaluate(mode % 2)  # M_BREAK
@@ -285,9 +285,7 @@ class Shots:
         page = self.operator(headset=True)
         try:
             page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=SLOW)
+            self.enter_vr(page)
             self.press(page, "right", "trigger")  # the teacher holds control: her head turns the robot's
             self.wait_control(page)
             self.speak(page, "child_left", "Can I ask the robot a question?")
@@ -358,9 +356,7 @@ class Shots:
         page = self.operator(headset=True)
         try:
             page.wait_for_function("window.operator.camera.uploaded >= 3", timeout=SLOW)
-            page.get_by_role("button", name="Enter VR").click()
-            page.wait_for_function("window.operator.state.xr !== null && window.operator.state.frameCount > 10",
-                                   timeout=SLOW)
+            self.enter_vr(page)
             for name, stick in (("motors", (0, 1)), ("motivation", (1, 0)), ("hardware", (-1, 0)),
                                 ("dialog", (0, -1))):
                 self.press(page, "left", "x-button")
