@@ -227,9 +227,20 @@ PLACED = """() => { const o = window.operator, p = o.camera.placed;
                path: o.camera.path}; }"""
 
 
+CAMERA_STATE = """() => { const c = window.operator.camera, v = c.video;
+  return {path: c.path, placed: c.placed, placement: c.placement, posesReceived: c.rtpPoses.received,
+          poseKeys: [...c.rtpPoses.poses.keys()].slice(-5), latestRtp: v?.latestRtp ?? null,
+          shownRtp: v?.shownRtp ?? null, framesReceived: v?.received ?? null}; }"""
+
+
 def _placed_by(page, by: str) -> dict:
-    page.wait_for_function(f"() => window.operator.camera.placed?.by === {by!r} "
-                           "&& window.operator.camera.placed.key !== null", timeout=int(WAIT * 1000))
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    try:
+        page.wait_for_function(f"() => window.operator.camera.placed?.by === {by!r} "
+                               "&& window.operator.camera.placed.key !== null", timeout=int(WAIT * 1000))
+    except PlaywrightTimeout:  # what the page held instead: which of the frames, the poses or the match was missing
+        raise AssertionError(f"the panel was never placed by {by!r}: {page.evaluate(CAMERA_STATE)}") from None
     return page.evaluate(PLACED)
 
 
