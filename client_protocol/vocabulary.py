@@ -15,7 +15,8 @@ from pydantic import WithJsonSchema
 
 
 class AutonomyLevel(enum.StrEnum):
-    """How much the robot does by itself (/vr_teleop/autonomy/level, `serve --autonomy`)."""
+    """How much the robot does by itself: /vr_teleop/autonomy/level's and /vr_teleop/autonomy/state's `level`, the
+    autonomy_level event's `level` and `was`, `serve --autonomy`."""
 
     TELEOPERATED = "teleoperated"  # nothing moves unless someone moves it
     SUPERVISED = "supervised"  # the robot attends and proposes; the teacher decides
@@ -23,7 +24,7 @@ class AutonomyLevel(enum.StrEnum):
 
 
 class Decision(enum.StrEnum):
-    """The teacher's word on a pending proposal (/vr_teleop/autonomy/decide)."""
+    """The teacher's word on a pending proposal: /vr_teleop/autonomy/decide's `decision`."""
 
     ACCEPT = "accept"
     REJECT = "reject"
@@ -66,8 +67,9 @@ class Decider(enum.StrEnum):
 
 
 class Owner(enum.StrEnum):
-    """Who moves a part of the robot (/vr_teleop/autonomy/state's `owners`). The claimants come first, strongest
-    first (core/ownership.py); autonomy claims nothing: it is shown on the head while it drives a free head."""
+    """Who moves a part of the robot: /vr_teleop/autonomy/state's `owners[].owner`. The claimants come first, the
+    strongest first: an emergency stop, the operator holding control, a running study trial, a gesture playing, a
+    client of LuxAI's API. Autonomy claims nothing: it is shown on the head while it drives a free head."""
 
     ESTOP = "estop"  # an emergency stop, until someone engages or sets the autonomy level again
     OPERATOR = "operator"  # the operator holding control, on the parts they follow
@@ -82,7 +84,8 @@ CLAIMANTS: tuple[Owner, ...] = (Owner.ESTOP, Owner.OPERATOR, Owner.TRIAL, Owner.
 
 
 class Part(enum.StrEnum):
-    """A part of the robot someone may own: the robot model's (a joint group) and two that are not joints."""
+    """A part of the robot someone may own (/vr_teleop/autonomy/state's `owners[].part`): the robot model's joint
+    groups, and two that are not joints."""
 
     HEAD = "head"
     RIGHT_ARM = "right_arm"
@@ -92,6 +95,7 @@ class Part(enum.StrEnum):
 
 
 ARMS: tuple[Part, ...] = (Part.LEFT_ARM, Part.RIGHT_ARM)
+VOCABULARIES: tuple[type[enum.StrEnum], ...] = (AutonomyLevel, Decision, Outcome, Initiator, Decider, Owner, Part)
 
 
 def literal(kind: type[enum.StrEnum]) -> Any:
