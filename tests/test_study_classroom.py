@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 import simclock
 import yaml
-from netem.model import DirectionParams, Profile
 from client_protocol.vocabulary import Decider, Outcome
+from netem.model import DirectionParams, Profile
 from simclock import SimulatedClock
 
 from vr_teleop_server.cli import main as cli_main
