@@ -12,9 +12,11 @@ from __future__ import annotations
 import enum
 import json
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema
+
+from .vocabulary import AutonomyLevel, literal
 
 
 class EventLevel(enum.StrEnum):
@@ -155,9 +157,11 @@ class VoiceActivity(EventDetail):
     direction_deg: float | None = Field(None, description="the microphone array's direction estimate")
 
 
-class AutonomyLevel(EventDetail):
-    level: Literal["teleoperated", "supervised", "autonomous"] = Field(description="the level now")
-    was: str = Field(description="the level before")
+class AutonomyLevelChanged(EventDetail):
+    level: literal(AutonomyLevel) = Field(title="Level", description="the level now")  # type: ignore[valid-type]
+    # published as a plain string before it was typed: its schema stays so
+    was: Annotated[AutonomyLevel, WithJsonSchema({"type": "string"})] = Field(title="Was",
+                                                                               description="the level before")
     by: str = Field(description="the operator (or connection, or the server) that set it")
 
 
@@ -221,7 +225,7 @@ KINDS: dict[EventKind, KindSpec] = {
     K.MOTOR_ERROR: KindSpec(MotorFault, "backend", "a motor reports faults"),
     K.MOTOR_OK: KindSpec(Motor, "backend", "a motor's faults cleared"),
     K.VOICE_ACTIVITY: KindSpec(VoiceActivity, "backend", "a voice started, stopped or moved near the robot"),
-    K.AUTONOMY_LEVEL: KindSpec(AutonomyLevel, "autonomy", "the autonomy level changed"),
+    K.AUTONOMY_LEVEL: KindSpec(AutonomyLevelChanged, "autonomy", "the autonomy level changed"),
     K.AUTONOMY_ACTION_FAILED: KindSpec(ActionFailed, "autonomy", "a proposal's action could not be run"),
     K.HUMAN_ACTION_START: KindSpec(Label, "experimenter", "the experimenter marks a human action's start"),
     K.HUMAN_ACTION_STOP: KindSpec(Label, "experimenter", "the experimenter marks a human action's end"),

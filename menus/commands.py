@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+from client_protocol.vocabulary import AutonomyLevel
 from pydantic import BaseModel, ConfigDict, Field
 
 PARTS = ("head", "left_arm", "right_arm")
@@ -88,7 +89,7 @@ class MotivationArgs(_Args):
 
 
 class AutonomyArgs(_Args):
-    level: Literal["teleoperated", "supervised", "autonomous"]
+    level: AutonomyLevel
 
 
 class VignetteArgs(_Args):

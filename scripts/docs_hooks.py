@@ -132,6 +132,7 @@ def protocol() -> str:
         out.append(f"\n{e.doc}\n")
         out.append("\nExample frame:\n\n```json\n" + json.dumps(e.example_frame(), indent=2) + "\n```\n")
     out.append(events())
+    out.append(vocabulary())
     out.append("\n## Types\n\nEach type as ROS writes it (`.msg`, or `.srv` with the request above `---` and the "
                "response below). `vr-teleop schema` writes the non-standard ones as files (with a `package.xml` "
                "each) under `client_protocol/schemas/msg/`, and a JSON Schema per type beside them.\n")
@@ -165,6 +166,20 @@ def events() -> str:
         spelled = spec.wire.replace("{", "<").replace("}", ">") if spec.wire else kind.value
         rows.append([code(spelled), code(spec.source), cell(spec.doc), fields or "none"])
     out.append(table(["Kind", "Source", "When", "Detail fields"], rows))
+    return "".join(out)
+
+
+def vocabulary() -> str:
+    """The shared words of autonomy and ownership (client_protocol/vocabulary.py), each enum with its values."""
+    from client_protocol import vocabulary as v
+
+    out = ["\n## Vocabularies {#vocabularies}\n\n",
+           "The strings these fields take, one enum each in `client_protocol/vocabulary.py` (a Python client may "
+           "import them: a member equals its string, `AutonomyLevel.SUPERVISED == \"supervised\"`). Send and "
+           "compare exactly these values; the server names no others.\n\n"]
+    rows = [[code(kind.__name__), ", ".join(code(m.value) for m in kind), cell(" ".join((kind.__doc__ or "").split()))]
+            for kind in v.VOCABULARIES]
+    out.append(table(["Enum", "Values", "What they name"], rows))
     return "".join(out)
 
 

@@ -7,6 +7,7 @@ import json
 import math
 
 import pytest
+from client_protocol.vocabulary import Outcome, Owner, Part
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -123,22 +124,22 @@ def test_the_head_never_leaves_its_limits_nor_turns_faster_than_the_limit(people
 
 
 def test_ownership_gives_the_strongest_claimant_and_an_older_gestures_end_keeps_a_newer_claim():
-    owners = Ownership(("head", "right_arm", "left_arm"))
+    owners = Ownership((Part.HEAD, Part.RIGHT_ARM, Part.LEFT_ARM))
     seen = []
-    owners.changed.append(lambda: seen.append(owners.owner("head")))
-    owners.claim("gesture", ["head"], "nod#1")
-    owners.claim("gesture", ["head"], "nod#2")
-    owners.release("gesture", ["head"], "nod#1")
-    assert owners.owner("head") == "gesture" and owners.holder("head") == "nod#2"
-    owners.claim("operator", ["head"], "op-1")
-    assert owners.owner("head") == "operator" and owners.free("right_arm")
-    owners.release("operator")
-    owners.release("gesture", ["head"], "nod#2")
-    assert owners.free("head") and seen[-1] == "none"
+    owners.changed.append(lambda: seen.append(owners.owner(Part.HEAD)))
+    owners.claim(Owner.GESTURE, [Part.HEAD], "nod#1")
+    owners.claim(Owner.GESTURE, [Part.HEAD], "nod#2")
+    owners.release(Owner.GESTURE, [Part.HEAD], "nod#1")
+    assert owners.owner(Part.HEAD) == Owner.GESTURE and owners.holder(Part.HEAD) == "nod#2"
+    owners.claim(Owner.OPERATOR, [Part.HEAD], "op-1")
+    assert owners.owner(Part.HEAD) == Owner.OPERATOR and owners.free(Part.RIGHT_ARM)
+    owners.release(Owner.OPERATOR)
+    owners.release(Owner.GESTURE, [Part.HEAD], "nod#2")
+    assert owners.free(Part.HEAD) and seen[-1] == Owner.NONE
     with pytest.raises(ValueError, match="claimant"):
-        owners.claim("autonomy", ["head"])
+        owners.claim(Owner.AUTONOMY, [Part.HEAD])
     with pytest.raises(KeyError, match="parts are"):
-        owners.claim("trial", ["tail"])
+        owners.claim(Owner.TRIAL, ["tail"])
 
 
 def test_the_packaged_rules_load_and_name_menu_items(tmp_path):
@@ -170,13 +171,13 @@ def test_the_learner_forbids_and_learns_the_teachers_repeated_action_and_keeps_i
     path = tmp_path / "memory.json"
     learner = Learner(path)
     spoke, silent = Situation("speech_ended"), Situation("silence")
-    learner.record(spoke, "emotion.happy", "forbidden")
+    learner.record(spoke, "emotion.happy", Outcome.FORBIDDEN)
     assert learner.forbidden(spoke, "emotion.happy") and not learner.forbidden(silent, "emotion.happy")
-    learner.record(spoke, "speech.sentences.well_done", "teacher_initiated")
+    learner.record(spoke, "speech.sentences.well_done", Outcome.TEACHER_INITIATED)
     assert learner.learned(spoke) == []
-    learner.record(spoke, "speech.sentences.well_done", "teacher_initiated")
+    learner.record(spoke, "speech.sentences.well_done", Outcome.TEACHER_INITIATED)
     assert [a for a, _ in learner.learned(spoke)] == ["speech.sentences.well_done"] and learner.learned(silent) == []
-    assert not learner.record(spoke, "emotion.sad", "superseded")  # teaches nothing
+    assert not learner.record(spoke, "emotion.sad", Outcome.SUPERSEDED)  # teaches nothing
     assert learner.confidence(spoke, "speech.sentences.well_done", 0.5) > 0.5
     learner.save()
     again = Learner(path)
@@ -202,28 +203,29 @@ def test_a_clients_hold_lasts_while_it_commands_and_its_grace_after():
     renewed by a command in between (a script's pause), then are free; a stronger claimant still wins meanwhile."""
     import asyncio
 
-    async def main() -> list[tuple[str, str]]:
-        owners = Ownership(("head", "right_arm", "left_arm"))
-        assert {"voice", "face"} <= set(owners.parts)
+    async def main() -> list[tuple[Owner, Owner]]:
+        owners = Ownership((Part.HEAD, Part.RIGHT_ARM, Part.LEFT_ARM))
+        assert {Part.VOICE, Part.FACE} <= set(owners.parts)
         loop = asyncio.get_running_loop()
-        seen: list[tuple[str, str]] = []
+        seen: list[tuple[Owner, Owner]] = []
         grace_over = loop.create_future()
-        owners.changed.append(lambda: seen.append((owners.owner("head"), owners.owner("voice"))))
-        owners.changed.append(lambda: owners.free("voice") and not grace_over.done() and grace_over.set_result(None))
-        saying = owners.hold("client", ["voice"], "script", 0.05)  # a sentence runs
-        owners.hold("client", ["head"], "script", 0.05)()  # a head command: instant
-        owners.claim("operator", ["head"], "op")
-        assert owners.owner("head") == "operator" and owners.holder("voice") == "script"
-        owners.release("operator")
+        owners.changed.append(lambda: seen.append((owners.owner(Part.HEAD), owners.owner(Part.VOICE))))
+        owners.changed.append(lambda: owners.free(Part.VOICE) and not grace_over.done()
+                              and grace_over.set_result(None))
+        saying = owners.hold(Owner.CLIENT, [Part.VOICE], "script", 0.05)  # a sentence runs
+        owners.hold(Owner.CLIENT, [Part.HEAD], "script", 0.05)()  # a head command: instant
+        owners.claim(Owner.OPERATOR, [Part.HEAD], "op")
+        assert owners.owner(Part.HEAD) == Owner.OPERATOR and owners.holder(Part.VOICE) == "script"
+        owners.release(Owner.OPERATOR)
         saying()
         saying()  # ending twice is ending once
-        owners.hold("client", ["voice"], "script", 0.05)()  # the next sentence within the grace renews it
+        owners.hold(Owner.CLIENT, [Part.VOICE], "script", 0.05)()  # the next sentence within the grace renews it
         await grace_over
         return seen
 
     seen = asyncio.run(main())
-    assert seen[0] == ("none", "client") and ("operator", "client") in seen
-    assert seen[-1] == ("none", "none")  # after the graces, both free
+    assert seen[0] == (Owner.NONE, Owner.CLIENT) and (Owner.OPERATOR, Owner.CLIENT) in seen
+    assert seen[-1] == (Owner.NONE, Owner.NONE)  # after the graces, both free
 
 
 def test_a_motivation_variable_at_rest_is_never_coloured():

@@ -21,6 +21,7 @@ import pytest
 from client_protocol.definitions import MESSAGES, SERVICES
 from client_protocol.interface import ENDPOINTS
 from client_protocol.registry import normalize_type_name, parse_definition
+from client_protocol.vocabulary import VOCABULARIES
 from vr_teleop_server.cli import build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -155,6 +156,14 @@ def test_the_protocol_page_has_every_endpoint_with_its_type_direction_and_rate(s
             assert "spectator" not in roles
         if endpoint.direction == "subscribe":
             assert roles.split(", ") == ["operator", "supervisor", "spectator"]
+
+
+def test_the_protocol_page_lists_every_vocabulary_with_its_values(site):
+    text = read_page(site, "reference/protocol").sections["Vocabularies"]
+    text = text[text.index("What they name"):]  # the table, after its header
+    starts = [text.index(f"{kind.__name__}") for kind in VOCABULARIES]  # the rows, in the enums' order
+    for kind, start, end in zip(VOCABULARIES, starts, starts[1:] + [len(text)]):
+        assert all(member.value in text[start:end] for member in kind), (kind.__name__, text[start:end])
 
 
 def test_the_protocol_page_defines_every_type_it_names_with_its_fields(site):

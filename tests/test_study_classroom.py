@@ -15,12 +15,13 @@ from pathlib import Path
 import pytest
 import simclock
 import yaml
+from client_protocol.vocabulary import Decider, Outcome
 from netem.model import DirectionParams, Profile
 from simclock import SimulatedClock
 
 from vr_teleop_server.cli import main as cli_main
 from vr_teleop_server.study.classroom_file import ClassroomStudy
-from vr_teleop_server.study.metrics.classroom import ClassroomTimeline, Outcome, Speech, classroom_metrics
+from vr_teleop_server.study.metrics.classroom import ClassroomTimeline, OutcomeAt, Speech, classroom_metrics
 from vr_teleop_server.study.network import RTO_MIN_S, ImpairedConnection
 from vr_teleop_server.study.studyfile import StudyFileError, load_study
 
@@ -36,14 +37,14 @@ def test_the_measures_of_a_hand_built_lesson():
                   Speech("child_right", 20.0, 22.0, -30.0),  # never looked at
                   Speech("adult_centre", 58.0, 70.0, 0.0)],  # clipped at 60: looked at throughout (from before)
         heads=[(0.0, 0.0), (10.5, 15.0), (11.0, 29.0), (14.0, 30.0), (19.0, 0.0), (30.0, 0.0)],
-        outcomes=[Outcome(5.0, "accepted", "/rosbridge_websocket/client_2"),
-                  Outcome(6.0, "rejected", "/rosbridge_websocket/client_2"),
-                  Outcome(7.0, "forbidden", "/rosbridge_websocket/client_2"),
-                  Outcome(8.0, "timed_out_executed", "timeout"),
-                  Outcome(9.0, "accepted", "autonomy"),
-                  Outcome(12.0, "teacher_initiated", "/rosbridge_websocket/client_2"),
-                  Outcome(13.0, "superseded", "server"),
-                  Outcome(61.0, "teacher_initiated", "/rosbridge_websocket/client_2")],  # after the lesson
+        outcomes=[OutcomeAt(5.0, Outcome.ACCEPTED, "/rosbridge_websocket/client_2"),
+                  OutcomeAt(6.0, Outcome.REJECTED, "/rosbridge_websocket/client_2"),
+                  OutcomeAt(7.0, Outcome.FORBIDDEN, "/rosbridge_websocket/client_2"),
+                  OutcomeAt(8.0, Outcome.TIMED_OUT_EXECUTED, Decider.TIMEOUT),
+                  OutcomeAt(9.0, Outcome.ACCEPTED, Decider.AUTONOMY),
+                  OutcomeAt(12.0, Outcome.TEACHER_INITIATED, "/rosbridge_websocket/client_2"),
+                  OutcomeAt(13.0, Outcome.SUPERSEDED, Decider.SERVER),
+                  OutcomeAt(61.0, Outcome.TEACHER_INITIATED, "/rosbridge_websocket/client_2")],  # after the lesson
         interventions=[21.0, 75.0])
     r = classroom_metrics(tl)
     assert r.speeches == 3 and r.never_looked_at == 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
+from client_protocol.vocabulary import AutonomyLevel
 from pydantic import Field, SecretStr, ValidationInfo, field_validator
 
 from .core.settings import MIB, Cli, CoreSettings
@@ -59,11 +60,12 @@ class ServerSettings(CoreSettings):
     bystander_interval: Annotated[float, Cli("sim", metavar="S")] = Field(
         20.0, ge=0, description="the stand-in's simulated pupils take turns saying a line every S seconds, heard in "
                                 "the robot's microphone and reported as voice activity; 0: never")
-    autonomy: Annotated[Literal["teleoperated", "supervised", "autonomous"], Cli("autonomy")] = Field(
-        "supervised", description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
-                                  "'teleoperated', nothing moves unless someone moves it; 'supervised', the robot "
-                                  "looks at who speaks and proposes actions the teacher accepts, rejects or lets "
-                                  "time out (then done); 'autonomous', it does what it proposes")
+    autonomy: Annotated[AutonomyLevel, Cli("autonomy")] = Field(
+        AutonomyLevel.SUPERVISED,
+        description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
+                    "'teleoperated', nothing moves unless someone moves it; 'supervised', the robot looks at who "
+                    "speaks and proposes actions the teacher accepts, rejects or lets time out (then done); "
+                    "'autonomous', it does what it proposes")
     autonomy_rules: Annotated[Path | None, Cli("autonomy", metavar="FILE")] = Field(
         None, description="the proposal rules (YAML: situations to menu items); default: the packaged rules")
     autonomy_memory: Annotated[Path | None, Cli("autonomy", metavar="PATH")] = Field(

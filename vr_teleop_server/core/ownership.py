@@ -15,11 +15,10 @@ import asyncio
 import contextlib
 from collections.abc import Callable, Iterable, Iterator
 
+from client_protocol.vocabulary import CLAIMANTS, Owner, Part
+
 from .bus import SERVER_NODE
 
-# strongest first
-CLAIMANTS = ("estop", "operator", "trial", "gesture", "client")
-VOICE, FACE = "voice", "face"  # the parts that are not joints
 CLIENT_GRACE_S = 5.0  # the packaged client_grace_s (features/autonomy/data/attention.yaml says why)
 
 
@@ -30,21 +29,22 @@ def client_of(sender: str) -> str | None:
 
 class Ownership:
     def __init__(self, parts: Iterable[str], client_grace_s: float = CLIENT_GRACE_S) -> None:
-        self.parts = tuple(dict.fromkeys((*parts, VOICE, FACE)))
+        """`parts`: the robot model's (its joint groups), each a Part; the voice and the face are added."""
+        self.parts = tuple(dict.fromkeys((*(Part(p) for p in parts), Part.VOICE, Part.FACE)))
         self.client_grace_s = client_grace_s
-        self._claims: dict[str, dict[str, str]] = {part: {} for part in self.parts}  # part -> claimant -> who
-        self._holds: dict[tuple[str, str], int] = {}  # (claimant, part) -> commands running now
-        self._ends: dict[tuple[str, str], asyncio.TimerHandle] = {}  # (claimant, part) -> the grace's end
+        self._claims: dict[Part, dict[Owner, str]] = {part: {} for part in self.parts}  # part -> claimant -> who
+        self._holds: dict[tuple[Owner, Part], int] = {}  # (claimant, part) -> commands running now
+        self._ends: dict[tuple[Owner, Part], asyncio.TimerHandle] = {}  # (claimant, part) -> the grace's end
         self.changed: list[Callable[[], None]] = []  # called after every change (autonomy republishes its state)
 
-    def claim(self, claimant: str, parts: Iterable[str], who: str = "") -> None:
+    def claim(self, claimant: Owner, parts: Iterable[Part], who: str = "") -> None:
         if claimant not in CLAIMANTS:
             raise ValueError(f"unknown claimant {claimant!r}; claimants are {', '.join(CLAIMANTS)}")
         for part in parts:
             self._claims[self._part(part)][claimant] = who
         self._notify()
 
-    def release(self, claimant: str, parts: Iterable[str] | None = None, who: str | None = None) -> None:
+    def release(self, claimant: Owner, parts: Iterable[Part] | None = None, who: str | None = None) -> None:
         """Ends `claimant`'s claims (on `parts`, default all); with `who`, only the claims made for it (an older
         gesture's end leaves a newer one's claim)."""
         for part in self.parts if parts is None else parts:
@@ -53,7 +53,7 @@ class Ownership:
                 claims.pop(claimant, None)
         self._notify()
 
-    def hold(self, claimant: str, parts: Iterable[str], who: str, grace_s: float) -> Callable[[], None]:
+    def hold(self, claimant: Owner, parts: Iterable[Part], who: str, grace_s: float) -> Callable[[], None]:
         """Claims `parts` for `who` now, while a command runs; the returned function ends the command, after which
         the claim lasts `grace_s` more (on the running loop's clock), unless `who` or another commands again. A
         script's pauses between commands shorter than the grace never give a part away."""
@@ -83,18 +83,18 @@ class Ownership:
         return finished
 
     @contextlib.contextmanager
-    def commanding(self, sender: str, parts: Iterable[str]) -> Iterator[None]:
+    def commanding(self, sender: str, parts: Iterable[Part]) -> Iterator[None]:
         """A client's command (a LuxAI API call, a clip it plays, its voice through the robot) owns `parts` while it
         runs and `client_grace_s` after; the server's own commands claim nothing."""
         client = client_of(sender)
-        done = self.hold("client", parts, client, self.client_grace_s) if client is not None else None
+        done = self.hold(Owner.CLIENT, parts, client, self.client_grace_s) if client is not None else None
         try:
             yield
         finally:
             if done is not None:
                 done()
 
-    def _grace_over(self, key: tuple[str, str]) -> None:
+    def _grace_over(self, key: tuple[Owner, Part]) -> None:
         self._ends.pop(key, None)
         claimant, part = key
         if key not in self._holds:
@@ -107,23 +107,27 @@ class Ownership:
             end.cancel()
         self._ends.clear()
 
-    def owner(self, part: str) -> str:
-        """The strongest claimant of `part`, or "none"."""
+    def owner(self, part: Part) -> Owner:
+        """The strongest claimant of `part`, or Owner.NONE."""
         claims = self._claims[self._part(part)]
-        return next((c for c in CLAIMANTS if c in claims), "none")
+        return next((c for c in CLAIMANTS if c in claims), Owner.NONE)
 
-    def holder(self, part: str) -> str:
+    def holder(self, part: Part) -> str:
         """Who the strongest claim is for (the operator's key, the gesture's name...), "" if none."""
         owner = self.owner(part)
-        return self._claims[part].get(owner, "") if owner != "none" else ""
+        return self._claims[part].get(owner, "") if owner != Owner.NONE else ""
 
-    def free(self, part: str) -> bool:
-        return self.owner(part) == "none"
+    def free(self, part: Part) -> bool:
+        return self.owner(part) == Owner.NONE
 
-    def owners(self) -> dict[str, str]:
+    def owners(self) -> dict[Part, Owner]:
         return {part: self.owner(part) for part in self.parts}
 
-    def _part(self, part: str) -> str:
+    def stopped(self) -> bool:
+        """Whether an emergency stop holds the robot."""
+        return Owner.ESTOP in self.owners().values()
+
+    def _part(self, part: Part) -> Part:
         if part not in self._claims:
             raise KeyError(f"unknown part {part!r}; parts are {', '.join(self.parts)}")
         return part

@@ -32,9 +32,10 @@ import av
 import numpy as np
 
 from client_protocol import names
+from client_protocol.vocabulary import Part
 
 from ..core.bus import Bus, BusError
-from ..core.ownership import FACE, VOICE, Ownership
+from ..core.ownership import Ownership
 from .speech import OperatorVoiceIn, Speaker
 
 log = logging.getLogger(__name__)
@@ -252,7 +253,7 @@ class ClipLibrary:
     async def _owned(self, by: str, playing: Awaitable[bool]) -> bool:
         if self.owners is None:
             return await playing
-        with self.owners.commanding(by, (VOICE, FACE)):
+        with self.owners.commanding(by, (Part.VOICE, Part.FACE)):
             return await playing
 
     def _played(self, player: asyncio.Task[Any]) -> None:

@@ -25,11 +25,12 @@ import json
 import logging
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 from client_protocol import names
 from client_protocol.events import (Calibration, EStop, EventDetail, EventKind, EventLevel, Holder, HolderBy,
                                     PartSwitch, Refused, Watchdog)
+from client_protocol.vocabulary import ARMS, Owner, Part
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -96,8 +97,8 @@ class ExplicitControl:
         bus.provide(names.ENGAGE_SERVICE, "std_srvs/SetBool", self._engage_service)
         bus.provide(names.CALIBRATE_SERVICE, "std_srvs/Trigger", self._calibrate_service)
         bus.provide(names.RECENTER_SERVICE, "std_srvs/Trigger", self._recenter_service)
-        bus.provide(names.HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("head",), r))
-        bus.provide(names.ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service(("left_arm", "right_arm"), r))
+        bus.provide(names.HEAD_SERVICE, "std_srvs/SetBool", lambda r: self._part_service("head", (Part.HEAD,), r))
+        bus.provide(names.ARMS_SERVICE, "std_srvs/SetBool", lambda r: self._part_service("arms", ARMS, r))
         bus.provide(names.ESTOP_SERVICE, "std_srvs/Trigger", self._estop_service)
         bus.owner_dropped.append(self._on_owner_dropped)
         self._tick_task = asyncio.ensure_future(self._tick())
@@ -235,7 +236,7 @@ class ExplicitControl:
         except TeleopError as exc:
             raise BusError(str(exc)) from None
         self.holder = caller
-        self.owners.release("estop")  # engaging again resumes after an emergency stop
+        self.owners.release(Owner.ESTOP)  # engaging again resumes after an emergency stop
         self._claim_parts()  # before the answer: no autonomous command reaches the head after it
         self._holds.clear()  # link_view counts this engagement's holds
         self._ever_engaged = True
@@ -263,7 +264,7 @@ class ExplicitControl:
         """Holds the robot and takes control away from whoever holds it; anyone may stop the robot."""
         holder, self.holder = self.holder, None
         self.mapper.estop()
-        self.owners.claim("estop", self.owners.parts, caller)  # autonomy stops too, until engage or a level
+        self.owners.claim(Owner.ESTOP, self.owners.parts, caller)  # autonomy stops too, until engage or a level
         self._claim_parts()
         state = self.robot.joint_state().as_dict()
         for part, joints in self.robot.model.parts.items():
@@ -314,12 +315,12 @@ class ExplicitControl:
         self._event(EventKind.CALIBRATE, EventLevel.INFO, Calibration(by=caller, **detail))
         return {"success": True, "message": json.dumps(detail, sort_keys=True)}
 
-    async def _part_service(self, parts: tuple[str, ...], request: Any) -> dict[str, Any]:
+    async def _part_service(self, what: Literal["head", "arms"], parts: tuple[Part, ...],
+                            request: Any) -> dict[str, Any]:
         for part in parts:
             self.mapper.set_part_enabled(part, request.data)
             self._parts_on[part] = bool(request.data)
         self._claim_parts()
-        what = "head" if parts == ("head",) else "arms"
         kinds = {("head", True): EventKind.HEAD_ON, ("head", False): EventKind.HEAD_OFF,
                  ("arms", True): EventKind.ARMS_ON, ("arms", False): EventKind.ARMS_OFF}
         self._event(kinds[what, bool(request.data)], EventLevel.INFO,
@@ -345,11 +346,11 @@ class ExplicitControl:
     def _claim_parts(self) -> None:
         """The holder owns the parts they follow (a part switched off is not followed); nobody holding, none."""
         if self.holder is None:
-            self.owners.release("operator")
+            self.owners.release(Owner.OPERATOR)
             return
         on = [part for part, enabled in self._parts_on.items() if enabled]
-        self.owners.release("operator", [part for part in self._parts_on if part not in on])
-        self.owners.claim("operator", on, self.holder)
+        self.owners.release(Owner.OPERATOR, [part for part in self._parts_on if part not in on])
+        self.owners.claim(Owner.OPERATOR, on, self.holder)
 
     # ---- telemetry ----------------------------------------------------------------------------------------------
     def holds(self, connection: str) -> bool:

@@ -23,11 +23,12 @@ from typing import Any
 from client_protocol import names
 from client_protocol.errors import Refusal
 from client_protocol.events import EventKind, GestureRecording
+from client_protocol.vocabulary import Owner, Part
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
 from ..core.events import declare_event_topic, publish_event
-from ..core.ownership import FACE, VOICE, Ownership
+from ..core.ownership import Ownership
 from ..core.tasks import cancel_and_wait, every
 from ..robot.gestures import GestureLibrary, GestureRecorder, check_save_name
 from ..robot.interface import ClampReport, Gesture, MotorMode, Robot
@@ -190,13 +191,13 @@ class LuxaiApi:
 
     def _on_emotion_topic(self, published: Published) -> None:
         try:
-            with self.owners.commanding(published.sender, (FACE,)):
+            with self.owners.commanding(published.sender, (Part.FACE,)):
                 self._show(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _emotion_show(self, request: Any) -> dict[str, Any]:
-        with self.owners.commanding(Bus.caller(), (FACE,)):
+        with self.owners.commanding(Bus.caller(), (Part.FACE,)):
             self._show(request.name)
         return {"status": True}
 
@@ -205,13 +206,13 @@ class LuxaiApi:
 
     async def _say_reporting(self, published: Published) -> None:
         try:
-            with self.owners.commanding(published.sender, (VOICE,)):
+            with self.owners.commanding(published.sender, (Part.VOICE,)):
                 await self.speaker.say(published.data["data"])
         except Refusal as exc:  # the bus's or the robot's
             self.bus.report(published.sender, "error", f"{published.topic}: {exc}")
 
     async def _speech_say(self, request: Any) -> dict[str, Any]:
-        with self.owners.commanding(Bus.caller(), (VOICE,)):
+        with self.owners.commanding(Bus.caller(), (Part.VOICE,)):
             result = await self.speaker.say(request.message)
         return {"status": result.completed}
 
@@ -253,11 +254,11 @@ class LuxaiApi:
         """The gesture owns its parts while it plays (autonomy keeps off them); a newer gesture's claim is not
         ended by an older one's end."""
         who = f"{name}#{next(self._plays)}"
-        self.owners.claim("gesture", parts, who)
+        self.owners.claim(Owner.GESTURE, parts, who)
         try:
             yield
         finally:
-            self.owners.release("gesture", parts, who)
+            self.owners.release(Owner.GESTURE, parts, who)
 
     async def _play_own(self, name: str, speed: float, sender: str | None, by: str) -> bool:
         parts = tuple(self.robot.model.parts)  # the robot's own file: its parts unknown here

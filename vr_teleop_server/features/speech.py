@@ -41,9 +41,10 @@ from pathlib import Path
 from typing import Any
 
 from client_protocol import names
+from client_protocol.vocabulary import Part
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
-from ..core.ownership import VOICE, Ownership
+from ..core.ownership import Ownership
 from ..robot.interface import Robot, SpeechResult, stopped_within
 
 log = logging.getLogger(__name__)
@@ -395,7 +396,7 @@ class OperatorVoiceIn:
         if any([tap(published.sender, data, rate, channels) for tap in self.taps]):
             return
         try:
-            with self.owners.commanding(published.sender, (VOICE,)):
+            with self.owners.commanding(published.sender, (Part.VOICE,)):
                 self.robot.play_voice(data, rate, channels)
         except Exception:  # the log above is kept whatever the robot does with it
             log.exception("the robot could not play the operator's voice")

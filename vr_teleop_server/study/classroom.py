@@ -24,6 +24,7 @@ from typing import Any
 from scipy.spatial.transform import Rotation
 
 from client_protocol import names
+from client_protocol.vocabulary import AutonomyLevel, Decision
 
 from ..client import Client, Refused
 from .classroom_file import ClassroomStudy
@@ -79,11 +80,11 @@ class Pupils:
 
 
 class Teacher:
-    def __init__(self, client: Client, study: ClassroomStudy, level: str, seed: int,
+    def __init__(self, client: Client, study: ClassroomStudy, level: AutonomyLevel, seed: int,
                  monotonic: Callable[[], float]) -> None:
         self.client = client
         self.spec = study.teacher
-        self.level = level
+        self.level = AutonomyLevel(level)
         self.rng = random.Random(seed * 104729 + 1)
         self.now = monotonic
         self.yaw = 0.0  # her head, relative to where it was when she engaged (the robot's straight ahead)
@@ -105,14 +106,14 @@ class Teacher:
         await c.advertise(names.HEAD_POSE_TOPIC, "geometry_msgs/PoseStamped")
         await c.subscribe(names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders", self._on_bystanders)
         await c.subscribe(names.JOINT_STATE_TOPIC, "sensor_msgs/JointState", self._on_joints)
-        if self.level != "teleoperated":
+        if self.level != AutonomyLevel.TELEOPERATED:
             await c.subscribe(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", self._on_proposal)
         await c.sync()
 
     async def begin(self) -> None:
         """Before the lesson: in teleoperated she takes control (head poses first, as a headset's page does). The
         lesson starts when she sets the level (the recorded start)."""
-        if self.level == "teleoperated":
+        if self.level == AutonomyLevel.TELEOPERATED:
             await self._engage()
         await self._call(names.AUTONOMY_LEVEL_SERVICE, {"level": self.level})
         self.started = True
@@ -150,13 +151,13 @@ class Teacher:
         if not self.started:
             return
         self.last_proposal_at = self.now()
-        if self.level == "supervised":
+        if self.level == AutonomyLevel.SUPERVISED:
             self._spawn(self._decide(str(msg["id"])))
 
     # ---- what she does ----------------------------------------------------------------------------------------
     async def _on_onset(self, who: str, yaw: float) -> None:
         delay = self.rng.uniform(*self.spec.reaction_s)
-        if self.level == "teleoperated":
+        if self.level == AutonomyLevel.TELEOPERATED:
             await asyncio.sleep(delay)
             self.target = yaw
             return
@@ -182,9 +183,9 @@ class Teacher:
         wait = self.rng.uniform(*self.spec.answer_s)
         stopped = self.now()
         await asyncio.sleep(wait)
-        if self.level == "autonomous" or draw >= self.spec.respond_probability:
+        if self.level == AutonomyLevel.AUTONOMOUS or draw >= self.spec.respond_probability:
             return
-        if self.level == "supervised" and self.last_proposal_at >= stopped:
+        if self.level == AutonomyLevel.SUPERVISED and self.last_proposal_at >= stopped:
             return  # the robot proposed something: she leaves the answer to it (and decides it)
         await self._call(names.MENU_SELECT_SERVICE, {"id": action, "args": ""})
 
@@ -193,7 +194,7 @@ class Teacher:
         await asyncio.sleep(self.rng.uniform(*self.spec.decide_s))
         try:
             await self.client.call(names.AUTONOMY_DECIDE_SERVICE,
-                                   {"id": ident, "decision": "accept" if accept else "reject"})
+                                   {"id": ident, "decision": Decision.ACCEPT if accept else Decision.REJECT})
         except Refused as exc:
             if "no pending proposal" not in exc.message:  # too late (timed out or superseded) is no refusal
                 self.refusals.append(exc.message)

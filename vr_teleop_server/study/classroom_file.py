@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+from client_protocol.vocabulary import AutonomyLevel
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from sim.pupils import PUPILS
@@ -17,7 +18,6 @@ from sim.pupils import PUPILS
 from .protocol import ProtocolFields
 
 _STRICT = ConfigDict(extra="forbid", frozen=True)
-Level = Literal["teleoperated", "supervised", "autonomous"]
 PUPIL_NAMES = tuple(p.name for p in PUPILS)
 
 
@@ -81,7 +81,7 @@ class Teacher(BaseModel):
 
 class Condition(BaseModel):
     model_config = _STRICT
-    autonomy: Level
+    autonomy: AutonomyLevel
     description: str = ""
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from client_protocol import names
+from client_protocol.vocabulary import AutonomyLevel
 from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -55,7 +56,7 @@ class ServerParts:
     registry: Any  # client_protocol.registry.TypeRegistry, for the recorder
     owners: Ownership
     gestures: GestureLibrary | None
-    set_autonomy: Callable[[str], None] | None  # the classroom kind's conditions are autonomy levels
+    set_autonomy: Callable[[AutonomyLevel], None] | None  # the classroom kind's conditions are autonomy levels
     camera_fps: float = 2.0
     clock: Clock = WALL
     blur: Any = None  # features/face_blur.FaceBlur under serve --blur-faces: trial recordings blur faces too
@@ -74,9 +75,9 @@ class TrialHost:
         self.log: TrialLog | None = None
         self.runtime: TrialRuntime | None = None
         self._task: asyncio.Task[Any] | None = None
-        self._level_before: str | None = None
+        self._level_before: AutonomyLevel | None = None
 
-    async def begin(self, condition: str, recording: Path, level_now: str | None) -> None:
+    async def begin(self, condition: str, recording: Path, level_now: AutonomyLevel | None) -> None:
         p = self.parts
         self.recorder = Recorder(recording, p.registry, p.camera_fps, bus=p.bus, clock=p.clock, blur=p.blur)
         self.recorder.start()
@@ -129,7 +130,7 @@ class LiveStudy:
     (`participant:P03` for a participant's page, see core/access.py) for the event log's `who`."""
 
     def __init__(self, bus: Bus, folder: StudyFolder, host: TrialHost, identity: Callable[[str], str],
-                 autonomy_level: Callable[[], str | None] = lambda: None) -> None:
+                 autonomy_level: Callable[[], AutonomyLevel | None] = lambda: None) -> None:
         self.bus = bus
         self.folder = folder
         self.host = host

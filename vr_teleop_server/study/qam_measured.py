@@ -30,10 +30,11 @@ from typing import Any
 
 from client_protocol import names
 from client_protocol.events import EventKind
+from client_protocol.vocabulary import AutonomyLevel, Decider, Initiator, Outcome
 
 from ..recording.format import NotARecording, read_recording
 from .metrics.autonomy import HeadAndSpeech
-from .metrics.classroom import ClassroomTimeline, Outcome, Speech, classroom_metrics
+from .metrics.classroom import ClassroomTimeline, Speech, classroom_metrics
 from .metrics.fluency import compute_metrics
 from .metrics.model import MetricsInputError
 from .metrics.mcap_reader import read_trial_mcap
@@ -115,7 +116,7 @@ def _classroom(path: Path) -> list[Measured]:
                 if t0 is None and detail.get("by") not in (None, "", "server"):
                     t0 = t
             elif kind == EventKind.ENGAGE.value and rec.data.get("source") == "teleop" and t0 is not None \
-                    and level != "teleoperated":  # a takeover in the lesson (in teleoperated she holds control)
+                    and level != AutonomyLevel.TELEOPERATED:  # a takeover in the lesson (teleoperated: she holds it)
                 takeovers.append(t)
     follow.end(last)
     out = [*_initiative(topics, outcomes, takeovers), Measured("P3", None, P3_REASON)]
@@ -148,8 +149,8 @@ def _initiative(topics: set[str], outcomes: list[dict[str, Any]], takeovers: lis
     if names.AUTONOMY_OUTCOMES_TOPIC not in topics:
         reason = _lacks(names.AUTONOMY_OUTCOMES_TOPIC, "the robot's proposals and the teacher's own actions")
         return [Measured("P1", None, reason), Measured("P2", None, reason)]
-    robot = sum(o.get("initiator") == "robot" and o.get("decided_by") != "autonomy" for o in outcomes)
-    teacher = sum(o.get("outcome") == "teacher_initiated" for o in outcomes) + len(takeovers)
+    robot = sum(o.get("initiator") == Initiator.ROBOT and o.get("decided_by") != Decider.AUTONOMY for o in outcomes)
+    teacher = sum(o.get("outcome") == Outcome.TEACHER_INITIATED for o in outcomes) + len(takeovers)
     if robot + teacher == 0:
         reason = "no request for assistance either way: nothing to take a percentage of"
         return [Measured("P1", None, reason), Measured("P2", None, reason)]

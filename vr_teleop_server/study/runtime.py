@@ -12,6 +12,7 @@ import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from client_protocol.vocabulary import Owner
 from simclock import WALL, Clock
 
 from ..core.bus import Bus
@@ -86,11 +87,11 @@ class TrialRuntime:
 
     async def run(self) -> TrialResult:
         self.log.begin()
-        self.owners.claim("trial", self.robot.model.parts, self.name)
+        self.owners.claim(Owner.TRIAL, self.robot.model.parts, self.name)
         try:
             outcome = await self.decision.run()
         finally:
-            self.owners.release("trial", who=self.name)
+            self.owners.release(Owner.TRIAL, who=self.name)
         metrics = await self.log.finish(outcome)
         return TrialResult(self.name, outcome, metrics, len(self.log.interventions))
 

@@ -27,6 +27,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from client_protocol.vocabulary import Part
 from robot_models import ArmSolver, RobotModel, load_qtrobot
 
 from .body import SIDES, BodyModel, calibrate_forward, calibrate_t_pose, hand_point, robot_arms, shoulder_points
@@ -134,7 +135,7 @@ class TeleopMapper:
         self._ramps = {part: VelocityRamp(s.ramp_duration_s, s.ramp_start_fraction) for part in self.parts}
         self._filters = {}
         for part, names in self.parts.items():
-            f = s.head_filter if part == "head" else s.arm_filter
+            f = s.head_filter if part == Part.HEAD else s.arm_filter
             for n in names:
                 self._filters[n] = OneEuroFilter(f.min_cutoff_hz, f.beta, f.d_cutoff_hz)
         self._caps = {n: self.model.joint(n).max_velocity * s.velocity_scale for n in self.model.names}
@@ -342,7 +343,7 @@ class TeleopMapper:
             time=now, dt=dt, state=self._watchdog.state, commands=commands,
             targets={n: v for part, vals in commands.items() for n, v in zip(self.parts[part], vals)},
             clamped=tuple(clamped), velocity_limited=tuple(limited),
-            head_following="head" in commands,
+            head_following=Part.HEAD in commands,
             arms_following={side: f"{side}_arm" in commands for side in SIDES},
             pose_age_s={"head": self._age(self._head_pose, now),
                         **{side: self._age(self._controllers[side], now) for side in SIDES}},
@@ -372,8 +373,8 @@ class TeleopMapper:
         forward = head.forward
         raw: dict[str, list[float]] = {}
         ik: dict[str, ArmIK] = {}
-        if self._enabled["head"]:
-            raw["head"] = list(self._head.update_forward(*forward))
+        if self._enabled[Part.HEAD]:
+            raw[Part.HEAD] = list(self._head.update_forward(*forward))
         following = [side for side in SIDES if self._arm_follows(side, now)]
         if following:  # an arm whose grip is not held needs no body model and no IK
             head_heading = math.atan2(forward[1], forward[0])

@@ -44,6 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 from client_protocol import names, pose_frame
+from client_protocol.vocabulary import ARMS, AutonomyLevel, Part
 from robot_models import load_qtrobot
 from simclock import WALL, Clock, SimulatedClock, loop_clock
 from simclock import run as run_on_clock
@@ -362,7 +363,8 @@ def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,
                                                    # no simulated pupils' lines (the recording has its own; each
                                                    # line is an espeak-ng render the simulated clock waits for:
                                                    # x7.3 against x10.3 without them)
-                                                   "autonomy": "teleoperated", "bystander_interval": 0}), clock)
+                                                   "autonomy": AutonomyLevel.TELEOPERATED,
+                                                   "bystander_interval": 0}), clock)
         async with server:
             return await run_replay(steps, "", 1.0, camera=camera, progress=progress,
                                     connection=server.transport.connect_local, pose_frames=True)
@@ -460,7 +462,7 @@ def expected_commands(steps: list[Step], got: Collected, settings: TeleopSetting
                 else:
                     mapper.estop()
             elif action is not None:
-                for part in ("head",) if action[0] == "head" else ("left_arm", "right_arm"):
+                for part in (Part.HEAD,) if action[0] == "head" else ARMS:
                     mapper.set_part_enabled(part, action[1])
             continue
         t = last_t = send_time.get(i, last_t)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from client_protocol import names
+from client_protocol.vocabulary import AutonomyLevel
 from simclock import WALL, Clock
 
 from ..app import TeleopServer
@@ -61,8 +62,8 @@ async def pilot(study_file: Path, folder: Path, participants: int, *, clock: Clo
     result = PilotResult()
     with tempfile.TemporaryDirectory(prefix="vr-teleop-pilot-") as tmp:
         settings = ServerSettings(port=0, backend="sim", study=study_file, study_dir=folder, record_camera_fps=0.0,
-                                  autonomy="teleoperated", bystander_interval=0, gesture_dir=Path(tmp) / "g",
-                                  audio_dir=Path(tmp) / "a",
+                                  autonomy=AutonomyLevel.TELEOPERATED, bystander_interval=0,
+                                  gesture_dir=Path(tmp) / "g", audio_dir=Path(tmp) / "a",
                                   camera_fps=getattr(study, "camera_fps", None) or 30.0)
         server = TeleopServer(settings, clock)
         await server.start()

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from client_protocol.vocabulary import AutonomyLevel
 from simclock import WALL, Clock, SimulatedClock
 from simclock import run as run_on_clock
 
@@ -102,7 +103,7 @@ async def run_trial(study: Study, trial: str, *, record: Path | None = None, tim
     base = settings or ServerSettings(port=0, backend="sim")
     # the trial's decision module is the robot's autonomy here: the server's own stays off
     update = {"port": port, "backend": "sim", "record": record, "record_camera_fps": 0.0,
-              "autonomy": "teleoperated"}
+              "autonomy": AutonomyLevel.TELEOPERATED}
     if clock.simulated and spec.perception == "aruco":  # every frame drawn is searched: none drawn in vain
         update["camera_fps"] = ARUCO_RATE_HZ
     server = TeleopServer(base.model_copy(update=update), clock)

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from client_protocol import names
-from client_protocol.events import ActionFailed, AutonomyLevel, EventKind, EventLevel
+from client_protocol.events import ActionFailed, AutonomyLevelChanged, EventKind, EventLevel
+from client_protocol.vocabulary import AutonomyLevel, Decider, Decision, Initiator, Outcome, Owner, Part
 from simclock import WALL, Clock
 
 from ...core.bus import Bus, BusError, Published
@@ -37,8 +38,6 @@ from .rules import Rules
 log = logging.getLogger(__name__)
 
 AUTONOMY_NODE = "/vr_teleop_server/autonomy"  # the caller and sender name of what autonomy does
-LEVELS = ("teleoperated", "supervised", "autonomous")
-DECISIONS = {"accept": "accepted", "reject": "rejected", "forbid": "forbidden"}
 ACTION_COMMANDS = ("show_emotion", "say", "play_gesture")  # menu commands that are actions the teacher takes
 FACE_FRESH_S = 1.5  # a face track seen this recently is a candidate (detection: 5 Hz at best, 1 Hz on a busy machine)
 HEAD_HISTORY_S = 3.0  # the head's recent directions, to place a face found in an older frame
@@ -50,7 +49,7 @@ EXECUTE_TIMEOUT_S = 60.0
 MIN_SHOWN_S = 1.0  # a proposal is not replaced sooner: a teacher in a headset must be able to read it
 NAME_MAX = 40  # characters of a person's name (the HUD's line has room for little more)
 BUSY_WAIT_S = 30.0  # an accepted action waits this long at most for its part (someone else's speech) to be free
-ACTION_PARTS = {"say": ("voice",), "show_emotion": ("face",)}  # play_gesture: the robot's parts
+ACTION_PARTS = {"say": (Part.VOICE,), "show_emotion": (Part.FACE,)}  # play_gesture: the robot's parts
 
 
 @dataclass
@@ -104,16 +103,14 @@ class _Published:
 
 
 class Autonomy:
-    def __init__(self, bus: Bus, robot: Robot, owners: Ownership, *, level: str, attention: AttentionConfig,
+    def __init__(self, bus: Bus, robot: Robot, owners: Ownership, *, level: AutonomyLevel, attention: AttentionConfig,
                  rules: Rules, learner: Learner, menu_entry: Callable[[str], tuple[str, str, dict] | None],
                  may_decide: Callable[[], bool], operator_of: Callable[[str], str], clock: Clock = WALL,
                  seed: int | None = None) -> None:
-        if level not in LEVELS:
-            raise ValueError(f"autonomy level {level!r} is not one of {', '.join(LEVELS)}")
         self.bus = bus
         self.robot = robot
         self.owners = owners
-        self.level = level
+        self.level = AutonomyLevel(level)
         self.cfg = attention
         self.rules = rules
         self.learner = learner
@@ -200,7 +197,7 @@ class Autonomy:
 
     def _watch_faces(self, on: bool | None = None) -> None:
         """Face detection runs (the camera renders) only while autonomy looks: not when teleoperated."""
-        on = self.level != "teleoperated" if on is None else on
+        on = self.level != AutonomyLevel.TELEOPERATED if on is None else on
         if on and self._faces_token is None:
             self._faces_token = self.bus.subscribe(AUTONOMY_NODE, names.FACES_TOPIC, "vr_teleop_msgs/Faces",
                                                    self._on_faces)
@@ -408,9 +405,9 @@ class Autonomy:
             self.propose(action, reason, confidence, situation, now)
 
     def _proposing(self) -> bool:
-        if self.level == "teleoperated" or "estop" in self.owners.owners().values():
+        if self.level == AutonomyLevel.TELEOPERATED or self.owners.stopped():
             return False
-        return self.level == "autonomous" or self.may_decide()
+        return self.level == AutonomyLevel.AUTONOMOUS or self.may_decide()
 
     def propose(self, action: str, reason: str, confidence: float, situation: Situation,
                 now: float) -> Proposal | None:
@@ -427,13 +424,13 @@ class Autonomy:
         entry = self.menu_entry(action)
         label = entry[0] if entry is not None else action
         for old in list(self.pending.values()):
-            self._end(old, "superseded", "server", now)
+            self._end(old, Outcome.SUPERSEDED, Decider.SERVER, now)
         proposal = Proposal(f"p-{next(self._ids)}", action, label, reason, round(confidence, 3),
                             self.rules.timeout_s, self.rules.on_timeout, situation, now,
                             self.bus.registry.now())
         self.bus.publish(names.AUTONOMY_PROPOSALS_TOPIC, proposal.message(now))
-        if self.level == "autonomous":
-            self._end(proposal, "accepted", "autonomy", now, execute=True)
+        if self.level == AutonomyLevel.AUTONOMOUS:
+            self._end(proposal, Outcome.ACCEPTED, Decider.AUTONOMY, now, execute=True)
         else:
             self.pending[proposal.id] = proposal
             # its own timer on the server's clock (the loop's): the time-out is kept to the loop's latency
@@ -448,10 +445,10 @@ class Autonomy:
             self.propose(*queued, self.clock.monotonic())
 
     def _expire_proposals(self, now: float) -> None:
-        if self.level == "supervised" and (self.pending or self._queued) and not self.may_decide():
+        if self.level == AutonomyLevel.SUPERVISED and (self.pending or self._queued) and not self.may_decide():
             self._queued = None
             for p in list(self.pending.values()):
-                self._end(p, "dropped", "server", now)
+                self._end(p, Outcome.DROPPED, Decider.SERVER, now)
 
     def _timed_out(self, p: Proposal) -> None:
         if self.pending.get(p.id) is not p:
@@ -463,29 +460,30 @@ class Autonomy:
                     p.waiting = True
                     self._publish_state(force=True)
                 return
-            self._end(p, "timed_out_executed", "timeout", now, execute=True)
+            self._end(p, Outcome.TIMED_OUT_EXECUTED, Decider.TIMEOUT, now, execute=True)
         else:
-            self._end(p, "dropped", "timeout", now)
+            self._end(p, Outcome.DROPPED, Decider.TIMEOUT, now)
 
-    def _parts_of(self, action: str) -> tuple[str, ...]:
+    def _parts_of(self, action: str) -> tuple[Part, ...]:
         entry = self.menu_entry(action)
         if entry is None:
             return ()
         if entry[1] == "show_emotion" and entry[2].get("say"):
-            return ("face", "voice")  # an emotion that says its words never starts over someone else's sentence
-        return ACTION_PARTS.get(entry[1], tuple(self.robot.model.parts) if entry[1] == "play_gesture" else ())
+            return (Part.FACE, Part.VOICE)  # an emotion that says its words never starts over someone else's sentence
+        robot = tuple(map(Part, self.robot.model.parts))
+        return ACTION_PARTS.get(entry[1], robot if entry[1] == "play_gesture" else ())
 
     def _busy(self, action: str) -> bool:
         """Whether a part the action uses is someone else's now."""
         return not all(self.owners.free(part) for part in self._parts_of(action))
 
-    def _end(self, p: Proposal, outcome: str, by: str, now: float, *, execute: bool = False) -> None:
+    def _end(self, p: Proposal, outcome: Outcome, by: str, now: float, *, execute: bool = False) -> None:
         self.pending.pop(p.id, None)
         if p.timer is not None:
             p.timer.cancel()
         if execute and not self._may_act(p.action):
-            outcome, execute = "dropped", False
-        self._outcome(p.id, p.action, outcome, "robot", by, now - p.created, p.situation)
+            outcome, execute = Outcome.DROPPED, False
+        self._outcome(p.id, p.action, outcome, Initiator.ROBOT, by, now - p.created, p.situation)
         if execute:
             self.executing[p.id] = asyncio.ensure_future(self._execute(p))
         self._publish_state()
@@ -494,9 +492,9 @@ class Autonomy:
         """Not after an emergency stop, and a gesture not while an operator or a trial holds a part it moves (it
         would wait for them for long); whatever a gesture or a client holds is waited for (`_until_free`)."""
         entry = self.menu_entry(action)
-        if entry is None or "estop" in self.owners.owners().values():
+        if entry is None or self.owners.stopped():
             return False
-        return not any(self.owners.owner(part) in ("operator", "trial") for part in self._parts_of(action))
+        return not any(self.owners.owner(part) in (Owner.OPERATOR, Owner.TRIAL) for part in self._parts_of(action))
 
     async def _until_free(self, action: str) -> None:
         """Returns once every part the action uses is nobody's (woken by the arbiter's changes)."""
@@ -523,7 +521,7 @@ class Autonomy:
             self.executing.pop(p.id, None)
             self._publish_state()
 
-    def _outcome(self, ident: str, action: str, outcome: str, initiator: str, by: str, seconds: float,
+    def _outcome(self, ident: str, action: str, outcome: Outcome, initiator: Initiator, by: str, seconds: float,
                  situation: Situation) -> None:
         self.bus.publish(names.AUTONOMY_OUTCOMES_TOPIC, {
             "header": {"stamp": self.bus.registry.now()}, "id": ident, "action": action, "outcome": outcome,
@@ -568,29 +566,31 @@ class Autonomy:
         situation = Situation("idle")
         if self._situation is not None and now - self._situation[1] <= SITUATION_WINDOW_S:
             situation = self._situation[0]
-        self._outcome(f"t-{next(self._ids)}", str(detail.get("id", "")), "teacher_initiated", "teacher",
+        self._outcome(f"t-{next(self._ids)}", str(detail.get("id", "")), Outcome.TEACHER_INITIATED, Initiator.TEACHER,
                       self.operator_of(by), 0.0, situation)
 
     # ---- services -------------------------------------------------------------------------------------------
     async def _level_service(self, request: Any) -> dict[str, Any]:
         return self.set_level(request.level, Bus.caller())
 
-    def set_level(self, level: str, by: str) -> dict[str, Any]:
-        if level not in LEVELS:
-            return {"success": False, "message": f"unknown autonomy level {level!r}: give one of "
-                                                 f"{', '.join(LEVELS)}"}
-        cleared = "estop" in self.owners.owners().values()
+    def set_level(self, name: str, by: str) -> dict[str, Any]:
+        try:
+            level = AutonomyLevel(name)
+        except ValueError:
+            return {"success": False, "message": f"unknown autonomy level {name!r}: give one of "
+                                                 f"{', '.join(AutonomyLevel)}"}
+        cleared = self.owners.stopped()
         if cleared:
-            self.owners.release("estop")  # choosing a level again is the teacher's word that the robot may move
+            self.owners.release(Owner.ESTOP)  # choosing a level again is the teacher's word that the robot may move
         before, self.level = self.level, level
         now = self.clock.monotonic()
-        if level == "teleoperated":
+        if level == AutonomyLevel.TELEOPERATED:
             for p in list(self.pending.values()):
-                self._end(p, "dropped", "server", now)
+                self._end(p, Outcome.DROPPED, Decider.SERVER, now)
             self._stop_attention(now)
         self._watch_faces()
         publish_event(self.bus, "autonomy", EventKind.AUTONOMY_LEVEL, EventLevel.INFO,
-                      AutonomyLevel(level=level, was=before, by=self.operator_of(by)))
+                      AutonomyLevelChanged(level=level, was=before, by=self.operator_of(by)))
         self._publish_state(force=True)
         note = " (the emergency stop's hold on autonomy is lifted)" if cleared else ""
         return {"success": True, "message": f"autonomy level {level}{note}"}
@@ -599,14 +599,15 @@ class Autonomy:
         return self.decide(request.id, request.decision, Bus.caller())
 
     def decide(self, ident: str, decision: str, caller: str) -> dict[str, Any]:
-        outcome = DECISIONS.get(decision)
-        if outcome is None:
+        try:
+            outcome = Decision(decision).outcome
+        except ValueError:
             return {"success": False, "message": f"unknown decision {decision!r}: give accept, reject or forbid"}
         p = self.pending.get(ident)
         if p is None:
             return {"success": False, "message": f"no pending proposal {ident!r}: it has ended (see "
                                                  f"{names.AUTONOMY_OUTCOMES_TOPIC}) or never was"}
-        self._end(p, outcome, self.operator_of(caller), self.clock.monotonic(), execute=outcome == "accepted")
+        self._end(p, outcome, self.operator_of(caller), self.clock.monotonic(), execute=outcome == Outcome.ACCEPTED)
         return {"success": True, "message": f"{p.id} ({p.label}) {outcome}"}
 
     # ---- attention ------------------------------------------------------------------------------------------
@@ -618,19 +619,19 @@ class Autonomy:
                 waiter.set_result(None)
         for p in [p for p in self.pending.values() if p.waiting and not self._busy(p.action)]:
             self._timed_out(p)
-        if not self.owners.free("head"):
+        if not self.owners.free(Part.HEAD):
             self._head_free_since = None
             self._driving = False
         elif self._head_free_since is None:
             self._head_free_since = now
-        if "estop" in self.owners.owners().values():
+        if self.owners.stopped():
             for p in list(self.pending.values()):
-                self._end(p, "dropped", "server", now)
+                self._end(p, Outcome.DROPPED, Decider.SERVER, now)
         self._publish_state()
 
     def head_free(self, now: float) -> bool:
         """Whether autonomy may move the head now: nobody claims it, and it has been free for the grace."""
-        if not self.owners.free("head"):
+        if not self.owners.free(Part.HEAD):
             self._head_free_since = None
             return False
         if self._head_free_since is None:
@@ -643,7 +644,7 @@ class Autonomy:
         self._publish_attention(now, force=True)
 
     def _attend(self, now: float) -> None:
-        if self.level == "teleoperated":
+        if self.level == AutonomyLevel.TELEOPERATED:
             return
         if not self.head_free(now):
             if self.target is not None:
@@ -659,7 +660,7 @@ class Autonomy:
             if command != self._sent:
                 self._sent = command
                 self.head_commands += 1
-                self.bus.publish(names.PART_COMMAND_TOPICS["head"], {"data": list(command)}, sender=AUTONOMY_NODE)
+                self.bus.publish(names.PART_COMMAND_TOPICS[Part.HEAD], {"data": list(command)}, sender=AUTONOMY_NODE)
         self._publish_attention(now)
 
     def running(self) -> list[str]:
@@ -714,7 +715,7 @@ class Autonomy:
         self._pub.summary = summary
         owners = self.owners.owners()
         if t is not None:
-            owners = {part: ("autonomy" if part == "head" and owner == "none" else owner)
+            owners = {part: (Owner.AUTONOMY if part == Part.HEAD and owner == Owner.NONE else owner)
                       for part, owner in owners.items()}
         self.bus.publish(names.AUTONOMY_STATE_TOPIC, {
             "header": {"stamp": self.bus.registry.now()}, "level": self.level,

@@ -14,11 +14,12 @@ from pathlib import Path
 from typing import Any
 
 from client_protocol.registry import describe_validation_error
+from client_protocol.vocabulary import Outcome
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 # the reward each end gives the (situation, action) point; superseded and dropped ones teach nothing
-REWARDS = {"accepted": 1.0, "timed_out_executed": 0.5, "rejected": -1.0, "forbidden": -1.0,
-           "teacher_initiated": 1.0}
+REWARDS = {Outcome.ACCEPTED: 1.0, Outcome.TIMED_OUT_EXECUTED: 0.5, Outcome.REJECTED: -1.0, Outcome.FORBIDDEN: -1.0,
+           Outcome.TEACHER_INITIATED: 1.0}
 SIMILAR = 0.98  # SPARC: a stored situation this similar to the current one counts
 TEACHER_REPEATS = 2  # the teacher's own action this many times in a situation: proposed the next time
 VERSION = 1
@@ -63,7 +64,7 @@ class _Memory(BaseModel):
 class Point:
     situation: Situation
     action: str
-    outcome: str
+    outcome: Outcome
     reward: float
 
 
@@ -88,10 +89,11 @@ class Learner:
         bad = [p.outcome for p in memory.points if p.outcome not in REWARDS]
         if bad:
             raise ValueError(f"autonomy memory {path}: unknown outcome(s) {', '.join(sorted(set(bad)))}")
-        return [Point(Situation(p.situation, tuple(sorted(p.features.items()))), p.action, p.outcome, p.reward)
+        return [Point(Situation(p.situation, tuple(sorted(p.features.items()))), p.action, Outcome(p.outcome),
+                      p.reward)
                 for p in memory.points]
 
-    def record(self, situation: Situation, action: str, outcome: str) -> bool:
+    def record(self, situation: Situation, action: str, outcome: Outcome) -> bool:
         """Store one point; False (nothing stored) for outcomes that teach nothing."""
         reward = REWARDS.get(outcome)
         if reward is None:
@@ -116,7 +118,7 @@ class Learner:
         return [p for p in self.points if similarity(p.situation, situation) >= SIMILAR]
 
     def forbidden(self, situation: Situation, action: str) -> bool:
-        return any(p.action == action and p.outcome == "forbidden" for p in self._near(situation))
+        return any(p.action == action and p.outcome == Outcome.FORBIDDEN for p in self._near(situation))
 
     def value(self, situation: Situation, action: str) -> float:
         """The rewards of this action in situations like this one, summed."""
@@ -133,11 +135,11 @@ class Learner:
         near = self._near(situation)
         counts: dict[str, int] = {}
         for p in near:
-            if p.outcome == "teacher_initiated":
+            if p.outcome == Outcome.TEACHER_INITIATED:
                 counts[p.action] = counts.get(p.action, 0) + 1
         return [(action, self.confidence(situation, action, 0.5)) for action, n in counts.items()
                 if n >= TEACHER_REPEATS and not self.forbidden(situation, action)]
 
     def stats(self) -> dict[str, Any]:
-        return {"points": len(self.points), "forbidden": sum(p.outcome == "forbidden" for p in self.points),
+        return {"points": len(self.points), "forbidden": sum(p.outcome == Outcome.FORBIDDEN for p in self.points),
                 "path": str(self.path) if self.path else ""}

@@ -20,13 +20,14 @@ import numpy as np
 
 from client_protocol import names
 from client_protocol.events import EventKind
+from client_protocol.vocabulary import Decider, Decision, Initiator, Outcome
 
 from ...recording.format import read_recording
 
 POINTING_DEG = 10.0
 REACH_S = 5.0  # a speaker not pointed at within this long of their onset was never looked at
-HUMAN_DECISIONS = ("accepted", "rejected", "forbidden")
-ROBOT_OUTCOMES = ("accepted", "rejected", "forbidden", "timed_out_executed", "superseded", "dropped")
+HUMAN_DECISIONS = tuple(d.outcome for d in Decision)
+ROBOT_OUTCOMES = (*HUMAN_DECISIONS, Outcome.TIMED_OUT_EXECUTED, Outcome.SUPERSEDED, Outcome.DROPPED)
 
 
 def percentile(values: list[float], q: float) -> float | None:
@@ -97,11 +98,11 @@ def autonomy_metrics(path: Path, until: float | None = None) -> dict[str, Any]:
     follow.end(last)
     heads, speeches = follow.heads, follow.speeches
     minutes = max(last - first, 1e-9) / 60.0
-    robot = [o for o in outcomes if o.get("initiator") == "robot"]
-    teacher = [o for o in outcomes if o.get("outcome") == "teacher_initiated"]
+    robot = [o for o in outcomes if o.get("initiator") == Initiator.ROBOT]
+    teacher = [o for o in outcomes if o.get("outcome") == Outcome.TEACHER_INITIATED]
     counts = {k: sum(o["outcome"] == k for o in robot) for k in ROBOT_OUTCOMES}
     decided = [float(o["seconds"]) for o in robot if o["outcome"] in HUMAN_DECISIONS
-               and o.get("decided_by") not in ("timeout", "autonomy", "server")]
+               and o.get("decided_by") not in tuple(Decider)]
     latencies, looked, spoken, missed = [], 0.0, 0.0, 0
     times = np.array([h[0] for h in heads])
     yaws = np.array([h[1] for h in heads])

@@ -31,11 +31,12 @@ import numpy as np
 
 from client_protocol import names
 from client_protocol.events import EventKind
+from client_protocol.vocabulary import Decider, Outcome
 
 from ...recording.format import read_recording
 from .autonomy import POINTING_DEG, REACH_S, HeadAndSpeech, percentile
 
-DECIDED_BY_MACHINE = ("timeout", "autonomy", "server")
+DECIDED_BY_MACHINE = tuple(Decider)
 
 
 @dataclass(frozen=True)
@@ -47,10 +48,11 @@ class Speech:
 
 
 @dataclass(frozen=True)
-class Outcome:
+class OutcomeAt:
+    """An outcome (/vr_teleop/autonomy/outcomes) at `t`."""
     t: float
-    outcome: str  # ProposalOutcome.outcome: accepted, rejected, forbidden, timed_out_executed, ..., teacher_initiated
-    decided_by: str = ""
+    outcome: Outcome
+    decided_by: str = ""  # a Decider, or the teacher
 
 
 @dataclass
@@ -59,7 +61,7 @@ class ClassroomTimeline:
     lesson_s: float
     speeches: list[Speech] = field(default_factory=list)
     heads: list[tuple[float, float]] = field(default_factory=list)  # (t, HeadYaw deg), in time order
-    outcomes: list[Outcome] = field(default_factory=list)
+    outcomes: list[OutcomeAt] = field(default_factory=list)
     interventions: list[float] = field(default_factory=list)  # when she took control
 
 
@@ -132,12 +134,12 @@ def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
     in_lesson = [o for o in tl.outcomes if 0.0 <= o.t < tl.lesson_s]
     by_teacher = [o for o in in_lesson if o.decided_by not in DECIDED_BY_MACHINE]
 
-    def n(outcomes: list[Outcome], *kinds: str) -> int:
+    def n(outcomes: list[OutcomeAt], *kinds: Outcome) -> int:
         return sum(o.outcome in kinds for o in outcomes)
 
-    own_menu = n(in_lesson, "teacher_initiated")
+    own_menu = n(in_lesson, Outcome.TEACHER_INITIATED)
     interventions = sum(0.0 <= t < tl.lesson_s for t in tl.interventions)
-    decisions = n(by_teacher, "accepted", "rejected", "forbidden")
+    decisions = n(by_teacher, Outcome.ACCEPTED, Outcome.REJECTED, Outcome.FORBIDDEN)
     finite = [x for x in latencies if math.isfinite(x)]
     minutes = tl.lesson_s / 60.0
     return ClassroomResult(
@@ -147,10 +149,11 @@ def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
         share_attended=round(looked / spoken, 4) if spoken else None,
         teacher_own=own_menu + interventions, teacher_decisions=decisions,
         teacher_actions_per_min=round((own_menu + interventions + decisions) / minutes, 4),
-        accepted=n(by_teacher, "accepted"), rejected=n(by_teacher, "rejected", "forbidden"),
-        timed_out=n(in_lesson, "timed_out_executed"),
-        robot_executed=sum(o.outcome == "accepted" and o.decided_by == "autonomy" for o in in_lesson),
-        superseded=n(in_lesson, "superseded"), dropped=n(in_lesson, "dropped"), interventions=interventions,
+        accepted=n(by_teacher, Outcome.ACCEPTED), rejected=n(by_teacher, Outcome.REJECTED, Outcome.FORBIDDEN),
+        timed_out=n(in_lesson, Outcome.TIMED_OUT_EXECUTED),
+        robot_executed=sum(o.outcome == Outcome.ACCEPTED and o.decided_by == Decider.AUTONOMY for o in in_lesson),
+        superseded=n(in_lesson, Outcome.SUPERSEDED), dropped=n(in_lesson, Outcome.DROPPED),
+        interventions=interventions,
         effectiveness=round(len(finite) / len(latencies), 4) if latencies else None)
 
 
@@ -186,7 +189,7 @@ def read_classroom(path: Path, lesson_s: float) -> ClassroomTimeline:
         lesson_s=lesson_s,
         speeches=sorted((Speech(w, a - t0, b - t0, y) for w, a, b, y in speeches), key=lambda s: s.onset),
         heads=[(t - t0, y) for t, y in heads],
-        outcomes=[Outcome(t - t0, str(o.get("outcome", "")), str(o.get("decided_by", ""))) for t, o in outcomes],
+        outcomes=[OutcomeAt(t - t0, Outcome(o["outcome"]), str(o.get("decided_by", ""))) for t, o in outcomes],
         interventions=level_engages)
 
 
