@@ -29,7 +29,7 @@ from .features.explicit_control import ExplicitControl
 from .features.face_blur import FaceBlur
 from .features.faces import FacePublisher
 from .features.luxai_api import LuxaiApi
-from .features.menu_service import MenuService, check_commands_implemented
+from .features.menu_service import MenuService
 from .features.motivation import Motivation
 from .features.motivation import load_config as load_motivation_config
 from .features.clips import ClipLibrary
@@ -96,7 +96,6 @@ class TeleopServer:
             raise ValueError(f"refusing to serve {settings.host} without tokens: anyone on the network could drive "
                              "the robot. Give --operator-token/--supervisor-token (or --generate-tokens), or pass "
                              "--insecure")
-        check_commands_implemented()
         self.menus = load_menus(settings.menu_dir)
         self.motivation_config = load_motivation_config(settings.motivation_config)
         self.autonomy_rules = load_rules(settings.autonomy_rules)

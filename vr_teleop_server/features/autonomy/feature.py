@@ -23,6 +23,7 @@ from typing import Any
 
 from client_protocol import names
 from client_protocol.events import ActionFailed, AutonomyLevel, EventKind, EventLevel
+from menus import Command, MenuEntry
 from simclock import WALL, Clock
 
 from ...core.bus import Bus, BusError, Published
@@ -105,7 +106,7 @@ class _Published:
 
 class Autonomy:
     def __init__(self, bus: Bus, robot: Robot, owners: Ownership, *, level: str, attention: AttentionConfig,
-                 rules: Rules, learner: Learner, menu_entry: Callable[[str], tuple[str, str, dict] | None],
+                 rules: Rules, learner: Learner, menu_entry: Callable[[str], MenuEntry | None],
                  may_decide: Callable[[], bool], operator_of: Callable[[str], str], clock: Clock = WALL,
                  seed: int | None = None) -> None:
         if level not in LEVELS:
@@ -425,7 +426,7 @@ class Autonomy:
             return None
         self._queued = None
         entry = self.menu_entry(action)
-        label = entry[0] if entry is not None else action
+        label = entry.label if entry is not None else action
         for old in list(self.pending.values()):
             self._end(old, "superseded", "server", now)
         proposal = Proposal(f"p-{next(self._ids)}", action, label, reason, round(confidence, 3),
@@ -471,9 +472,10 @@ class Autonomy:
         entry = self.menu_entry(action)
         if entry is None:
             return ()
-        if entry[1] == "show_emotion" and entry[2].get("say"):
+        if entry.command == Command.SHOW_EMOTION and entry.args.get("say"):
             return ("face", "voice")  # an emotion that says its words never starts over someone else's sentence
-        return ACTION_PARTS.get(entry[1], tuple(self.robot.model.parts) if entry[1] == "play_gesture" else ())
+        return ACTION_PARTS.get(entry.command, tuple(self.robot.model.parts) if entry.command == Command.PLAY_GESTURE
+                                else ())
 
     def _busy(self, action: str) -> bool:
         """Whether a part the action uses is someone else's now."""
