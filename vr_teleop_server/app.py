@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 from datetime import UTC, datetime
@@ -78,7 +79,7 @@ class TeleopServer:
         if (settings.study is None) != (settings.study_dir is None):
             raise ValueError("--study FILE and --study-dir DIR go together: the study file says what to run, the "
                              "folder keeps its state")
-        if settings.study is not None and not BACKENDS[settings.backend].module:
+        if settings.study is not None and BACKENDS[settings.backend].factory is None:
             raise ValueError(f"--study runs its trials on a robot: give --backend sim, ros or luxai, not "
                              f"{settings.backend!r}")
         if settings.study is not None:  # the study tools' libraries (scipy) only when a study is hosted
@@ -197,14 +198,14 @@ class TeleopServer:
         """The robot and the features on it."""
         s = self.settings
         backend = BACKENDS[s.backend]
-        if not backend.module:
+        if backend.factory is None:
             return
         # Built off the loop (the stand-in starts MuJoCo; a real robot's backend does no I/O until open()), wired,
         # then opened, so that what opening finds (camera_unavailable) reaches the event topic.
         robot = await asyncio.to_thread(backend.load().from_settings, s, self.model, self.clock)
         self.robot = robot
         declare_event_topic(self.bus)
-        robot.on_event(lambda kind, level, detail: publish_event(self.bus, "backend", kind, level, detail))
+        robot.on_event(functools.partial(publish_event, self.bus, "backend"))
         await robot.open()
         self.model = robot.model  # a robot's own limits may narrow the model's: everything uses those in force
         gestures = GestureLibrary([packaged_gesture_dir()], self.model,

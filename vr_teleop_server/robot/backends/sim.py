@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from robot_models import RobotModel, load_qtrobot
 from sim import StandIn
@@ -36,6 +36,11 @@ from ..interface import (
     stopped_within,
     stream_waypoints,
 )
+
+if TYPE_CHECKING:
+    from simclock import Clock
+
+    from ...settings import ServerSettings
 
 SETTLE_TOLERANCE_DEG = 1.0  # a gesture counts as finished when every joint is this close to its last waypoint
 
@@ -75,10 +80,14 @@ class SimRobot(Robot):
         return await asyncio.to_thread(cls, model, **options)
 
     @classmethod
-    def from_settings(cls, settings: Any, model: RobotModel, clock: Any = None) -> SimRobot:
+    def from_settings(cls, settings: ServerSettings, model: RobotModel, clock: Clock | None = None) -> SimRobot:
         """Starts MuJoCo and a GL context: call it off the event loop."""
         return cls(model, camera_width=settings.camera_width, camera_height=settings.camera_height,
                    camera_fps=settings.camera_fps, **({"clock": clock} if clock is not None else {}))
+
+    @staticmethod
+    def check_url(_url: str, _robot_id: str | None = None) -> None:
+        """Any: the stand-in runs in this process, and a robot URL names nothing to it."""
 
     @property
     def model(self) -> RobotModel:
