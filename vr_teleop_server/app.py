@@ -41,6 +41,7 @@ from .recording.recorder import Recorder
 from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
 from .robot.backends import BACKENDS
 from .robot.interface import Robot
+from .robot.world import SimulatedWorld
 from .settings import ServerSettings
 
 if TYPE_CHECKING:
@@ -247,7 +248,7 @@ class TeleopServer:
         clips.changed.append(menu.publish)
         self._start(menu)
         check_actions(self.autonomy_rules, menu.ids(), s.autonomy_rules)
-        if s.backend == "sim":  # the stand-in's simulated pupils (simulation only)
+        if isinstance(robot, SimulatedWorld):  # the stand-in's simulated pupils (simulation only)
             from .features.bystanders import Bystanders
 
             async def render(text: str) -> tuple[bytes, int, int]:

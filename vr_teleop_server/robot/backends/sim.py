@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from robot_models import RobotModel, load_qtrobot
 from sim import StandIn
-from sim.pupils import PUPILS
+from sim.pupils import PUPILS, Pupil
 
 from ..interface import (
     CameraFrame,
@@ -30,6 +30,7 @@ from ..interface import (
     NOT_MODELLED,
     Robot,
     SpeechResult,
+    VoiceActivity,
     clamp_command,
     motors_report,
     pcm_level,
@@ -232,10 +233,21 @@ class SimRobot(Robot):
         self._listeners.append(listener)
         return lambda: listener in self._listeners and self._listeners.remove(listener)
 
+    # ------------------------------------------------------------------------- the simulated world (SimulatedWorld)
+    @property
+    def pupils(self) -> tuple[Pupil, ...]:
+        return PUPILS
+
     def hear(self, pcm: bytes, sample_rate: int, channels: int) -> None:
         """On the loop: a piece of a simulated pupil's voice reaches the microphone (sim/pupils.py)."""
         for listener in tuple(self._listeners):
             listener(pcm, sample_rate, channels)
+
+    def report_voice(self, activity: VoiceActivity) -> None:
+        self._voice_activity(activity)
+
+    def pupil_looks(self, name: str, at_robot: bool) -> None:
+        self._standin.pupil_looks(name, at_robot)
 
     def known_people(self) -> tuple[KnownPerson, ...]:
         """The classroom's simulated pupils, by name (sim/pupils.py)."""
