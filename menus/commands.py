@@ -1,12 +1,14 @@
 """The commands a menu item may run, with their arguments: the vocabulary menu files are checked against.
 
-Each command is carried out by the server as an ordinary call on its bus (see vr_teleop_server/menu_service.py),
-so a menu selection does exactly what the same call from a client would.
+Each command is carried out by the server as an ordinary call on its bus (vr_teleop_server/features/menu_service.py,
+whose MENU_HANDLERS holds a handler per Command), so a menu selection does exactly what the same call from a client
+would.
 """
 
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -45,7 +47,7 @@ class MenuEntry:
     """A menu item that runs a command, as the menus are published now (generated items too)."""
     label: str
     command: Command
-    args: dict[str, Any] = field(default_factory=dict)  # the item's own; a selection may add to them
+    args: Mapping[str, Any] = field(default_factory=dict)  # the item's own (read-only); a selection may add to them
 
 
 class _Args(BaseModel):
