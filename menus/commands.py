@@ -1,17 +1,54 @@
 """The commands a menu item may run, with their arguments: the vocabulary menu files are checked against.
 
-Each command is carried out by the server as an ordinary call on its bus (see vr_teleop_server/menu_service.py),
-so a menu selection does exactly what the same call from a client would.
+Each command is carried out by the server as an ordinary call on its bus (vr_teleop_server/features/menu_service.py,
+whose MENU_HANDLERS holds a handler per Command), so a menu selection does exactly what the same call from a client
+would.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 from client_protocol.vocabulary import AutonomyLevel
 from pydantic import BaseModel, ConfigDict, Field
 
 PARTS = ("head", "left_arm", "right_arm")
+
+
+class Command(enum.StrEnum):
+    """What a menu item does when it is selected (COMMANDS gives each one's arguments)."""
+    SHOW_EMOTION = "show_emotion"
+    SAY = "say"
+    STOP_SPEECH = "stop_speech"
+    CONFIGURE_SPEECH = "configure_speech"
+    SET_LANGUAGE = "set_language"
+    PLAY_CLIP = "play_clip"
+    RECORD_CLIP = "record_clip"
+    PLAY_GESTURE = "play_gesture"
+    STOP_GESTURE = "stop_gesture"
+    RECORD_TOGGLE = "record_toggle"
+    SAVE_RECORDING = "save_recording"
+    SET_ARMS_CONTROL = "set_arms_control"
+    SET_HEAD_CONTROL = "set_head_control"
+    ENGAGE = "engage"
+    ESTOP = "estop"
+    HOME = "home"
+    SET_MOTORS = "set_motors"
+    SHOW_STATUS = "show_status"
+    CHANGE_MOTIVATION = "change_motivation"
+    SET_AUTONOMY = "set_autonomy"
+    SET_COMFORT_VIGNETTE = "set_comfort_vignette"
+
+
+@dataclass(frozen=True)
+class MenuEntry:
+    """A menu item that runs a command, as the menus are published now (generated items too)."""
+    label: str
+    command: Command
+    args: Mapping[str, Any] = field(default_factory=dict)  # the item's own (read-only); a selection may add to them
 
 
 class _Args(BaseModel):
@@ -97,26 +134,26 @@ class VignetteArgs(_Args):
                                 "display (the comfort vignette and the robot's reticle): the server only records it")
 
 
-COMMANDS: dict[str, type[_Args]] = {
-    "show_emotion": EmotionArgs,
-    "say": SayArgs,
-    "stop_speech": NoArgs,
-    "configure_speech": SpeechConfigArgs,
-    "set_language": LanguageArgs,
-    "play_clip": ClipArgs,
-    "record_clip": NoArgs,  # start recording the selecting client's voice as a clip, or stop and keep it
-    "play_gesture": GestureArgs,
-    "stop_gesture": NoArgs,
-    "record_toggle": RecordArgs,  # start recording, or stop and save the running one
-    "save_recording": SaveArgs,
-    "set_arms_control": SwitchArgs,
-    "set_head_control": SwitchArgs,
-    "engage": EngageArgs,
-    "estop": NoArgs,
-    "home": HomeArgs,
-    "set_motors": MotorsArgs,
-    "show_status": StatusArgs,
-    "change_motivation": MotivationArgs,
-    "set_autonomy": AutonomyArgs,
-    "set_comfort_vignette": VignetteArgs,  # handled by the operator page itself; the server records the choice
+COMMANDS: dict[Command, type[_Args]] = {
+    Command.SHOW_EMOTION: EmotionArgs,
+    Command.SAY: SayArgs,
+    Command.STOP_SPEECH: NoArgs,
+    Command.CONFIGURE_SPEECH: SpeechConfigArgs,
+    Command.SET_LANGUAGE: LanguageArgs,
+    Command.PLAY_CLIP: ClipArgs,
+    Command.RECORD_CLIP: NoArgs,  # start recording the selecting client's voice as a clip, or stop and keep it
+    Command.PLAY_GESTURE: GestureArgs,
+    Command.STOP_GESTURE: NoArgs,
+    Command.RECORD_TOGGLE: RecordArgs,  # start recording, or stop and save the running one
+    Command.SAVE_RECORDING: SaveArgs,
+    Command.SET_ARMS_CONTROL: SwitchArgs,
+    Command.SET_HEAD_CONTROL: SwitchArgs,
+    Command.ENGAGE: EngageArgs,
+    Command.ESTOP: NoArgs,
+    Command.HOME: HomeArgs,
+    Command.SET_MOTORS: MotorsArgs,
+    Command.SHOW_STATUS: StatusArgs,
+    Command.CHANGE_MOTIVATION: MotivationArgs,
+    Command.SET_AUTONOMY: AutonomyArgs,
+    Command.SET_COMFORT_VIGNETTE: VignetteArgs,  # handled by the operator page itself; the server records the choice
 }

@@ -27,11 +27,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from client_protocol.files import load_model_file
 
-from .commands import COMMANDS
+from .commands import COMMANDS, Command
 
 COMPASS = ("left", "top", "right", "bottom")
 GENERATORS = ("gestures", "emotions", "sentences", "clips")
@@ -56,12 +56,19 @@ class Item(_Strict):
     label: str = Field(min_length=1)
     slot: Literal["left", "top", "right", "bottom", "list"] = "list"
     icon: str = ""
-    command: str | None = None
+    command: Command | None = None
     args: dict[str, Any] = Field(default_factory=dict)
     submenu: list[Item] | None = None
     generate: Literal["gestures", "emotions", "sentences", "clips"] | None = None
     source: str | None = Field(None, description="the sentences file, for generate: sentences (sentences.txt stands "
                                "for sentences.<language>.txt, one per language)")
+
+    @field_validator("command", mode="before")
+    @classmethod
+    def _known_command(cls, value: Any) -> Any:
+        if isinstance(value, str) and value not in COMMANDS:
+            raise ValueError(f"unknown command {value!r}; commands are {', '.join(sorted(COMMANDS))}")
+        return value
 
     @model_validator(mode="after")
     def _one_kind(self) -> Item:
@@ -69,11 +76,8 @@ class Item(_Strict):
         if len(kinds) != 1:
             raise ValueError(f"needs exactly one of command, submenu or generate (has {', '.join(kinds) or 'none'})")
         if self.command is not None:
-            model = COMMANDS.get(self.command)
-            if model is None:
-                raise ValueError(f"unknown command {self.command!r}; commands are {', '.join(sorted(COMMANDS))}")
             try:
-                model(**self.args)
+                COMMANDS[self.command](**self.args)
             except ValidationError as exc:
                 problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'args'}: {e['msg']}" for e in exc.errors())
                 raise ValueError(f"args of {self.command}: {problems}") from None

@@ -61,7 +61,7 @@ class Autonomy:
         return o is not None and o["outcome"] == outcome and o["decided_by"] not in ("timeout", "server", "autonomy")
 
     def label(self, action: str) -> str:
-        return self.feature.menu_entry(action)[0]
+        return self.feature.menu_entry(action).label
 
     @property
     def level(self) -> str:

@@ -7,7 +7,7 @@ import socket
 
 import pytest
 
-from vr_teleop_server.robot.backends import BACKEND_NAMES, BACKENDS
+from vr_teleop_server.robot.backends import BACKEND_NAMES, BACKENDS, BackendFactory
 from vr_teleop_server.robot.backends.ros import respeaker_to_base
 from vr_teleop_server.robot.link import (
     DIRECTION_STEP_DEG,
@@ -115,6 +115,10 @@ def test_one_exception_family_and_one_table_of_backends():
     with pytest.raises(ValueError, match="--robot-id"):
         BACKENDS["luxai"].check_url("mqtt://broker:1883")
     BACKENDS["sim"].check_url("anything")  # no robot URL to check
+    for name, backend in BACKENDS.items():  # each class is what the server asks of a backend's
+        if backend.factory is not None:
+            cls = backend.load()
+            assert isinstance(cls, BackendFactory) and cls.backend == name
 
 
 async def test_construction_does_no_io_and_open_says_when_the_robot_cannot_be_reached():

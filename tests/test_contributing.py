@@ -9,11 +9,16 @@ from pathlib import Path
 
 import pytest
 
+import menus.commands
 import support
 import testbed
+from client_protocol import ops
 from sim import StandIn
 from testbed import processes, server
+from vr_teleop_server.core.session import dispatch
 from vr_teleop_server.core.transport import PAGES
+from vr_teleop_server.features import menu_service
+from vr_teleop_server.robot import backends
 from vr_teleop_server.robot.backends import BACKENDS
 from vr_teleop_server.study.studyfile import KINDS
 
@@ -39,6 +44,16 @@ def test_the_tables_hold_what_the_page_says():
     assert today("BACKENDS") == list(BACKENDS)
     assert {"/" + p.lstrip("/") for p in PAGES} == set(today("PAGES"))
     assert today("KINDS") == list(KINDS)
+
+
+@pytest.mark.parametrize("table, module", [
+    ("BACKENDS", backends), ("BackendFactory", backends), ("CLIENT_OPS", ops), ("OP_HANDLERS", dispatch),
+    ("Command", menus.commands), ("COMMANDS", menus.commands), ("MENU_HANDLERS", menu_service)])
+def test_each_table_it_names_is_in_the_file_it_names(table, module):
+    """Where a new backend, op or menu command is registered: the bullet naming the table names its file."""
+    path = Path(module.__file__).relative_to(ROOT).as_posix()
+    files = re.findall(r"`([\w./-]+\.py)`", bullet(table))
+    assert hasattr(module, table) and any(path.endswith(f) for f in files), (table, path, files)
 
 
 def test_the_files_it_names_exist():

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from menus import COMMANDS, MenuError, language_words, load_menus, walk
+from menus import COMMANDS, Command, MenuError, language_words, load_menus, walk
 from robot_models import load_qtrobot
-from vr_teleop_server.features.menu_service import MenuService
+from vr_teleop_server.features.menu_service import MENU_HANDLERS, MenuService
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -38,8 +38,11 @@ def test_packaged_trees_reproduce_and_complete_the_papers_menus():
     assert levels == {"teleoperated", "supervised", "autonomous"}
 
 
-def test_every_command_has_a_handler():
-    assert all(hasattr(MenuService, f"_do_{name}") for name in COMMANDS)
+def test_every_command_has_its_arguments_and_one_handler():
+    """The vocabulary, its arguments' models and the server's handlers name the same commands; each handler is the
+    service's own."""
+    assert list(COMMANDS) == list(MENU_HANDLERS) == list(Command)
+    assert all(getattr(MenuService, f"_do_{c.value}") is MENU_HANDLERS[c] for c in Command)
 
 
 def test_emotion_items_name_real_emotions():

@@ -11,11 +11,19 @@ import time
 import cbor2
 import pytest
 
+from client_protocol import ops
 from testbed.server import Pace
+from vr_teleop_server.core.session.dispatch import OP_HANDLERS, Session
 from vr_teleop_server.core.wire import png_unpack
 
 POSE = {"header": {"seq": 3, "stamp": {"secs": 10, "nsecs": 20}, "frame_id": "unity_left_handed"},
         "pose": {"position": {"x": 0.1, "y": 1.6, "z": 0.3}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+
+
+def test_every_client_op_has_one_handler_of_the_session():
+    """The table of handlers and the ops' models name the same ops, each handled by the session's own method."""
+    assert list(OP_HANDLERS) == list(ops.CLIENT_OPS)
+    assert all(getattr(Session, f"_op_{ops.op_name(model)}") is handler for model, handler in OP_HANDLERS.items())
 
 
 def test_publish_reaches_subscriber_with_defaults_filled(client_factory):

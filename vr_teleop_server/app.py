@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 from datetime import UTC, datetime
@@ -29,7 +30,7 @@ from .features.explicit_control import ExplicitControl
 from .features.face_blur import FaceBlur
 from .features.faces import FacePublisher
 from .features.luxai_api import LuxaiApi
-from .features.menu_service import MenuService, check_commands_implemented
+from .features.menu_service import MenuService
 from .features.motivation import Motivation
 from .features.motivation import load_config as load_motivation_config
 from .features.clips import ClipLibrary
@@ -40,6 +41,7 @@ from .recording.recorder import Recorder
 from .robot.gestures import GestureLibrary, default_user_gesture_dir, packaged_gesture_dir
 from .robot.backends import BACKENDS
 from .robot.interface import Robot
+from .robot.world import SimulatedWorld
 from .settings import ServerSettings
 
 if TYPE_CHECKING:
@@ -78,7 +80,7 @@ class TeleopServer:
         if (settings.study is None) != (settings.study_dir is None):
             raise ValueError("--study FILE and --study-dir DIR go together: the study file says what to run, the "
                              "folder keeps its state")
-        if settings.study is not None and not BACKENDS[settings.backend].module:
+        if settings.study is not None and BACKENDS[settings.backend].factory is None:
             raise ValueError(f"--study runs its trials on a robot: give --backend sim, ros or luxai, not "
                              f"{settings.backend!r}")
         if settings.study is not None:  # the study tools' libraries (scipy) only when a study is hosted
@@ -96,7 +98,6 @@ class TeleopServer:
             raise ValueError(f"refusing to serve {settings.host} without tokens: anyone on the network could drive "
                              "the robot. Give --operator-token/--supervisor-token (or --generate-tokens), or pass "
                              "--insecure")
-        check_commands_implemented()
         self.menus = load_menus(settings.menu_dir)
         self.motivation_config = load_motivation_config(settings.motivation_config)
         self.autonomy_rules = load_rules(settings.autonomy_rules)
@@ -198,14 +199,14 @@ class TeleopServer:
         """The robot and the features on it."""
         s = self.settings
         backend = BACKENDS[s.backend]
-        if not backend.module:
+        if backend.factory is None:
             return
         # Built off the loop (the stand-in starts MuJoCo; a real robot's backend does no I/O until open()), wired,
         # then opened, so that what opening finds (camera_unavailable) reaches the event topic.
         robot = await asyncio.to_thread(backend.load().from_settings, s, self.model, self.clock)
         self.robot = robot
         declare_event_topic(self.bus)
-        robot.on_event(lambda kind, level, detail: publish_event(self.bus, "backend", kind, level, detail))
+        robot.on_event(functools.partial(publish_event, self.bus, "backend"))
         await robot.open()
         self.model = robot.model  # a robot's own limits may narrow the model's: everything uses those in force
         gestures = GestureLibrary([packaged_gesture_dir()], self.model,
@@ -247,7 +248,7 @@ class TeleopServer:
         clips.changed.append(menu.publish)
         self._start(menu)
         check_actions(self.autonomy_rules, menu.ids(), s.autonomy_rules)
-        if s.backend == "sim":  # the stand-in's simulated pupils (simulation only)
+        if isinstance(robot, SimulatedWorld):  # the stand-in's simulated pupils (simulation only)
             from .features.bystanders import Bystanders
 
             async def render(text: str) -> tuple[bytes, int, int]:

@@ -2,7 +2,7 @@
 
 `/sim/bystanders/speak` renders the sentence with the server's TTS (espeak-ng) into the robot's microphone (the
 stand-in's `hear`, which the WebRTC audio mixes as a real robot's microphone: the operator hears the pupil), and
-reports voice activity with the pupil's direction as a microphone array would (`Robot._voice_activity`). With
+reports voice activity with the pupil's direction as a microphone array would (`SimulatedWorld.report_voice`). With
 `interval` > 0 the pupils also take turns saying a line every `interval` seconds (the classroom's background).
 `/sim/bystanders/look` turns a pupil's head to the robot or away (the scene's figure turns: the head camera, the face
 detector and attention see it); the pupils' list, places and states are
@@ -18,12 +18,13 @@ from typing import Any
 
 import numpy as np
 from client_protocol import names
-from sim.pupils import PUPILS, Pupil
+from sim.pupils import Pupil
 from simclock import WALL, Clock
 
 from ..core.bus import Bus
 from ..core.tasks import cancel_and_wait
 from ..robot.interface import VoiceActivity
+from ..robot.world import SimulatedWorld
 
 log = logging.getLogger(__name__)
 
@@ -36,15 +37,15 @@ Render = Callable[[str], Awaitable[tuple[bytes, int, int]]]  # text -> (PCM S16L
 
 
 class Bystanders:
-    def __init__(self, bus: Bus, robot: Any, render: Render, *, clock: Clock = WALL, interval: float = 0.0,
-                 lines: tuple[str, ...] = LINES) -> None:
+    def __init__(self, bus: Bus, world: SimulatedWorld, render: Render, *, clock: Clock = WALL,
+                 interval: float = 0.0, lines: tuple[str, ...] = LINES) -> None:
         self.bus = bus
-        self.robot = robot  # the stand-in (SimRobot): hear(), _voice_activity() and its standin's pupil_looks()
+        self.world = world  # the stand-in's robot
         self.render = render
         self.clock = clock
         self.interval = interval
         self.lines = lines
-        self.looking = {p.name: "robot" for p in PUPILS}
+        self.looking = {p.name: "robot" for p in world.pupils}
         self.speaking: dict[str, asyncio.Task[None]] = {}
         self._turns: asyncio.Task[None] | None = None
 
@@ -61,10 +62,10 @@ class Bystanders:
         await cancel_and_wait(self._turns, *self.speaking.values())
 
     def _pupil(self, who: str) -> Pupil | None:
-        return next((p for p in PUPILS if p.name == who), None)
+        return next((p for p in self.world.pupils if p.name == who), None)
 
     def _known(self) -> str:
-        return ", ".join(p.name for p in PUPILS)
+        return ", ".join(p.name for p in self.world.pupils)
 
     async def _speak_service(self, request: Any) -> dict[str, Any]:
         return await self.speak(request.who, request.text)
@@ -96,17 +97,17 @@ class Bystanders:
         chunk = max(frame, int(rate * CHUNK_S) * frame)
         loop = asyncio.get_running_loop()
         try:
-            self.robot._voice_activity(VoiceActivity(True, pupil.yaw_deg, self.clock.monotonic(), pupil.name))
+            self.world.report_voice(VoiceActivity(True, pupil.yaw_deg, self.clock.monotonic(), pupil.name))
             self._publish()
             begun.set_result(len(pcm) / frame / rate)
             next_at = loop.time()
             for start in range(0, len(pcm), chunk):
-                self.robot.hear(pcm[start:start + chunk], rate, channels)
+                self.world.hear(pcm[start:start + chunk], rate, channels)
                 next_at += min(chunk, len(pcm) - start) / frame / rate
                 await asyncio.sleep(max(0.0, next_at - loop.time()))
         finally:
             self.speaking.pop(pupil.name, None)
-            self.robot._voice_activity(VoiceActivity(False, pupil.yaw_deg, self.clock.monotonic(), pupil.name))
+            self.world.report_voice(VoiceActivity(False, pupil.yaw_deg, self.clock.monotonic(), pupil.name))
             self._publish()
 
     async def _look_service(self, request: Any) -> dict[str, Any]:
@@ -117,7 +118,7 @@ class Bystanders:
             return {"success": False, "message": f"no pupil {who!r}; the pupils are {self._known()}"}
         if at not in ("robot", "away"):
             return {"success": False, "message": f"at must be robot or away, not {at!r}"}
-        self.robot.standin.pupil_looks(who, at == "robot")  # the head camera sees the face, or the back of the head
+        self.world.pupil_looks(who, at == "robot")  # the head camera sees the face, or the back of the head
         self.looking[who] = at
         self._publish()
         return {"success": True, "message": f"{who} looks {'at the robot' if at == 'robot' else 'away'}"}
@@ -127,7 +128,7 @@ class Bystanders:
         turn = 0
         while True:
             await asyncio.sleep(self.interval)
-            pupil = PUPILS[turn % len(PUPILS)]
+            pupil = self.world.pupils[turn % len(self.world.pupils)]
             reply = await self.speak(pupil.name, self.lines[turn % len(self.lines)])
             if not reply["success"]:
                 log.info("a pupil's line was not spoken: %s", reply["message"])
@@ -138,4 +139,4 @@ class Bystanders:
             "header": {"stamp": self.bus.registry.now()},
             "bystanders": [{"name": p.name, "position": {"x": p.x, "y": p.y, "z": p.z}, "yaw": round(p.yaw_deg, 3),
                             "looking": self.looking[p.name], "speaking": p.name in self.speaking}
-                           for p in PUPILS]}, latch=True)
+                           for p in self.world.pupils]}, latch=True)

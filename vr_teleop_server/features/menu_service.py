@@ -14,15 +14,15 @@ import asyncio
 import json
 import logging
 import re
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 from pydantic import ValidationError
 
 from client_protocol import names
 from client_protocol.events import EventKind, EventLevel, MenuFailure, MenuSelection
-from menus import (COMMANDS, REFERENCE_LANGUAGE, Item, LoadedMenu, fill_sentence, language_sentences, language_words,
-                   walk)
+from menus import (COMMANDS, REFERENCE_LANGUAGE, Command, Item, LoadedMenu, MenuEntry, fill_sentence, language_sentences,
+                   language_words, walk)
 from robot_models.types import MotorMode
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
@@ -54,8 +54,7 @@ class MenuService:
         self._clips = clips
         self._unavailable = unavailable  # commands this server cannot run (no clip library): their items are left out
         self._variables = variables  # the sentences' variables' values now ({pupil}, {teacher}); publish() on a change
-        self._items: dict[str, tuple[str, dict[str, Any]]] = {}  # id -> (command, args), generated ones too
-        self._labels: dict[str, str] = {}
+        self._items: dict[str, MenuEntry] = {}  # the items that run a command, by id, generated ones too
         self._arms_on = True
         self._head_on = True
 
@@ -74,31 +73,32 @@ class MenuService:
             self._luxai_api.gestures_changed.remove(self.publish)
 
     # ---- the trees ----------------------------------------------------------------------------------------------
-    def _generated(self, item: Item, menu: LoadedMenu) -> list[tuple[str, str, str, dict[str, Any]]]:
-        """(id, label, command, args) of the items a `generate` item stands for."""
+    def _generated(self, item: Item, menu: LoadedMenu) -> list[tuple[str, MenuEntry]]:
+        """(id, entry) of the items a `generate` item stands for."""
         if item.generate == "gestures":
-            rows = [(name, name, "play_gesture", {"name": name}) for name in self._gestures()]
+            rows = [(name, MenuEntry(name, Command.PLAY_GESTURE, {"name": name})) for name in self._gestures()]
         elif item.generate == "emotions":
-            rows = [(name, name, "show_emotion", self._emotion_args({"name": name}, menu)) for name in self._emotions]
+            rows = [(name, MenuEntry(name, Command.SHOW_EMOTION, self._emotion_args({"name": name}, menu)))
+                    for name in self._emotions]
         elif item.generate == "clips":
-            rows = [(name, name, "play_clip", {"name": name}) for name in self._clips()]
+            rows = [(name, MenuEntry(name, Command.PLAY_CLIP, {"name": name})) for name in self._clips()]
         else:
             pairs = language_sentences(menu.path.parent / str(item.source), self._language())
             values = self._variables()  # the label filled in as it would be said now; the item keeps the variables
-            rows = [(key, fill_sentence(text, values, keep_missing=True), "say", {"text": text}) for key, text in pairs]
+            rows = [(key, MenuEntry(fill_sentence(text, values, keep_missing=True), Command.SAY, {"text": text}))
+                    for key, text in pairs]
         out, seen = [], set()
-        for key, label, command, args in rows:
+        for key, entry in rows:
             ident = f"{item.id}.{_slug(key)}"
             while ident in seen:
                 ident += "_"
             seen.add(ident)
-            out.append((ident, label, command, args))
+            out.append((ident, entry))
         return out
 
     def publish(self) -> None:
         items: list[dict[str, Any]] = []
-        table: dict[str, tuple[str, dict[str, Any]]] = {}
-        labels: dict[str, str] = {}
+        table: dict[str, MenuEntry] = {}
         unavailable = self._unavailable()
         for menu in self.menus:
             for parent, position, item in walk(menu.items, menu.info.id):
@@ -107,21 +107,19 @@ class MenuService:
                     continue  # an empty list (no clips yet) is left out: a menu item leads somewhere
                 if item.command in unavailable:
                     continue  # nor is an item that could only be refused
-                args = self._emotion_args(item.args, menu) if item.command == "show_emotion" else item.args
+                args = self._emotion_args(item.args, menu) if item.command == Command.SHOW_EMOTION else item.args
                 items.append({"id": item.id, "menu": menu.info.id, "parent": parent, "label": item.label,
                               "slot": item.slot, "position": position, "icon": item.icon,
-                              "command": item.command or "", "args": json.dumps(args) if item.command else ""})
+                              "command": item.command.value if item.command else "",
+                              "args": json.dumps(args) if item.command else ""})
                 if item.command:
-                    table[item.id] = (item.command, dict(args))
-                    labels[item.id] = item.label
-                if item.generate:
-                    for pos, (ident, label, command, args) in enumerate(generated):
-                        items.append({"id": ident, "menu": menu.info.id, "parent": item.id, "label": label,
-                                      "slot": "list", "position": pos, "icon": "", "command": command,
-                                      "args": json.dumps(args)})
-                        table[ident] = (command, args)
-                        labels[ident] = label
-        self._items, self._labels = table, labels
+                    table[item.id] = MenuEntry(item.label, item.command, dict(args))
+                for pos, (ident, entry) in enumerate(generated):
+                    items.append({"id": ident, "menu": menu.info.id, "parent": item.id, "label": entry.label,
+                                  "slot": "list", "position": pos, "icon": "", "command": entry.command.value,
+                                  "args": json.dumps(entry.args)})
+                    table[ident] = entry
+        self._items = table
         self.bus.publish(names.MENUS_TOPIC, {
             "header": {"stamp": self.bus.registry.now()},
             "menus": [{"id": m.info.id, "label": m.info.label, "controller": m.info.controller,
@@ -146,10 +144,9 @@ class MenuService:
                 if item.source is not None:
                     language_sentences(menu.path.parent / item.source, language)
 
-    def entry(self, item_id: str) -> tuple[str, str, dict[str, Any]] | None:
-        """(label, command, args) of an item that runs a command, None for any other id."""
-        entry = self._items.get(item_id)
-        return None if entry is None else (self._labels[item_id], entry[0], dict(entry[1]))
+    def entry(self, item_id: str) -> MenuEntry | None:
+        """The item with this id if it runs a command, None for any other id."""
+        return self._items.get(item_id)
 
     def ids(self) -> set[str]:
         return set(self._items)
@@ -174,7 +171,7 @@ class MenuService:
         if entry is None:
             raise self._failed(item_id, "", caller, f"unknown menu item {item_id!r}; the items are on "
                                                     f"{names.MENUS_TOPIC}")
-        command, args = entry
+        command, args = entry.command, entry.args
         try:
             extra = json.loads(args_json) if args_json.strip() else {}
             if not isinstance(extra, dict):
@@ -185,7 +182,7 @@ class MenuService:
                 f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
             raise self._failed(item_id, command, caller, f"bad args for {command}: {text}") from None
         try:
-            message = await getattr(self, f"_do_{command}")(parsed, caller)
+            message = await MENU_HANDLERS[command](self, parsed, caller)
         except BusError as exc:
             raise self._failed(item_id, command, caller, str(exc)) from None
         publish_event(self.bus, "menu", EventKind.SELECT, EventLevel.INFO,
@@ -213,7 +210,7 @@ class MenuService:
             raise BusError(response.message)
         return response.message
 
-    # ---- the commands (one method per name in menus.COMMANDS) --------------------------------------------------
+    # ---- the commands (one method per menus.Command, registered in MENU_HANDLERS) -------------------------------
     async def _do_show_emotion(self, a: Any, caller: str) -> str:
         shown = await self._luxai(names.EMOTION_SHOW_SERVICE, {"name": a.name}, caller, f"showing {a.name}")
         if not a.say:
@@ -305,9 +302,27 @@ class MenuService:
         return await self._trigger(service, {"name": a.name, "value": a.value}, caller)
 
 
-def check_commands_implemented() -> None:
-    """Every command in the vocabulary has a handler here (a test and start-up both check it)."""
-    missing = [c for c in COMMANDS if not hasattr(MenuService, f"_do_{c}")]
-    if missing:
-        raise RuntimeError(f"menu commands without a handler: {', '.join(missing)}")
-
+# What each command of the vocabulary (menus.COMMANDS, the arguments' models) runs: one entry per command.
+MENU_HANDLERS: dict[Command, Callable[[MenuService, Any, str], Awaitable[str]]] = {
+    Command.SHOW_EMOTION: MenuService._do_show_emotion,
+    Command.SAY: MenuService._do_say,
+    Command.STOP_SPEECH: MenuService._do_stop_speech,
+    Command.CONFIGURE_SPEECH: MenuService._do_configure_speech,
+    Command.SET_LANGUAGE: MenuService._do_set_language,
+    Command.PLAY_CLIP: MenuService._do_play_clip,
+    Command.RECORD_CLIP: MenuService._do_record_clip,
+    Command.PLAY_GESTURE: MenuService._do_play_gesture,
+    Command.STOP_GESTURE: MenuService._do_stop_gesture,
+    Command.RECORD_TOGGLE: MenuService._do_record_toggle,
+    Command.SAVE_RECORDING: MenuService._do_save_recording,
+    Command.SET_ARMS_CONTROL: MenuService._do_set_arms_control,
+    Command.SET_HEAD_CONTROL: MenuService._do_set_head_control,
+    Command.ENGAGE: MenuService._do_engage,
+    Command.ESTOP: MenuService._do_estop,
+    Command.HOME: MenuService._do_home,
+    Command.SET_MOTORS: MenuService._do_set_motors,
+    Command.SHOW_STATUS: MenuService._do_show_status,
+    Command.CHANGE_MOTIVATION: MenuService._do_change_motivation,
+    Command.SET_AUTONOMY: MenuService._do_set_autonomy,
+    Command.SET_COMFORT_VIGNETTE: MenuService._do_set_comfort_vignette,
+}

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from client_protocol.events import EventDetail, EventKind, EventLevel
 from robot_models import RobotModel
 from robot_models.types import CameraFrame, MotorMode
 
@@ -419,9 +420,10 @@ class Robot(abc.ABC):
         called."""
         return self._connection_listeners.add(listener)
 
-    def on_event(self, listener: Callable[[str, str, dict[str, Any]], None]) -> Callable[[], None]:
-        """listener(kind, level, detail) on the event loop for what the backend reports (disconnected,
-        reconnected, motor_error, voice_activity, camera_unavailable...), until the returned function is called."""
+    def on_event(self, listener: Callable[[EventKind, EventLevel, EventDetail], None]) -> Callable[[], None]:
+        """listener(kind, level, detail) on the event loop for what the backend reports (the kinds of source
+        `backend` in client_protocol.events.KINDS: disconnected, reconnected, motor_error, voice_activity,
+        camera_unavailable...; the detail is the kind's model), until the returned function is called."""
         return self._event_listeners.add(listener)
 
     @property

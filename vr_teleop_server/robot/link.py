@@ -47,6 +47,7 @@ from typing import Any
 import av
 import numpy as np
 
+from client_protocol import events
 from client_protocol.errors import Refusal
 from robot_models import RobotModel
 
@@ -326,8 +327,9 @@ class RobotLink(Robot):
         self._tell_connection(False)
 
     def _tell_connection(self, up: bool) -> None:
-        self._event_listeners("reconnected" if up else "disconnected", "info" if up else "danger",
-                              {"robot_url": self.url})
+        self._event_listeners(events.EventKind.RECONNECTED if up else events.EventKind.DISCONNECTED,
+                              events.EventLevel.INFO if up else events.EventLevel.DANGER,
+                              events.BackendLink(robot_url=self.url))
         self._connection_listeners(up)
 
     def _call_soon(self, fn: Callable[..., None], *args: Any) -> None:
@@ -338,7 +340,7 @@ class RobotLink(Robot):
         with contextlib.suppress(RuntimeError):  # the loop has closed: nobody to tell
             loop.call_soon_threadsafe(fn, *args)
 
-    def _event(self, kind: str, level: str, detail: dict[str, Any]) -> None:
+    def _event(self, kind: events.EventKind, level: events.EventLevel, detail: events.EventDetail) -> None:
         """Any thread: an event for the listeners on the loop."""
         self._call_soon(self._event_listeners, kind, level, detail)
 
@@ -442,7 +444,8 @@ class RobotLink(Robot):
             return
         direction = None if news.direction is None else self._to_base(news.direction)
         activity = VoiceActivity(news.speaking, direction, time.monotonic())
-        self._event("voice_activity", "info", {"activity": news.speaking, "direction_deg": news.direction})
+        self._event(events.EventKind.VOICE_ACTIVITY, events.EventLevel.INFO,
+                    events.VoiceActivity(activity=news.speaking, direction_deg=news.direction))
         self._call_soon(self._voice_activity, activity)
 
     # ---- the operator's voice ----------------------------------------------------------------------------------

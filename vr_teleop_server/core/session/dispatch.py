@@ -75,9 +75,6 @@ class Session(TopicOps, ServiceOps, ActionOps):
         # client sends unless the URL set it (?time=ros2).
         self._style_learned = False
         self.ping = ping  # a WebSocket ping's round trip, from the transport (link telemetry)
-        self._handlers: dict[str, Callable[[Any], Awaitable[None] | None]] = {
-            name: getattr(self, f"_op_{name}") for name in ops.CLIENT_OP_MODELS
-        }
 
     def apply_login(self, login: Login) -> None:
         """What the WebSocket handshake said (URL query, Authorization header): role, operator, time style."""
@@ -174,7 +171,7 @@ class Session(TopicOps, ServiceOps, ActionOps):
         if learn_style and not self._style_learned and name == "publish":
             self._learn_time_style(op.msg)
         try:
-            result = self._handlers[name](op)
+            result = _HANDLERS_BY_NAME[name](self, op)
             if result is not None:
                 await result
         except (ProtocolError, BusError) as exc:
@@ -294,3 +291,29 @@ class Session(TopicOps, ServiceOps, ActionOps):
         self.bus.drop_owner(self.name)
         self.subscriptions.clear()
         self.outbox.clear()
+
+
+# Each client op's handler, by the op's model (client_protocol.ops.CLIENT_OPS): one entry per op, as rosbridge
+# registers its capabilities. tests/test_protocol_ops.py holds it to the models.
+OP_HANDLERS: dict[type[ops.Op], Callable[[Session, Any], Awaitable[None] | None]] = {
+    ops.Advertise: Session._op_advertise,
+    ops.Unadvertise: Session._op_unadvertise,
+    ops.Publish: Session._op_publish,
+    ops.Subscribe: Session._op_subscribe,
+    ops.Unsubscribe: Session._op_unsubscribe,
+    ops.CallService: Session._op_call_service,
+    ops.AdvertiseService: Session._op_advertise_service,
+    ops.UnadvertiseService: Session._op_unadvertise_service,
+    ops.ServiceResponse: Session._op_service_response,
+    ops.AdvertiseAction: Session._op_advertise_action,
+    ops.UnadvertiseAction: Session._op_unadvertise_action,
+    ops.SendActionGoal: Session._op_send_action_goal,
+    ops.CancelActionGoal: Session._op_cancel_action_goal,
+    ops.ActionFeedback: Session._op_action_feedback,
+    ops.ActionResult: Session._op_action_result,
+    ops.Fragment: Session._op_fragment,
+    ops.SetLevel: Session._op_set_level,
+    ops.Status: Session._op_status,
+    ops.Auth: Session._op_auth,
+}
+_HANDLERS_BY_NAME = {ops.op_name(model): handler for model, handler in OP_HANDLERS.items()}

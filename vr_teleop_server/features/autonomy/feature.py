@@ -24,6 +24,7 @@ from typing import Any
 from client_protocol import names
 from client_protocol.events import ActionFailed, AutonomyLevelChanged, EventKind, EventLevel
 from client_protocol.vocabulary import AutonomyLevel, Decider, Decision, Initiator, Outcome, Owner, Part
+from menus import Command, MenuEntry
 from simclock import WALL, Clock
 
 from ...core.bus import Bus, BusError, Published
@@ -38,7 +39,7 @@ from .rules import Rules
 log = logging.getLogger(__name__)
 
 AUTONOMY_NODE = "/vr_teleop_server/autonomy"  # the caller and sender name of what autonomy does
-ACTION_COMMANDS = ("show_emotion", "say", "play_gesture")  # menu commands that are actions the teacher takes
+ACTION_COMMANDS = (Command.SHOW_EMOTION, Command.SAY, Command.PLAY_GESTURE)  # menu commands that are actions the teacher takes
 FACE_FRESH_S = 1.5  # a face track seen this recently is a candidate (detection: 5 Hz at best, 1 Hz on a busy machine)
 HEAD_HISTORY_S = 3.0  # the head's recent directions, to place a face found in an older frame
 FACE_FORGET_S = 30.0
@@ -49,7 +50,7 @@ EXECUTE_TIMEOUT_S = 60.0
 MIN_SHOWN_S = 1.0  # a proposal is not replaced sooner: a teacher in a headset must be able to read it
 NAME_MAX = 40  # characters of a person's name (the HUD's line has room for little more)
 BUSY_WAIT_S = 30.0  # an accepted action waits this long at most for its part (someone else's speech) to be free
-ACTION_PARTS = {"say": (Part.VOICE,), "show_emotion": (Part.FACE,)}  # play_gesture: the robot's parts
+ACTION_PARTS = {Command.SAY: (Part.VOICE,), Command.SHOW_EMOTION: (Part.FACE,)}  # play_gesture: the robot's parts
 
 
 @dataclass
@@ -104,7 +105,7 @@ class _Published:
 
 class Autonomy:
     def __init__(self, bus: Bus, robot: Robot, owners: Ownership, *, level: AutonomyLevel, attention: AttentionConfig,
-                 rules: Rules, learner: Learner, menu_entry: Callable[[str], tuple[str, str, dict] | None],
+                 rules: Rules, learner: Learner, menu_entry: Callable[[str], MenuEntry | None],
                  may_decide: Callable[[], bool], operator_of: Callable[[str], str], clock: Clock = WALL,
                  seed: int | None = None) -> None:
         self.bus = bus
@@ -422,7 +423,7 @@ class Autonomy:
             return None
         self._queued = None
         entry = self.menu_entry(action)
-        label = entry[0] if entry is not None else action
+        label = entry.label if entry is not None else action
         for old in list(self.pending.values()):
             self._end(old, Outcome.SUPERSEDED, Decider.SERVER, now)
         proposal = Proposal(f"p-{next(self._ids)}", action, label, reason, round(confidence, 3),
@@ -468,10 +469,10 @@ class Autonomy:
         entry = self.menu_entry(action)
         if entry is None:
             return ()
-        if entry[1] == "show_emotion" and entry[2].get("say"):
+        if entry.command == Command.SHOW_EMOTION and entry.args.get("say"):
             return (Part.FACE, Part.VOICE)  # an emotion that says its words never starts over someone else's sentence
         robot = tuple(map(Part, self.robot.model.parts))
-        return ACTION_PARTS.get(entry[1], robot if entry[1] == "play_gesture" else ())
+        return ACTION_PARTS.get(entry.command, robot if entry.command == Command.PLAY_GESTURE else ())
 
     def _busy(self, action: str) -> bool:
         """Whether a part the action uses is someone else's now."""

@@ -34,12 +34,13 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 import cv2
 import numpy as np
 
+from client_protocol.events import CameraProblem, EventKind, EventLevel, Motor, MotorFault
 from robot_models import RobotModel, load_qtrobot
 
 from ..interface import (
@@ -52,6 +53,11 @@ from ..interface import (
     clamp_command,
 )
 from ..link import SPEAKER_RATE, WATCH_PERIOD_S, RobotLink, RobotUnreachable, wrap_deg
+
+if TYPE_CHECKING:
+    from simclock import Clock
+
+    from ...settings import ServerSettings
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +141,7 @@ class LuxaiRobot(RobotLink):
         self._subscriptions: list[Any] = []
 
     @classmethod
-    def from_settings(cls, settings: Any, model: RobotModel, _clock: Any = None) -> LuxaiRobot:
+    def from_settings(cls, settings: ServerSettings, model: RobotModel, _clock: Clock | None = None) -> LuxaiRobot:
         return cls(settings.resolved_robot_url, model, robot_id=settings.robot_id, camera_url=settings.camera_url,
                    mqtt_ca_file=settings.mqtt_ca_file, mqtt_username=settings.mqtt_username,
                    mqtt_password=settings.mqtt_password)
@@ -155,7 +161,7 @@ class LuxaiRobot(RobotLink):
                                     self._list("gesture.list_files", self._sdk_robot.gesture.list_files))
         self.camera_problem = self._enable_camera(self._camera_url)
         if self.camera_problem:
-            self._event("camera_unavailable", "warning", {"problem": self.camera_problem})
+            self._event(EventKind.CAMERA_UNAVAILABLE, EventLevel.WARNING, CameraProblem(problem=self.camera_problem))
         narrowed = [f"{j.name} {j.lower:g}..{j.upper:g}" for j in self._model.joints
                     if (j.lower, j.upper) != (base.joint(j.name).lower, base.joint(j.name).upper)]
         log.info("QTrobot v3 %s (%s) at %s; %s; camera: %s", self._sdk_robot.robot_id or self.robot_id,
@@ -389,9 +395,9 @@ class LuxaiRobot(RobotLink):
         for name, fault in changed.items():
             if fault:
                 log.warning("QTrobot v3 motor %s: %s", name, ", ".join(fault))
-                self._event("motor_error", "danger", {"motor": name, "faults": list(fault)})
+                self._event(EventKind.MOTOR_ERROR, EventLevel.DANGER, MotorFault(motor=name, faults=list(fault)))
             else:
-                self._event("motor_ok", "info", {"motor": name})
+                self._event(EventKind.MOTOR_OK, EventLevel.INFO, Motor(motor=name))
 
     def motor_status(self) -> tuple[MotorStatus, ...]:
         positions = self.joint_state().as_dict()

@@ -36,7 +36,7 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 import roslibpy
@@ -52,6 +52,11 @@ from ..interface import (
     SpeechResult,
 )
 from ..link import RETRY_MAX_S, RETRY_MIN_S, RobotLink, RobotUnreachable, wrap_deg
+
+if TYPE_CHECKING:
+    from simclock import Clock
+
+    from ...settings import ServerSettings
 
 log = logging.getLogger(__name__)
 
@@ -123,7 +128,7 @@ class RosRobot(RobotLink):
         return url
 
     @classmethod
-    def from_settings(cls, settings: Any, model: RobotModel, _clock: Any = None) -> RosRobot:
+    def from_settings(cls, settings: ServerSettings, model: RobotModel, _clock: Clock | None = None) -> RosRobot:
         return cls(settings.resolved_robot_url, model)
 
     # ---- connection ---------------------------------------------------------------------------------------------

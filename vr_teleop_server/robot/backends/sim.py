@@ -10,11 +10,11 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from robot_models import RobotModel, load_qtrobot
 from sim import StandIn
-from sim.pupils import PUPILS
+from sim.pupils import PUPILS, Pupil
 
 from ..interface import (
     CameraFrame,
@@ -30,12 +30,18 @@ from ..interface import (
     NOT_MODELLED,
     Robot,
     SpeechResult,
+    VoiceActivity,
     clamp_command,
     motors_report,
     pcm_level,
     stopped_within,
     stream_waypoints,
 )
+
+if TYPE_CHECKING:
+    from simclock import Clock
+
+    from ...settings import ServerSettings
 
 SETTLE_TOLERANCE_DEG = 1.0  # a gesture counts as finished when every joint is this close to its last waypoint
 
@@ -75,10 +81,14 @@ class SimRobot(Robot):
         return await asyncio.to_thread(cls, model, **options)
 
     @classmethod
-    def from_settings(cls, settings: Any, model: RobotModel, clock: Any = None) -> SimRobot:
+    def from_settings(cls, settings: ServerSettings, model: RobotModel, clock: Clock | None = None) -> SimRobot:
         """Starts MuJoCo and a GL context: call it off the event loop."""
         return cls(model, camera_width=settings.camera_width, camera_height=settings.camera_height,
                    camera_fps=settings.camera_fps, **({"clock": clock} if clock is not None else {}))
+
+    @staticmethod
+    def check_url(_url: str, _robot_id: str | None = None) -> None:
+        """Any: the stand-in runs in this process, and a robot URL names nothing to it."""
 
     @property
     def model(self) -> RobotModel:
@@ -223,10 +233,21 @@ class SimRobot(Robot):
         self._listeners.append(listener)
         return lambda: listener in self._listeners and self._listeners.remove(listener)
 
+    # ------------------------------------------------------------------------- the simulated world (SimulatedWorld)
+    @property
+    def pupils(self) -> tuple[Pupil, ...]:
+        return PUPILS
+
     def hear(self, pcm: bytes, sample_rate: int, channels: int) -> None:
         """On the loop: a piece of a simulated pupil's voice reaches the microphone (sim/pupils.py)."""
         for listener in tuple(self._listeners):
             listener(pcm, sample_rate, channels)
+
+    def report_voice(self, activity: VoiceActivity) -> None:
+        self._voice_activity(activity)
+
+    def pupil_looks(self, name: str, at_robot: bool) -> None:
+        self._standin.pupil_looks(name, at_robot)
 
     def known_people(self) -> tuple[KnownPerson, ...]:
         """The classroom's simulated pupils, by name (sim/pupils.py)."""
