@@ -45,6 +45,7 @@ rules:
 """
 WAIT = 60.0  # a failure bound on a loaded machine, never a measure (bench/autonomy.py measures): face searches
 # run at nice 19, and a suite worker beside them may leave them a few per cent of a core
+PUPILS = ("child_left", "adult_centre", "child_right")  # the stand-in's classroom
 SENTENCE = "I think the answer is four."
 
 
@@ -312,11 +313,12 @@ def test_a_sentence_names_the_pupil_the_robot_attends_to_and_the_teacher(servers
         attended = server.call(lambda: server.server.autonomy.attended_pupil())
         reply = select()
         assert reply == {"success": True, "message": f"said '{attended}, what do you think?'"}, reply
-        assert said[-1] == f"{attended}, what do you think?" and attended == "child_left", said
+        # the pupil attended to when the teacher chose: child_left, or one its hold gave way to after it stopped
+        assert said[-1] == f"{attended}, what do you think?" and attended in PUPILS, (attended, said)
         assert select({"pupil": "Ana"})["message"] == "said 'Ana, what do you think?'"  # the teacher's pick
         assert select({"text": "Thank you, {teacher}."})["message"] == "said 'Thank you, Ms Weber.'"
         refused(select({"text": "Thank you, {lehrer}."}), r"unknown variable \{lehrer\}")
-        assert said[-3:] == ["child_left, what do you think?", "Ana, what do you think?", "Thank you, Ms Weber."]
+        assert said[-3:] == [f"{attended}, what do you think?", "Ana, what do you think?", "Thank you, Ms Weber."]
     finally:
         server.call(lambda: setattr(service, "provider", provider))
         attention.close()
