@@ -31,6 +31,7 @@ from support import (
 from client_protocol import names
 
 pytestmark = pytest.mark.slow  # a robot-side server, dropped and back
+WAIT = 30.0  # a failure bound on a loaded machine, never a measure
 
 
 def robot_side(servers: ServerFactory, port: int) -> RunningServer:
@@ -85,22 +86,22 @@ def test_the_backend_reconnects_when_the_robot_comes_back(robot_and_server, serv
         headset = Headset(ros).start()
         engage(ros)
         headset.head_orientation = unity_yaw_pitch(20)
-        assert wait_for(lambda: abs(state["robot"].server.robot.standin.joint_positions()["HeadYaw"] - 20) < 2, 10)
+        assert wait_for(lambda: abs(state["robot"].server.robot.standin.joint_positions()["HeadYaw"] - 20) < 2, WAIT)
         state["robot"].stop()  # the robot's rosbridge goes away
         assert wait_for(lambda: teleop.latest.get("state") == "robot_lost"
-                        and not teleop.latest["robot_connected"], 10), teleop.latest
-        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), 5)
-        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"), 5)
+                        and not teleop.latest["robot_connected"], WAIT), teleop.latest
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), WAIT)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"), WAIT)
         refused(call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True}), "disconnected")
         # refused, not queued (emotion_show has only `status`)
         refused(call(ros, "/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": "QT/sad"}))
         state["robot"] = robot_side(servers, port)  # back, on the same port
-        assert wait_for(lambda: teleop.latest.get("robot_connected"), 20), teleop.latest
-        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), 5)
-        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 5)
+        assert wait_for(lambda: teleop.latest.get("robot_connected"), WAIT), teleop.latest
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), WAIT)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), WAIT)
         engage(ros)  # resuming needs a fresh engage; the headset's orientation now (20 deg left) is the new zero...
         headset.head_orientation = unity_yaw_pitch(-10)  # ...so turning to 10 deg right is 30 deg right
-        assert wait_for(lambda: abs(head_yaw() + 30) < 2, 15), head_yaw()
+        assert wait_for(lambda: abs(head_yaw() + 30) < 2, WAIT), head_yaw()
         assert still(lambda: abs(head_yaw() + 30) < 2, teleop), head_yaw()  # there, not passing through
         headset.stop()
         assert state["robot"].server.robot.standin.emotion != "sad"  # the refused emotion did not burst out later
