@@ -174,7 +174,7 @@ class TeleopServer:
 
     def _publish_description(self) -> None:
         """The robot's joints and limits, latched, so that clients (the dashboard's gauges) hard-code none."""
-        self.bus.declare_topic(names.DESCRIPTION_TOPIC, "std_msgs/String", latched=True, persistent=True)
+        self.bus.declare_topic(names.DESCRIPTION_TOPIC, "std_msgs/String", state=True, persistent=True)
         joints = [{"name": n, "part": part, "lower": self.model.joint(n).lower, "upper": self.model.joint(n).upper,
                    "home": self.model.joint(n).home, "max_velocity": self.model.joint(n).max_velocity}
                   for part, joint_names in self.model.parts.items() for n in joint_names]
