@@ -192,7 +192,8 @@ def run(args: argparse.Namespace) -> int:
     reports = [r for name in groups for r in runs[name]]
     if len(groups) > 1 or args.repeat is not None:
         print(file=notes)
-        print(kind.table([r for name in groups for r in runs[name][:1]] if args.repeat is None else reports), file=notes)
+        shown = [r for name in groups for r in runs[name][:1]] if args.repeat is None else reports
+        print(kind.table(shown), file=notes)
     if args.repeat is not None:
         print(file=notes)
         print(kind.stats_table(runs), file=notes)

@@ -18,6 +18,7 @@ from .classroom_file import ClassroomStudy
 from .kind import HostedTrial, Progress, Ran, ServerParts, StudyKind, TrialReport, fmt
 from .metrics.classroom import ClassroomResult, classroom_metrics, classroom_summary, read_classroom
 from .network import ImpairedConnection, profiles
+from .qam_measured import Measured, lesson_items
 from .trial import TrialLog
 
 
@@ -156,6 +157,9 @@ class ClassroomKind(StudyKind):
 
     def measures(self, study: ClassroomStudy, condition: str, recording: Path) -> ClassroomResult:
         return classroom_metrics(read_classroom(recording, study.lesson_s))
+
+    def qam_items(self, recording: Path) -> list[Measured]:
+        return lesson_items(recording)
 
     def matches(self, live: ClassroomResult, recorded: ClassroomResult) -> bool:
         return live == recorded

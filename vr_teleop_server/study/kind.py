@@ -3,9 +3,10 @@
 A kind says how to load its file (its `model`), what its conditions are, how to run one trial on a server it is
 given (`host`: the condition on the server, for `serve --study` and the pilot, whatever the backend; `run_on`: a
 whole trial with its simulated people on `study run`'s own stand-in, in this process or a Dask worker), how to
-measure a trial from its recording (`measures`), and how to summarise trials (`summary`, `table`, `stats_table`).
-Whatever differs between kinds lives in a kind's class; the command line, the live study, the pilot and the
-runner ask the kind and never test which kind it is. Every trial gives one `TrialReport`.
+measure a trial from its recording (`measures`; QAM's objective items: `qam_items`), and how to summarise trials
+(`summary`, `table`, `stats_table`). Whatever differs between kinds lives in a kind's class; the command line, the
+live study, the pilot, the runner and the report ask the kind and never test which kind it is. Every trial gives
+one `TrialReport`.
 """
 
 from __future__ import annotations
@@ -134,6 +135,10 @@ class StudyKind(ABC):
     @abstractmethod
     def measures(self, study: Any, condition: str, recording: Path) -> Any:
         """A trial's measures from its recording."""
+
+    @abstractmethod
+    def qam_items(self, recording: Path) -> list[Any]:
+        """QAM's items P1-P6 a trial's recording gives (qam_measured.Measured; each missing one with its reason)."""
 
     @abstractmethod
     def matches(self, live: Any, recorded: Any) -> bool:

@@ -5,10 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from client_protocol import names
 from client_protocol.files import load_model_file, read_document
 
+from ..recording.format import NotARecording
 from .classroom_kind import ClassroomKind
 from .kind import StudyKind
+from .qam_measured import Measured, all_missing, recording_kind
 from .studyfile import StudyFileError
 from .task_kind import TaskKind
 
@@ -29,3 +32,19 @@ def load_study(path: Path | str) -> Any:
 def kind_of(study: Any) -> StudyKind:
     """The kind of a loaded study file."""
     return KINDS[study.kind]
+
+
+def measure_qam(path: Path) -> list[Measured]:
+    """QAM's items P1-P6 from one trial recording, by the kind its /study/session names; each missing one with
+    its reason."""
+    if not path.is_file():
+        return all_missing(f"no recording: {path.name} was not found")
+    try:
+        name = recording_kind(path)
+    except (NotARecording, OSError, ValueError) as exc:
+        return all_missing(f"the recording cannot be read ({exc})")
+    if name is None:
+        return all_missing(f"the recording has no {names.STUDY_SESSION_TOPIC}, so the kind of study is unknown")
+    if name not in KINDS:
+        return all_missing(f"the recording's study is of kind {name!r}, which this version does not know")
+    return KINDS[name].qam_items(path)

@@ -17,6 +17,7 @@ from ..core.tasks import cancel_and_wait
 from .kind import HostedTrial, Progress, Ran, ServerParts, StudyKind, TrialReport, fmt
 from .metrics import FluencyResult, compute_metrics, read_trial
 from .metrics.fluency import fluency_summary
+from .qam_measured import Measured, task_items
 from .people import SimulatedPeople
 from .runtime import TrialRuntime
 from .studyfile import Study
@@ -142,6 +143,9 @@ class TaskKind(StudyKind):
 
     def measures(self, study: Study, condition: str, recording: Path) -> FluencyResult:
         return recorded_metrics(recording, condition)
+
+    def qam_items(self, recording: Path) -> list[Measured]:
+        return task_items(recording)
 
     def matches(self, live: FluencyResult, recorded: FluencyResult) -> bool:
         """To 1e-9: JSON keeps floats to the last bit anyway."""
