@@ -15,7 +15,7 @@ from simclock import Clock
 from ..client import Client, connect
 from .classroom import Pupils, Teacher
 from .classroom_file import ClassroomStudy
-from .kind import HostedTrial, Progress, Ran, ServerParts, StudyKind, TrialReport, fmt
+from .kind import HostedTrial, Overran, Progress, Ran, ServerParts, StudyKind, TrialReport, fmt
 from .metrics.classroom import ClassroomResult, classroom_metrics, classroom_summary, read_classroom
 from .network import ImpairedConnection, profiles
 from .qam_measured import Measured, lesson_items
@@ -82,7 +82,7 @@ class ClassroomKind(StudyKind):
 
     async def run_on(self, server: Any, study: ClassroomStudy, condition: str, *, seed: int, clock: Clock,
                      timeout: float, network: str | None, progress: Progress | None) -> Ran:
-        """`timeout` (on `clock`) shorter than the lesson stops it there: TimeoutError."""
+        """`timeout` (on `clock`) shorter than the lesson stops it there: Overran."""
         if network is not None and not clock.simulated:
             raise ValueError("--network runs on the simulated clock only (--speed max): at real time, run the server "
                              "behind the WAN emulator (docs/guides/deployment.md)")
@@ -122,7 +122,7 @@ class ClassroomKind(StudyKind):
                 await asyncio.gather(acting, return_exceptions=True)
                 await teacher.close()
             if timeout < study.lesson_s:
-                raise TimeoutError(f"the lesson stopped at {timeout:g} s")
+                raise Overran(condition)
         finally:
             await teacher_client.close()
             await pupils_client.close()

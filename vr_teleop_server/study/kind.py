@@ -29,6 +29,10 @@ from ..robot.interface import Robot
 Progress = Callable[[float, int], None]  # (elapsed s, things done): how a running trial goes
 
 
+class Overran(Exception):
+    """A trial not over within its timeout (run_on); `study run` words it as a sentence (tools/timeout.py)."""
+
+
 class Measures(Protocol):
     """A trial's measures, as any kind gives them."""
 
@@ -115,8 +119,8 @@ class StudyKind(ABC):
     @abstractmethod
     async def run_on(self, server: Any, study: Any, condition: str, *, seed: int, clock: Clock, timeout: float,
                      network: str | None, progress: Progress | None) -> Ran:
-        """One whole trial on `server` (a started app.TeleopServer) with the kind's simulated people; TimeoutError
-        when it has not ended within `timeout` on `clock`."""
+        """One whole trial on `server` (a started app.TeleopServer) with the kind's simulated people; Overran when
+        it has not ended within `timeout` on `clock`."""
 
     @abstractmethod
     async def host(self, study: Any, condition: str, parts: ServerParts) -> HostedTrial:

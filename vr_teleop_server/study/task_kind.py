@@ -14,7 +14,7 @@ from typing import Any
 from simclock import Clock
 
 from ..core.tasks import cancel_and_wait
-from .kind import HostedTrial, Progress, Ran, ServerParts, StudyKind, TrialReport, fmt
+from .kind import HostedTrial, Overran, Progress, Ran, ServerParts, StudyKind, TrialReport, fmt
 from .metrics import FluencyResult, compute_metrics, read_trial
 from .metrics.fluency import fluency_summary
 from .qam_measured import Measured, task_items
@@ -107,6 +107,8 @@ class TaskKind(StudyKind):
             reporting = asyncio.ensure_future(_report_progress(runtime, progress)) if progress is not None else None
             try:
                 result = await asyncio.wait_for(runtime.run(), timeout)
+            except TimeoutError:
+                raise Overran(condition) from None
             finally:
                 await cancel_and_wait(reporting)
                 acting.cancel()

@@ -30,7 +30,7 @@ from simclock import run as run_on_clock
 
 from ..app import TeleopServer
 from ..settings import ServerSettings
-from ..study.kind import Progress, TrialReport
+from ..study.kind import Overran, Progress, TrialReport
 from ..study.kinds import kind_of
 from .timeout import TrialTimedOut
 
@@ -62,7 +62,7 @@ async def run_trial(study: Any, trial: str, *, record: Path | None = None, timeo
         try:
             ran = await kind.run_on(server, study, trial, seed=seed, clock=clock, timeout=timeout, network=network,
                                     progress=progress)
-        except TimeoutError:
+        except Overran:
             raise TrialTimedOut(name, timeout, clock.simulated, record) from None
         finally:
             await server.stop()
