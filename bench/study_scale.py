@@ -23,11 +23,9 @@ from pathlib import Path
 
 from distributed import LocalCluster
 
-from vr_teleop_server.study.studyfile import load_study
+from vr_teleop_server.study.kinds import kind_of, load_study
 from vr_teleop_server.tools.distributed import Workers, run_all
-from vr_teleop_server.study.classroom_file import ClassroomStudy
-from vr_teleop_server.tools.classroom_runner import classroom_table
-from vr_teleop_server.tools.study_runner import TrialDone, TrialJob, run_job, table
+from vr_teleop_server.tools.study_runner import TrialDone, TrialJob, run_job
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -75,7 +73,7 @@ def main() -> int:
     if args.one_worker_only:
         for job in jobs:
             d = here[job.key]
-            sim = d.report.live.t1
+            sim = d.report.live.duration_s
             print(f"  {job.key}: {sim:.0f} s simulated in {d.wall_s:.1f} s wall (x{sim / d.wall_s:.2f}), "
                   f"CPU {d.cpu_s:.1f} s (x{sim / d.cpu_s:.2f} simulated per CPU second)")
         print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
@@ -89,7 +87,7 @@ def main() -> int:
     def per_trial(done: dict[str, TrialDone]) -> str:
         w = [d.wall_s for d in done.values()]
         c = [d.cpu_s for d in done.values()]
-        sim = [d.report.live.t1 for d in done.values()]
+        sim = [d.report.live.duration_s for d in done.values()]
         return (f"wall {statistics.mean(w):5.2f} s (x{sum(sim) / sum(w):4.1f}), CPU {statistics.mean(c):5.2f} s, "
                 f"peak RSS {max(d.peak_rss_mb for d in done.values()):4.0f} MB (with the render process)")
 
@@ -118,7 +116,7 @@ def main() -> int:
 
     equal = metrics(here) == metrics(one) == metrics(two)
     print(f"tables equal metric for metric (this process, 1 worker, 2 workers): {equal}")
-    shape = classroom_table if isinstance(study, ClassroomStudy) else table
+    shape = kind_of(study).table
     print(shape([two[job.key].report for job in jobs]))
     return 0 if equal else 1
 

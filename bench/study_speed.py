@@ -17,8 +17,11 @@ from pathlib import Path
 
 from simclock import WALL, SimulatedClock
 from simclock import run as run_on_clock
-from vr_teleop_server.study.studyfile import load_study
-from vr_teleop_server.tools.study_runner import METRICS, TrialReport, run_trial, table
+from vr_teleop_server.study.kind import TrialReport
+from vr_teleop_server.study.kinds import KINDS, load_study
+from vr_teleop_server.tools.study_runner import run_trial
+
+TASK = KINDS["task"]
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -49,25 +52,25 @@ def main() -> int:
         for name in study.trials:
             report, wall, cpu = run(study, name, Path(tmp) / f"{name}-max.mcap", simulated=True)
             fast.append(report)
-            t1 = report.live.t1
+            t1 = report.live.duration_s
             total = [total[0] + t1, total[1] + wall, total[2] + cpu]
             print(f"{name:<18} at max: {t1:6.1f} s of trial in {wall:6.1f} s wall = x{t1 / wall:5.1f}, "
                   f"{cpu:6.1f} CPU s = x{t1 / cpu:5.1f} per CPU second; {report.outcome}", flush=True)
         print(f"{'all trials':<18} at max: {total[0]:6.1f} s of trials in {total[1]:6.1f} s wall = "
               f"x{total[0] / total[1]:5.1f}, x{total[0] / total[2]:5.1f} per CPU second")
-        print(table(fast))
+        print(TASK.table(fast))
         if args.max_only:
             return 0
         for name in study.trials:
             report, wall, _cpu = run(study, name, Path(tmp) / f"{name}-x1.mcap", simulated=False)
             slow.append(report)
-            print(f"{name:<18} at x1: {report.live.t1:6.1f} s of trial in {wall:6.1f} s; {report.outcome}", flush=True)
-        print(table(slow))
+            print(f"{name:<18} at x1: {report.live.duration_s:6.1f} s of trial in {wall:6.1f} s; {report.outcome}", flush=True)
+        print(TASK.table(slow))
         worst = 0.0
         for a, b in zip(fast, slow):
             x, y = a.live.to_json_dict(), b.live.to_json_dict()
             parts = []
-            for key in METRICS:
+            for key in TASK.metrics:
                 if x.get(key) is None or y.get(key) is None:
                     continue
                 diff = abs(x[key] - y[key]) / max(abs(y[key]), 1e-9)

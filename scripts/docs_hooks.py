@@ -348,7 +348,8 @@ def config_menu() -> str:
 
 
 def config_study() -> str:
-    from vr_teleop_server.study.studyfile import ClassroomStudy, Study
+    from vr_teleop_server.study.classroom_file import ClassroomStudy
+    from vr_teleop_server.study.studyfile import Study
 
     return model_section("a study file", Study) + model_section("a classroom study file", ClassroomStudy)
 

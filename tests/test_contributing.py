@@ -20,7 +20,8 @@ from vr_teleop_server.core.transport import PAGES
 from vr_teleop_server.features import menu_service
 from vr_teleop_server.robot import backends
 from vr_teleop_server.robot.backends import BACKENDS
-from vr_teleop_server.study.studyfile import KINDS
+from vr_teleop_server.study.kind import StudyKind
+from vr_teleop_server.study.kinds import KINDS
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = (ROOT / "docs" / "guides" / "contributing.md").read_text(encoding="utf-8")
@@ -54,6 +55,15 @@ def test_each_table_it_names_is_in_the_file_it_names(table, module):
     path = Path(module.__file__).relative_to(ROOT).as_posix()
     files = re.findall(r"`([\w./-]+\.py)`", bullet(table))
     assert hasattr(module, table) and any(path.endswith(f) for f in files), (table, path, files)
+
+
+def test_the_study_kind_bullet_names_the_protocol():
+    """Every method a kind must give is named in its bullet, and every lower-case name there is one of StudyKind's."""
+    named = set(re.findall(r"`([a-z_]+)`", bullet("KINDS").split("\n\n")[0]))
+    required = set(StudyKind.__abstractmethods__) | {"model", "metrics", "conditions"}
+    assert required <= named, sorted(required - named)
+    unknown = {n for n in named if not hasattr(StudyKind, n) and n not in StudyKind.__annotations__}
+    assert unknown <= {"task", "classroom", "load_study"}, unknown
 
 
 def test_the_files_it_names_exist():

@@ -219,7 +219,8 @@ def test_the_configuration_page_has_every_key_of_every_file(site):
     from menus.model import MenuFile
     from vr_teleop_server.features.motivation import MotivationConfig
     from vr_teleop_server.questionnaires.instrument import Instrument
-    from vr_teleop_server.study.studyfile import ClassroomStudy, Study
+    from vr_teleop_server.study.classroom_file import ClassroomStudy
+    from vr_teleop_server.study.studyfile import Study
     from vr_teleop_server.teleop import TeleopSettings
 
     page = read_page(site, "reference/configuration")

@@ -22,9 +22,10 @@ from vr_teleop_server.client import Client, Refused, connect
 from vr_teleop_server.study.people import SimulatedPeople
 from vr_teleop_server.study.perception import ArucoTracker
 from vr_teleop_server.features.faces import FaceDetector
-from vr_teleop_server.tools.study_runner import recorded_metrics
+from vr_teleop_server.study.task_kind import recorded_metrics
 from vr_teleop_server.study.runtime import TrialResult, TrialRuntime
-from vr_teleop_server.study.studyfile import Study, StudyFileError, load_study
+from vr_teleop_server.study.kinds import load_study
+from vr_teleop_server.study.studyfile import Study, StudyFileError
 
 pytestmark = pytest.mark.slow  # study trials run whole
 

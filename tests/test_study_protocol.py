@@ -11,7 +11,8 @@ import yaml
 from vr_teleop_server.study.design import williams_rows
 from vr_teleop_server.study.folder import StudyFolder
 from vr_teleop_server.study.protocol import plan_of
-from vr_teleop_server.study.studyfile import StudyFileError, load_study
+from vr_teleop_server.study.kinds import load_study
+from vr_teleop_server.study.studyfile import StudyFileError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = [ROOT / "examples" / "classroom.yaml", ROOT / "examples" / "toolbox.yaml"]

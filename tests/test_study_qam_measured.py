@@ -133,7 +133,9 @@ def check(rows: pd.DataFrame, folder: Path, expected_of) -> int:
 @pytest.fixture(scope="module")
 def classroom(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("classroom")
-    return pilot(tmp, "classroom", 2, lambda text: text.replace("lesson_s: 180", "lesson_s: 10"))
+    # ten-second lessons in which the pupils speak often enough that every lesson has speeches to attend to
+    return pilot(tmp, "classroom", 2, lambda text: text.replace("lesson_s: 180", "lesson_s: 10")
+                 .replace("speak_per_min: 2.0", "speak_per_min: 12.0"))
 
 
 def test_a_lessons_qam_items_are_those_its_recording_holds(classroom, tmp_path):
@@ -153,6 +155,33 @@ def test_a_lessons_qam_items_are_those_its_recording_holds(classroom, tmp_path):
         assert sum(measures[item]["missing"].values()) == len(missing)
         assert sorted((g["participant"], g["condition"], g["reason"]) for g in measures[item]["missing_reasons"]) \
             == sorted(zip(missing["participant"], missing["condition"], missing["note"]))
+
+
+def test_each_trials_recording_opens_with_the_state_and_holds_none_of_the_previous_trial(classroom, tmp_path):
+    """A trial after the first starts its recording on a running server: it opens with the state topics' last
+    messages (who is in the classroom, before the trial's own first state), and the previous trial's /study/trial
+    (history) is not in it; so every completed trial has P4-P6 from its own recording."""
+    log = [json.loads(line) for line in (classroom / "events.jsonl").read_text().splitlines()]
+    later = 0
+    for enrol in (e for e in log if e["what"] == "enrol"):
+        for condition in enrol["order"]:
+            first: dict[str, float] = {}
+            trials = []
+            for t, topic, m in messages(classroom / enrol["participant"] / f"{condition}.mcap"):
+                first.setdefault(topic, t)
+                if topic == TRIAL:
+                    trials.append(m["trial"])
+            assert first[BYSTANDERS] <= first[TRIAL], (enrol["participant"], condition)
+            assert trials and set(trials) == {condition}, (enrol["participant"], condition, set(trials))
+            later += condition != enrol["order"][0]
+    assert later == 2 * 2  # two participants' second and third trials
+    rows, _ = report(classroom, tmp_path)
+    completed = {(e["participant"], e["condition"]) for e in log if e["what"] == "trial_end"
+                 and e["outcome"] == "completed"}
+    assert len(completed) == 2 * 3
+    measured = rows[rows["measure"].isin(["qam.P4", "qam.P5", "qam.P6"])]
+    assert {(r.participant, r.condition) for r in measured.itertuples()} == completed
+    assert measured["value"].notna().all(), measured[measured["value"].isna()]["note"].tolist()
 
 
 def test_a_recording_without_a_topic_says_so(classroom, tmp_path):

@@ -45,6 +45,7 @@ from .robot.world import SimulatedWorld
 from .settings import ServerSettings
 
 if TYPE_CHECKING:
+    from .study.kind import ServerParts
     from .study.live import LiveStudy
 
 log = logging.getLogger(__name__)
@@ -84,7 +85,7 @@ class TeleopServer:
             raise ValueError(f"--study runs its trials on a robot: give --backend sim, ros or luxai, not "
                              f"{settings.backend!r}")
         if settings.study is not None:  # the study tools' libraries (scipy) only when a study is hosted
-            from .study.studyfile import load_study
+            from .study.kinds import load_study
             self.study_file = load_study(settings.study)
             if self.study_file.consent_form is None:
                 raise ValueError(f"{settings.study}: the study file declares no consent_form (the version of the "
@@ -174,7 +175,7 @@ class TeleopServer:
 
     def _publish_description(self) -> None:
         """The robot's joints and limits, latched, so that clients (the dashboard's gauges) hard-code none."""
-        self.bus.declare_topic(names.DESCRIPTION_TOPIC, "std_msgs/String", latched=True, persistent=True)
+        self.bus.declare_topic(names.DESCRIPTION_TOPIC, "std_msgs/String", state=True, persistent=True)
         joints = [{"name": n, "part": part, "lower": self.model.joint(n).lower, "upper": self.model.joint(n).upper,
                    "home": self.model.joint(n).home, "max_velocity": self.model.joint(n).max_velocity}
                   for part, joint_names in self.model.parts.items() for n in joint_names]
@@ -302,25 +303,32 @@ class TeleopServer:
             await self.robot.aclose()
         self.recorder = None
 
+    def study_parts(self) -> ServerParts:
+        """What a trial of any kind needs of this server to run on it (study/kind.py)."""
+        from .study.kind import ServerParts
+
+        assert self.robot is not None
+        autonomy = self.autonomy
+        return ServerParts(self.bus, self.robot, self.registry, self.owners,
+                           self.luxai.gestures if self.luxai is not None else None,
+                           (lambda level: autonomy.set_level(level, "study")) if autonomy is not None else None,
+                           autonomy_level=lambda: autonomy.level if autonomy is not None else None,
+                           camera_fps=self.settings.record_camera_fps, clock=self.clock, blur=self.face_blur)
+
     def _start_study(self) -> None:
         """`serve --study FILE --study-dir DIR`: the folder opened (a trial a crash cut marked interrupted)."""
         from .study.folder import StudyFolder
-        from .study.live import LiveStudy, ServerParts, TrialHost
+        from .study.kinds import kind_of
+        from .study.live import LiveStudy, TrialHost
         from .study.protocol import plan_of
 
         s, study = self.settings, self.study_file
         assert s.study_dir is not None and self.robot is not None
-        kind = study.kind
         clock = self.clock  # the log's times on the server's clock: a pilot at --speed max logs simulated times
         folder = StudyFolder.open(s.study_dir, plan_of(study), who="server",
                                   clock=lambda: datetime.fromtimestamp(clock.time(), UTC))
-        autonomy = self.autonomy
-        parts = ServerParts(self.bus, self.robot, self.registry, self.owners,
-                            self.luxai.gestures if self.luxai is not None else None,
-                            (lambda level: autonomy.set_level(level, "study")) if autonomy is not None else None,
-                            camera_fps=s.record_camera_fps, clock=self.clock, blur=self.face_blur)
-        self.live_study = LiveStudy(self.bus, folder, TrialHost(study, kind, parts), self._who,
-                                    autonomy_level=lambda: autonomy.level if autonomy is not None else None)
+        self.live_study = LiveStudy(self.bus, folder, TrialHost(study, kind_of(study), self.study_parts()),
+                                    self._who)
         self._start(self.live_study)
         log.info("hosting the live study %s in %s", folder.plan.study, s.study_dir)
 

@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 from ..study.metrics.fluency import compute_metrics
-from ..study.metrics.model import FDEL_DIRECTIONS, FluencyResult
+from ..study.metrics.fluency import fluency_summary as summary
+from ..study.metrics.model import FDEL_DIRECTIONS
 from ..study.metrics.model import MetricsInputError
 from ..study.metrics.readers import read_interventions, read_trial
 
@@ -121,32 +122,3 @@ def _report(out: Path | None, text: str, data: dict) -> object:
             out.write_text(dumped + "\n", encoding="utf-8")
             print(f"wrote {out}", file=notes)
     return notes
-
-
-def summary(name: str, r: FluencyResult) -> str:
-    def f(x: float | None) -> str:
-        return "  n/a" if x is None else f"{x:5.2f}"
-
-    c = r.counts
-    lines = [
-        f"{name}: {c.human_actions} human and {c.robot_actions} robot actions, {c.unfinished} unfinished",
-        f"T0 {r.t0:.2f} s   T1 {r.t1:.2f} s   efficiency {r.efficiency_s:.2f} s",
-        f"  H-IDLE     {f(r.h_idle)}   human active {r.human_active_s:.2f} s",
-        f"  R-IDLE     {f(r.r_idle)}   robot active {r.robot_active_s:.2f} s",
-        f"  C-ACT      {f(r.c_act)}   both active {r.concurrent_s:.2f} s",
-        f"  BOTH-IDLE  {f(r.both_idle)}   neither active {r.both_idle_s:.2f} s",
-        f"  F-DEL      {f(r.f_del)}   {r.fdel_direction.replace('_', ' ')}; {c.handovers} hand-overs "
-        f"({c.handovers_human_to_robot} human to robot, {c.handovers_robot_to_human} robot to human)",
-    ]
-    if r.interventions_known:
-        lines.append(f"  effectiveness {f(r.effectiveness)}   {c.intervened_subtasks} of {c.planned_subtasks} "
-                     f"planned robot subtasks intervened ({c.interventions} intervention"
-                     f"{'' if c.interventions == 1 else 's'}, "
-                     f"{r.intervention_s:.2f} s)")
-    else:
-        lines.append("  effectiveness  n/a   no interventions given (--interventions FILE)")
-    for u in r.unfinished:
-        lines.append(f"  unfinished: {u.agent} {u.action!r} from {u.start:.2f} s, clipped to T1")
-    if r.undefined_reason:
-        lines.append(f"  note: {r.undefined_reason}")
-    return "\n".join(lines)

@@ -15,17 +15,15 @@ from pathlib import Path
 
 from . import study_pilot, study_report, study_withdraw
 from .examples import STUDIES, study_file
-from .metrics import summary
 from .replay import speed as parse_speed
 from ..tools.distributed import Workers, WorkersError, add_arguments, positive
 from ..tools.distributed import run_all as run_everywhere
-from ..tools.study_runner import TrialJob, TrialReport, run_job, stats_table, summarise, table
+from ..tools.study_runner import TrialJob, run_job
 from ..tools.timeout import TrialTimedOut
-from ..study.classroom_file import ClassroomStudy
-from ..study.metrics.classroom import classroom_summary
+from ..study.kind import StudyKind, TrialReport
+from ..study.kinds import KINDS, kind_of, load_study
 from ..study.network import profiles
-from ..study.studyfile import Study, StudyFileError, load_study
-from ..tools.classroom_runner import classroom_stats_table, classroom_table, summarise_classroom
+from ..study.studyfile import StudyFileError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -74,12 +72,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     study_report.register(sub)
 
 
-TASK_S_PER_PART = 8.5  # a task study's trial at real time, per part: the toolbox's six parts take 47 to 53 s
-
-
-def _plan(study: Study | ClassroomStudy, jobs: list[TrialJob], simulated: bool, workers: Workers) -> str:
+def _plan(kind: StudyKind, study: object, jobs: list[TrialJob], simulated: bool, workers: Workers) -> str:
     """What is about to run and how long it takes at this speed; at --speed max, why there is nothing to watch."""
-    each = study.lesson_s if isinstance(study, ClassroomStudy) else len(study.parts) * TASK_S_PER_PART
+    each = kind.trial_s(study)
     trials = f"{len(jobs)} trial{'' if len(jobs) == 1 else 's'}"
     where = "" if workers.in_process else f" on {workers.describe()}"
     total = each * len(jobs)
@@ -129,9 +124,10 @@ def run(args: argparse.Namespace) -> int:
     except StudyFileError as exc:
         print(f"vr-teleop study: error: {exc}", file=sys.stderr)
         return 2
-    classroom = isinstance(study, ClassroomStudy)
-    if args.network is not None and not classroom:
-        print("vr-teleop study: error: --network is for classroom studies (kind: classroom)", file=sys.stderr)
+    kind = kind_of(study)
+    if args.network is not None and not kind.networks:
+        networked = " or ".join(k.name for k in KINDS.values() if k.networks)
+        print(f"vr-teleop study: error: --network is for {networked} studies (kind: {networked})", file=sys.stderr)
         return 2
     if args.network is not None and not math.isinf(args.speed):
         print("vr-teleop study: error: --network runs on the simulated clock only: add --speed max (at real time, "
@@ -165,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         print("vr-teleop study: error: --port is for trials run one after another at real time (their servers "
               "then take the port in turn)", file=sys.stderr)
         return 2
-    print(_plan(study, jobs, simulated, workers), file=notes, flush=True)
+    print(_plan(kind, study, jobs, simulated, workers), file=notes, flush=True)
     try:
         for job, result in run_everywhere(run_job, jobs, workers, name=lambda job: job.key,
                                             progress=not workers.in_process, unit="trial"):
@@ -176,17 +172,11 @@ def run(args: argparse.Namespace) -> int:
                 report = dataclasses.replace(report, recording=path)
             done[job.key] = report
             seeded = f" (seed {job.seed})" if args.repeat is not None else ""
-            describe = classroom_summary if classroom else summary
-            print(describe(f"{job.name}{seeded} ({report.outcome})", report.live), file=notes)
+            print(kind.summary(f"{job.name}{seeded} ({report.outcome})", report.live), file=notes)
             if simulated:
-                t1, wall = report.live.t1, result.wall_s
+                t1, wall = report.live.duration_s, result.wall_s
                 print(f"  {t1:.1f} s of trial in {wall:.1f} s (x{t1 / wall:.1f})", file=notes)
-            if classroom:
-                print(f"  recording {report.recording}: the measures are read from it", file=notes, flush=True)
-            else:
-                print(f"  recording {report.recording}: metrics from it "
-                      f"{'equal' if report.recording_matches else 'DIFFER FROM'} the live ones", file=notes,
-                      flush=True)
+            print(kind.recording_line(report), file=notes, flush=True)
             for refusal in report.refusals:
                 print(f"  operator command refused: {refusal}", file=notes)
     except TrialTimedOut as exc:
@@ -200,21 +190,20 @@ def run(args: argparse.Namespace) -> int:
         return 2
     runs = {name: [done[job.key] for job in jobs if job.name == name] for name in groups}
     reports = [r for name in groups for r in runs[name]]
-    shape, stats, summarised = (classroom_table, classroom_stats_table, summarise_classroom) if classroom else \
-        (table, stats_table, summarise)
     if len(groups) > 1 or args.repeat is not None:
         print(file=notes)
-        print(shape([r for name in groups for r in runs[name][:1]] if args.repeat is None else reports), file=notes)
+        shown = [r for name in groups for r in runs[name][:1]] if args.repeat is None else reports
+        print(kind.table(shown), file=notes)
     if args.repeat is not None:
         print(file=notes)
-        print(stats(runs), file=notes)
+        print(kind.stats_table(runs), file=notes)
     if args.json is not None:
         if args.repeat is None:
             document = {r.trial: {"outcome": r.outcome, "modules": list(r.modules), **r.live.to_json_dict()}
                         for r in reports}
         else:
             document = {name: {"modules": list(trial_runs[0].modules), "seeds": seeds,
-                               "stats": summarised(trial_runs),
+                               "stats": kind.summarise(trial_runs),
                                "runs": [{"seed": r.seed, "outcome": r.outcome, **r.live.to_json_dict()}
                                         for r in trial_runs]}
                         for name, trial_runs in runs.items()}

@@ -91,6 +91,10 @@ class Topic:
     type: str
     known: bool
     latched: bool = False
+    # Its last message is the server's current state (the robot's description, the autonomy level, who is in the
+    # classroom), not an event: a recording that starts later opens with it. A trial's own events (/study/*) are
+    # history and never are: latched for a late subscriber, but the next recording must not begin with them.
+    state: bool = False
     last: Published | None = None
     subscribers: dict[int, tuple[str, Subscriber]] = field(default_factory=dict)  # token -> (owner, callback)
     publishers: dict[str, int] = field(default_factory=dict)  # owner -> advertise count
@@ -183,8 +187,9 @@ class Bus:
 
     # ---- topics -------------------------------------------------------------------------------------------------
     def declare_topic(self, name: str, type_name: str, *, latched: bool = False, persistent: bool = False,
-                      queue_bound: int | None = None) -> Topic:
-        """Creates `name` with `type_name`, or checks that it already has that type."""
+                      state: bool = False, queue_bound: int | None = None) -> Topic:
+        """Creates `name` with `type_name`, or checks that it already has that type. `state`: latched, and its
+        last message opens every recording (Topic.state)."""
         type_name = normalize_type_name(type_name)
         topic = self.topics.get(name)
         if topic is None:
@@ -195,8 +200,9 @@ class Bus:
             self.topics[name] = topic
         elif topic.type != type_name:
             raise BusError(f"topic {name} has type {topic.type}, not {type_name}")
-        topic.latched = topic.latched or latched
+        topic.latched = topic.latched or latched or state
         topic.persistent = topic.persistent or persistent
+        topic.state = topic.state or state
         return topic
 
     def advertise(self, owner: str, name: str, type_name: str, *, latched: bool = False) -> Topic:

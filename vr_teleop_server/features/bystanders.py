@@ -50,7 +50,7 @@ class Bystanders:
         self._turns: asyncio.Task[None] | None = None
 
     def start(self) -> None:
-        self.bus.declare_topic(names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders", latched=True,
+        self.bus.declare_topic(names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders", state=True,
                                persistent=True)
         self.bus.provide(names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak", self._speak_service)
         self.bus.provide(names.SIM_BYSTANDERS_LOOK_SERVICE, "vr_teleop_msgs/BystanderLook", self._look_service)

@@ -129,7 +129,7 @@ class ClipLibrary:
         self.changed: list[Any] = []  # called after the list changes (the menus list the clips)
 
     def start(self) -> None:
-        self.bus.declare_topic(names.CLIPS_TOPIC, "vr_teleop_msgs/Clips", latched=True, persistent=True)
+        self.bus.declare_topic(names.CLIPS_TOPIC, "vr_teleop_msgs/Clips", state=True, persistent=True)
         self.bus.provide(names.CLIP_ADD_SERVICE, "vr_teleop_msgs/AddClip", self._add)
         self.bus.provide(names.CLIP_REMOVE_SERVICE, "vr_teleop_msgs/ClipName", self._remove)
         self.bus.provide(names.CLIP_PLAY_SERVICE, "vr_teleop_msgs/ClipName", self._play)

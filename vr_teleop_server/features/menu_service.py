@@ -60,7 +60,7 @@ class MenuService:
 
     def start(self) -> None:
         declare_event_topic(self.bus)
-        self.bus.declare_topic(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", latched=True, persistent=True)
+        self.bus.declare_topic(names.MENUS_TOPIC, "vr_teleop_msgs/Menus", state=True, persistent=True)
         self.bus.declare_topic(names.MENU_SELECTION_TOPIC, "std_msgs/String", persistent=True)
         self.bus.subscribe(SERVER_NODE, names.MENU_SELECTION_TOPIC, None, self._on_selection)
         self.bus.provide(names.MENU_SELECT_SERVICE, "vr_teleop_msgs/MenuSelect", self._select_service)

@@ -190,9 +190,9 @@ class Speaker:
 
     def start(self) -> None:
         self.bus.declare_topic(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
-        self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True,
+        self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", state=True,
                                persistent=True)
-        self.bus.declare_topic(names.SPEECH_LANGUAGE_TOPIC, "std_msgs/String", latched=True, persistent=True)
+        self.bus.declare_topic(names.SPEECH_LANGUAGE_TOPIC, "std_msgs/String", state=True, persistent=True)
         self.bus.provide(names.SPEECH_LANGUAGE_SERVICE, "vr_teleop_msgs/SetLanguage", self._set_language_service)
         self.bus.publish(names.SPEECH_LANGUAGE_TOPIC, {"data": self.language}, latch=True)
 

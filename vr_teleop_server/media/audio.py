@@ -121,7 +121,7 @@ class AudioMixer:
     def start(self) -> None:
         self.home = asyncio.get_running_loop()
         self.bus.declare_topic(names.ROBOT_AUDIO_TOPIC, "audio_common_msgs/AudioData", persistent=True)
-        self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", latched=True, persistent=True)
+        self.bus.declare_topic(names.ROBOT_AUDIO_INFO_TOPIC, "audio_common_msgs/AudioInfo", state=True, persistent=True)
         self._tokens = [
             (names.ROBOT_AUDIO_INFO_TOPIC, self.bus.subscribe("/vr_teleop_server/media", names.ROBOT_AUDIO_INFO_TOPIC, None,
                                                         self._on_info)),

@@ -8,6 +8,10 @@ What a recording holds (all JSON-encoded, so that Foxglove opens it):
 - every other rosbridge frame each client sent (call_service, subscribe, fragments...), on "/rosbridge/in", and
   every reply or status the server sent it, on "/rosbridge/out"; `client` in the channel metadata;
 - connections and disconnections on "/rosbridge/connections".
+A recording started while the server runs (a live study's trial) opens with the last message of each topic
+declared as state (core/bus.py Topic.state: the robot's description, the autonomy state, the classroom's
+bystanders, the menus...), so that it holds the state it began in; a trial's own events (/study/*) are history and
+are not carried into the next recording.
 Log time is the wall clock in nanoseconds.
 
 Crash safety: messages go into small zstd chunks, and an unfinished chunk is closed every FLUSH_S and flushed to

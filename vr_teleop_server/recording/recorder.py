@@ -66,7 +66,12 @@ class Recorder:
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
+        """Taps the bus, after writing each state topic's last message (core/bus.py Topic.state): a recording
+        started while the server runs opens with the state it starts in."""
         if self.bus is not None:
+            for topic in list(self.bus.topics.values()):
+                if topic.state and topic.last is not None:
+                    self.on_published(topic.last)
             self.bus.taps.append(self.on_published)
         self._task = asyncio.ensure_future(self._flush_loop())
 

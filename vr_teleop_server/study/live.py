@@ -8,9 +8,9 @@ themselves); the latched /study/session. A refused call answers success false wi
 (the folder checks before it writes). Interventions and the experimenter's labels of a running trial go to the
 folder's event log too.
 
-A trial (TrialHost): its recording (DIR/P03/CONDITION.mcap, a Recorder on the bus) starts first, then its condition:
-the classroom kind sets the autonomy level and keeps a trial log (the label services, state updates, metrics); the
-task kind runs the condition's perception, decision and motion modules (runtime.py) on the server's robot.
+A trial (TrialHost): its recording (DIR/P03/CONDITION.mcap, a Recorder on the bus) starts first, then its kind
+hosts its condition on the server (kind.py: the classroom kind sets the autonomy level, the task kind runs the
+condition's modules on the server's robot).
 """
 
 from __future__ import annotations
@@ -20,24 +20,16 @@ import contextlib
 import json
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from client_protocol import names
-from client_protocol.vocabulary import AutonomyLevel
-from simclock import WALL, Clock
 
 from ..core.bus import SERVER_NODE, Bus, BusError, Published
-from ..core.ownership import Ownership
-from ..core.tasks import cancel_and_wait
 from ..questionnaires.instrument import load_instrument
 from ..recording.recorder import Recorder
-from ..robot.gestures import GestureLibrary
-from ..robot.interface import Robot
 from .folder import Refused, StudyFolder
-from .runtime import TrialRuntime
-from .trial import TrialLog
+from .kind import HostedTrial, ServerParts, StudyKind
 
 log = logging.getLogger(__name__)
 
@@ -47,54 +39,23 @@ DEMOGRAPHICS = "demographics"  # the study file's demographic questions, on the 
 PARTICIPANT_PREFIX = "participant:"  # a participant's connections' operator key (core/access.py)
 
 
-@dataclass
-class ServerParts:
-    """What hosting a trial needs of the server (app.py gives them)."""
-
-    bus: Bus
-    robot: Robot
-    registry: Any  # client_protocol.registry.TypeRegistry, for the recorder
-    owners: Ownership
-    gestures: GestureLibrary | None
-    set_autonomy: Callable[[AutonomyLevel], None] | None  # the classroom kind's conditions are autonomy levels
-    camera_fps: float = 2.0
-    clock: Clock = WALL
-    blur: Any = None  # features/face_blur.FaceBlur under serve --blur-faces: trial recordings blur faces too
-
-
 class TrialHost:
-    """One trial at a time on the live server: begin(condition, recording) and end(outcome)."""
+    """One trial at a time on the live server: begin(condition, recording) and end(outcome). Its recording starts
+    first, then the kind hosts the condition on the server (kind.py)."""
 
-    def __init__(self, study: Any, kind: str, parts: ServerParts) -> None:
-        # hears the /decision/* commands a task trial took: (caller, service, request); LiveStudy logs them
-        self.observer: Callable[[str, str, dict[str, object]], None] | None = None
+    def __init__(self, study: Any, kind: StudyKind, parts: ServerParts) -> None:
         self.study = study
         self.kind = kind
         self.parts = parts
         self.recorder: Recorder | None = None
-        self.log: TrialLog | None = None
-        self.runtime: TrialRuntime | None = None
-        self._task: asyncio.Task[Any] | None = None
-        self._level_before: AutonomyLevel | None = None
+        self.trial: HostedTrial | None = None
 
-    async def begin(self, condition: str, recording: Path, level_now: AutonomyLevel | None) -> None:
+    async def begin(self, condition: str, recording: Path) -> None:
         p = self.parts
         self.recorder = Recorder(recording, p.registry, p.camera_fps, bus=p.bus, clock=p.clock, blur=p.blur)
         self.recorder.start()
         try:
-            if self.kind == "classroom":
-                level = self.study.conditions[condition].autonomy
-                if p.set_autonomy is not None:
-                    self._level_before = level_now
-                    p.set_autonomy(level)
-                self.log = TrialLog(p.bus, self.study.study, condition, (level, "live", "live"), 0, clock=p.clock)
-                self.log.attach()
-                self.log.begin()
-            else:
-                self.runtime = TrialRuntime(p.bus, p.robot, self.study, condition, p.gestures, clock=p.clock,
-                                            owners=p.owners, observer=self.observer)
-                await self.runtime.prepare()
-                self._task = asyncio.ensure_future(self.runtime.run())
+            self.trial = await self.kind.host(self.study, condition, p)
         except BaseException:
             await self.end("aborted")
             raise
@@ -102,23 +63,9 @@ class TrialHost:
     async def end(self, outcome: str) -> None:
         """Stops the condition (the robot's decision module, if it still runs) and closes the recording."""
         try:
-            if self.runtime is not None:
-                runtime, self.runtime = self.runtime, None
-                if self._task is not None and not self._task.done():
-                    await cancel_and_wait(self._task)
-                    if runtime.log.started and runtime.log.final is None:
-                        await runtime.log.finish("preempted" if outcome == "aborted" else "completed",
-                                                 message=f"ended by the experimenter: {outcome}")
-                self._task = None
-                await runtime.close()
-            if self.log is not None:
-                trial_log, self.log = self.log, None
-                await trial_log.finish("completed" if outcome == "completed" else "preempted",
-                                       message=f"ended by the experimenter: {outcome}")
-                trial_log.detach()
-            if self._level_before is not None and self.parts.set_autonomy is not None:
-                self.parts.set_autonomy(self._level_before)
-                self._level_before = None
+            if self.trial is not None:
+                trial, self.trial = self.trial, None
+                await trial.end(outcome)
         finally:
             if self.recorder is not None:
                 recorder, self.recorder = self.recorder, None
@@ -129,16 +76,14 @@ class LiveStudy:
     """The study folder's services on the bus. `identity(caller)` is the calling connection's operator key
     (`participant:P03` for a participant's page, see core/access.py) for the event log's `who`."""
 
-    def __init__(self, bus: Bus, folder: StudyFolder, host: TrialHost, identity: Callable[[str], str],
-                 autonomy_level: Callable[[], AutonomyLevel | None] = lambda: None) -> None:
+    def __init__(self, bus: Bus, folder: StudyFolder, host: TrialHost, identity: Callable[[str], str]) -> None:
         self.bus = bus
         self.folder = folder
         self.host = host
         self.identity = identity
-        self.autonomy_level = autonomy_level
         self._subscriptions: list[tuple[str, int]] = []
         self._busy = asyncio.Lock()  # one experimenter action at a time: a start waits for an end's recorder
-        host.observer = self._on_command
+        host.parts.observer = self._on_command
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -174,14 +119,12 @@ class LiveStudy:
         s = self.folder.session()
         running = s["running"] or {}
         self.bus.publish(names.STUDY_SESSION_TOPIC, {
-            "study": s["study"], "kind": self.host.kind, "design": s["design"], "order": s["order"],
+            "study": s["study"], "kind": self.host.kind.name, "design": s["design"], "order": s["order"],
             "conditions": s["conditions"], "withdrawn": s["withdrawn"], "balance": s["balance"] or "",
             "participants": [{**p, "next": p["next"] or ""} for p in s["participants"]],
             "running_participant": running.get("participant", ""), "running_trial": running.get("trial", 0),
             "running_condition": running.get("condition", ""), "running_recording": running.get("recording", ""),
-            "actions": list(self.host.study.actions) if self.host.kind == "task" else [],
-            "objects": [p.name for p in self.host.study.parts] if self.host.kind == "task" else []},
-            latch=True)
+            **self.host.kind.session_fields(self.host.study)}, latch=True)
 
     def _who(self) -> str:
         return self.identity(Bus.caller())
@@ -208,7 +151,7 @@ class LiveStudy:
             except Refused as exc:
                 return {"success": False, "message": str(exc), "trial": 0}
             try:
-                await self.host.begin(trial.condition, self.folder.path / trial.recording, self.autonomy_level())
+                await self.host.begin(trial.condition, self.folder.path / trial.recording)
             except Exception as exc:  # the robot could not take the condition: the trial ends, logged
                 log.exception("the live study's trial %s %s did not start", request.participant, trial.condition)
                 self.folder.end_trial(who, "aborted", note=f"did not start: {exc}")

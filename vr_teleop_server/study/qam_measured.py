@@ -18,7 +18,8 @@ session can hold. What a recording gives, per kind of study (the kind is the one
   at the speaker. Task: the robot subtasks finished (with help or not) over those planned.
 
 An item the recording cannot give is returned with value None and the reason (a topic it lacks, nothing to count),
-so that the report counts it as missing and says why; nothing is filled in.
+so that the report counts it as missing and says why; nothing is filled in. Each kind's qam_items (kind.py) is one
+of the functions here; kinds.measure_qam picks it by the kind the recording names.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from client_protocol import names
 from client_protocol.events import EventKind
 from client_protocol.vocabulary import AutonomyLevel, Decider, Initiator, Outcome
 
-from ..recording.format import NotARecording, read_recording
+from ..recording.format import read_recording
 from .metrics.autonomy import HeadAndSpeech
 from .metrics.classroom import ClassroomTimeline, Speech, classroom_metrics
 from .metrics.fluency import compute_metrics
@@ -64,24 +65,12 @@ def _pct(part: float, whole: float) -> float:
     return round(100.0 * part / whole, 4)
 
 
-def measure_trial(path: Path) -> list[Measured]:
-    """QAM's items P1-P6 from one trial recording; each missing one with its reason."""
-    if not path.is_file():
-        return _all_missing(f"no recording: {path.name} was not found")
-    try:
-        kind = _kind(path)
-    except (NotARecording, OSError, ValueError) as exc:
-        return _all_missing(f"the recording cannot be read ({exc})")
-    if kind is None:
-        return _all_missing(f"the recording has no {names.STUDY_SESSION_TOPIC}, so the kind of study is unknown")
-    return _classroom(path) if kind == "classroom" else _task(path)
-
-
-def _all_missing(reason: str) -> list[Measured]:
+def all_missing(reason: str) -> list[Measured]:
     return [Measured(item, None, reason) for item in ITEMS]
 
 
-def _kind(path: Path) -> str | None:
+def recording_kind(path: Path) -> str | None:
+    """The kind of study the recording's /study/session names (None: it has none)."""
     for rec in read_recording(path):
         if rec.topic == names.STUDY_SESSION_TOPIC:
             return str(rec.data.get("kind", ""))
@@ -92,7 +81,8 @@ def _lacks(topic: str, what: str) -> str:
     return f"the recording has no {topic} ({what})"
 
 
-def _classroom(path: Path) -> list[Measured]:
+def lesson_items(path: Path) -> list[Measured]:
+    """A lesson's items (the classroom kind's qam_items)."""
     topics: set[str] = set()
     follow = HeadAndSpeech()
     outcomes: list[dict[str, Any]] = []
@@ -159,7 +149,8 @@ def _initiative(topics: set[str], outcomes: list[dict[str, Any]], takeovers: lis
     return [Measured("P1", _pct(robot, total), counts), Measured("P2", _pct(teacher, total), counts)]
 
 
-def _task(path: Path) -> list[Measured]:
+def task_items(path: Path) -> list[Measured]:
+    """A task trial's items (the task kind's qam_items)."""
     no_request = ("a task study's robot has no way to ask for assistance, so the operator's interventions have "
                   "nothing to be a share of")
     out = [Measured("P1", None, no_request), Measured("P2", None, no_request), Measured("P3", None, P3_REASON)]

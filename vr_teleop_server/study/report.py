@@ -36,9 +36,9 @@ from pydantic import BaseModel
 from ..questionnaires.instrument import load_instrument
 from ..questionnaires.stats import Describe, describe
 from .folder import Participant, StudyFolder, Trial
+from .kinds import measure_qam
 from .qam_measured import ITEMS as QAM_ITEMS
 from .qam_measured import UNITS as QAM_UNITS
-from .qam_measured import measure_trial
 
 POWER = 0.8
 ALPHA = 0.05
@@ -115,7 +115,7 @@ def _qam_measured(folder: StudyFolder, p: Participant, condition: str, position:
         measured = [(item, None, f"no completed trial of {condition}") for item in QAM_ITEMS]
     else:
         measured = [(m.item, m.value, f"{trial.recording}: {m.how}")
-                    for m in measure_trial(folder.path / trial.recording)]
+                    for m in measure_qam(folder.path / trial.recording)]
     return [Row(p.id, p.group, condition, position, f"qam.{item}", value, MEASURED, note)
             for item, value, note in measured]
 

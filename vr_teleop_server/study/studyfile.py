@@ -9,16 +9,13 @@ Poses are `{xyz: [m, m, m], rpy_deg: [roll, pitch, yaw]}` in the robot's base fr
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial.transform import Rotation
 
-from client_protocol.files import load_model_file, read_document
 
-from .classroom_file import ClassroomStudy
 from .protocol import ProtocolFields
 
 _STRICT = ConfigDict(extra="forbid", frozen=True)
@@ -238,17 +235,3 @@ class Study(ProtocolFields):
             if p.name == name:
                 return i
         raise KeyError(f"no part {name!r}; parts: {', '.join(p.name for p in self.parts)}")
-
-
-KINDS = ("task", "classroom")
-
-
-def load_study(path: Path | str) -> Study | ClassroomStudy:
-    """A study file of either kind: `kind: classroom` (a lesson, classroom.py) or none/`task` (a task study)."""
-    path = Path(path)
-    document = read_document(path, error=StudyFileError)
-    kind = document.get("kind", "task") if isinstance(document, dict) else "task"
-    if kind not in KINDS:
-        raise StudyFileError(f"{path}: kind: {kind!r} is not a kind of study; give classroom (a lesson with "
-                             "simulated pupils and teacher) or leave it out (a task study such as toolbox.yaml)")
-    return load_model_file(ClassroomStudy if kind == "classroom" else Study, path, error=StudyFileError)

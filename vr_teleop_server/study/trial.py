@@ -75,6 +75,8 @@ class TrialLog:
         bus = self.bus
         bus.declare_topic(names.STUDY_STATE_UPDATES_TOPIC, "vr_teleop_msgs/StateUpdate", persistent=True)
         bus.declare_topic(names.STUDY_INTERVENTIONS_TOPIC, "vr_teleop_msgs/Intervention", persistent=True)
+        # latched for a page that opens mid-trial; history, not state (core/bus.py Topic.state): a recording that
+        # starts later does not open with the previous trial's last state
         bus.declare_topic(names.STUDY_TRIAL_TOPIC, "vr_teleop_msgs/TrialState", latched=True, persistent=True)
         bus.declare_topic(names.STUDY_METRICS_TOPIC, "vr_teleop_msgs/FluencyMetrics", persistent=True)
         bus.declare_topic(names.STUDY_LABELS_TOPIC, "vr_teleop_msgs/Event", persistent=True)

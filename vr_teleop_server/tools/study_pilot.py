@@ -7,7 +7,6 @@ same services as the tablet). How a lab checks a protocol before the first parti
 
 from __future__ import annotations
 
-import asyncio
 import json
 import random
 import tempfile
@@ -23,11 +22,7 @@ from ..app import TeleopServer
 from ..client import Client, connect
 from ..questionnaires.instrument import PREFER_NOT
 from ..settings import ServerSettings
-from ..study.classroom import Pupils, Teacher
-from ..study.people import SimulatedPeople
-from ..study.studyfile import load_study
-
-ENDED = ("completed", "preempted", "failed")
+from ..study.kinds import kind_of, load_study
 
 
 @dataclass
@@ -114,44 +109,9 @@ async def _fill_in(page: Client, rng: random.Random) -> int:
 
 async def _trial(server: TeleopServer, experimenter: Client, trial_state: Any, study: Any, pid: str,
                  condition: str, clock: Clock, seed: int, timeout: float) -> str:
-    """One trial through the experimenter's services, its simulated people acting on it; its outcome."""
+    """One trial through the experimenter's services, its kind's simulated people acting on it; its outcome."""
     await experimenter.call(names.STUDY_TRIAL_START_SERVICE, {"participant": pid, "condition": "", "reason": ""})
-    opener = server.transport.connect_local if clock.simulated else None
-    outcome = "completed"
-    if study.kind == "classroom":
-        level = study.conditions[condition].autonomy
-        pupils_client = Client(opener()) if opener else await connect(server.url, id_prefix="pupils")
-        teacher_client = Client(opener()) if opener else await connect(server.url, id_prefix="teacher")
-        pupils = Pupils(pupils_client, study, seed)
-        teacher = Teacher(teacher_client, study, level, seed, clock.monotonic)
-        try:
-            await teacher.connect()
-            await teacher.begin()
-            acting = asyncio.ensure_future(pupils.run())
-            try:
-                await asyncio.sleep(study.lesson_s)  # the lesson's length, on the server's clock
-                if acting.done():
-                    acting.result()
-            finally:
-                acting.cancel()
-                await asyncio.gather(acting, return_exceptions=True)
-                await teacher.close()
-        finally:
-            await teacher_client.close()
-            await pupils_client.close()
-    else:
-        spec = study.trials[condition]
-        people = SimulatedPeople(server.url, study, condition, operator=spec.decision != "scripted", seed=seed,
-                                 opener=opener)
-        await people.connect()
-        acting = asyncio.ensure_future(people.run())
-        try:
-            state = await trial_state.next(lambda m: m["trial"] == condition and m["state"] in ENDED,
-                                           timeout=timeout)
-            outcome = "completed" if state["state"] == "completed" else "aborted"
-        finally:
-            acting.cancel()
-            await asyncio.gather(acting, return_exceptions=True)
-            await people.close()
+    outcome = await kind_of(study).act(server, study, condition, clock=clock, seed=seed, timeout=timeout,
+                                       trial_state=trial_state)
     await experimenter.call(names.STUDY_TRIAL_END_SERVICE, {"outcome": outcome, "note": "pilot"})
     return outcome

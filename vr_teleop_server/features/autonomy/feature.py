@@ -161,11 +161,11 @@ class Autonomy:
     def start(self) -> None:
         bus = self.bus
         declare_event_topic(bus)
-        state = bus.declare_topic(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", latched=True,
+        state = bus.declare_topic(names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState", state=True,
                                   persistent=True)
         # a page that opens gets the time really left of a pending proposal, not the latched message's
         state.on_subscriber_count = lambda _count: self.pending and self._publish_state(force=True)
-        bus.declare_topic(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", latched=True,
+        bus.declare_topic(names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget", state=True,
                           persistent=True)
         bus.declare_topic(names.AUTONOMY_PROPOSALS_TOPIC, "vr_teleop_msgs/Proposal", persistent=True)
         bus.declare_topic(names.AUTONOMY_OUTCOMES_TOPIC, "vr_teleop_msgs/ProposalOutcome", persistent=True)

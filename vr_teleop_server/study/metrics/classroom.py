@@ -84,18 +84,15 @@ class ClassroomResult:
     dropped: int
     interventions: int
     effectiveness: float | None
-    efficiency_s: None = None  # does not apply to a lesson (see the module's docstring)
 
     @property
-    def t0(self) -> float:
-        return 0.0
-
-    @property
-    def t1(self) -> float:
+    def duration_s(self) -> float:
+        """The lesson's length (study/kind.py's Measures)."""
         return self.lesson_s
 
     def to_json_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The measures, and efficiency as null: it does not apply to a lesson (the module's docstring)."""
+        return {**asdict(self), "efficiency_s": None}
 
 
 # The measures `--repeat` summarises (mean, SD, 95% CI), in table order.

@@ -114,6 +114,11 @@ class FluencyResult(BaseModel):
     intervention_s: float | None = None
     undefined_reason: str | None = None
 
+    @property
+    def duration_s(self) -> float:
+        """The window's length (study/kind.py's Measures)."""
+        return self.t1 - self.t0
+
     def to_json_dict(self) -> dict[str, Any]:
         """The `--json` document: the paper's metrics, counts, window and unfinished actions, nothing else."""
         out: dict[str, Any] = {
