@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import gc
+import json
 import shutil
+from collections import defaultdict
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 import roslibpy
@@ -113,12 +116,55 @@ def pytest_runtest_call(item: pytest.Item) -> None:
     gc.freeze()
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test that opens pages is a browser test (and a slow one: Chromium and SwiftShader start per module)."""
+# Modules run longest first. With `--dist loadfile` pytest-xdist hands a free worker the next whole module in the
+# collection's order, so a long module collected last keeps one worker busy while the other has nothing left: longest
+# first (LPT) ends both workers at about the same time. DURATIONS holds each module's seconds (its tests' set-up, call
+# and tear-down, from a run of it; `pytest --record-durations` rewrites the entries of the modules a run ran); a
+# module not in it yet goes first, as if it were the longest, so a long new one is never the one left at the end.
+DURATIONS = Path(__file__).with_name("durations.json")
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--record-durations", action="store_true",
+                     help=f"write each module's time in this run into {DURATIONS.name} (run whole modules)")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """xdist sorts modules by their number of tests unless told not to: the order below is the one to keep."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+_spent: defaultdict[str, float] = defaultdict(float)  # seconds by module in this run
+
+
+def _module(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test that opens pages is a browser test (and a slow one: Chromium and SwiftShader start per module).
+    Modules are ordered longest first (DURATIONS); a module's tests keep their order."""
     for item in items:
         if "browser" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.browser)
             item.add_marker(pytest.mark.slow)
+    seconds = json.loads(DURATIONS.read_text())
+    items.sort(key=lambda item: -seconds.get(_module(item.nodeid), float("inf")))  # stable: modules stay whole
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """Each phase's time, counted to its module (under xdist the controller receives every worker's reports)."""
+    _spent[_module(report.nodeid)] += report.duration
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    config = session.config
+    if not config.getoption("record_durations") or hasattr(config, "workerinput"):  # the controller writes it
+        return
+    seconds = json.loads(DURATIONS.read_text())
+    seconds.update({module: round(s, 1) for module, s in _spent.items()})
+    DURATIONS.write_text(json.dumps(dict(sorted(seconds.items())), indent=1) + "\n")
 
 
 @pytest.fixture(scope="module")
