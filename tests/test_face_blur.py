@@ -64,6 +64,7 @@ def outside(image: np.ndarray, boxes: list[FaceBox]) -> np.ndarray:
     return mask
 
 
+@pytest.mark.slow  # three camera streams, every frame searched for faces
 async def test_a_spectators_camera_topic_is_blurred_and_the_operators_and_supervisors_is_not(blurring, detector):
     server, _ = blurring
     clients = {role: await Rosbridge.open(server.url, token=token)
@@ -114,6 +115,7 @@ async def test_a_spectators_camera_topic_is_blurred_and_the_operators_and_superv
             await ros.close()
 
 
+@pytest.mark.slow  # two WebRTC peers, every frame searched for faces
 async def test_a_spectators_webrtc_video_is_blurred_and_the_operators_is_not(blurring, detector):
     server, _ = blurring
     viewers: dict[str, tuple[Rosbridge, MediaPeer]] = {}
