@@ -131,11 +131,13 @@ DURATIONS = Path(__file__).with_name("durations.json")
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--record-durations", action="store_true",
-                     help=f"write each module's time in this run into {DURATIONS.name} (run whole modules)")
+                     help=f"write the time of each module this run ran into {DURATIONS.name}")
 
 
 def pytest_configure(config: pytest.Config) -> None:
     """xdist sorts modules by their number of tests unless told not to: the order below is the one to keep."""
+    if config.getoption("record_durations") and (config.option.markexpr or config.option.keyword):
+        raise pytest.UsageError("--record-durations times whole modules: run it without -m or -k")
     if hasattr(config.option, "loadscopereorder"):
         config.option.loadscopereorder = False
 
