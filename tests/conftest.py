@@ -149,7 +149,7 @@ def _module(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """A test that opens pages is a browser test (and a slow one: Chromium and SwiftShader start per module).
     Modules are ordered longest first (DURATIONS); a module's tests keep their order."""
     for item in items:
