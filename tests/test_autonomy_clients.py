@@ -179,6 +179,7 @@ def test_no_proposal_to_an_api_client_alone_then_one_once_someone_watches(server
     assert wait_for(lambda: quiet(server), WAIT)
 
 
+@pytest.mark.slow  # ten sentences said one after another, in real time
 def test_ten_sentences_in_a_row_are_never_cut_while_proposals_time_out(server, api):
     log = server.log
     teacher = client(server)  # an audience: proposals are made, and left alone they time out
@@ -222,6 +223,7 @@ def test_ten_sentences_in_a_row_are_never_cut_while_proposals_time_out(server, a
         teacher.close()
 
 
+@pytest.mark.slow  # rendered frames searched for faces in a thread at the lowest priority, five of them
 def test_face_detection_never_holds_a_camera_frame_back(server, api):
     """Attention's face detection takes the frames the camera makes for the client, in a thread of its own at the
     lowest priority: every frame it searched had already gone to the client's topic, and frames kept going out

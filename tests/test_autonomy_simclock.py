@@ -22,6 +22,7 @@ rules:
 """
 
 
+@pytest.mark.slow  # the stand-in's camera drawn and searched for faces through every simulated second
 def test_time_outs_and_attention_on_the_simulated_clock(tmp_path):
     (tmp_path / "rules.yaml").write_text(RULES)
     clock = SimulatedClock()
@@ -78,6 +79,7 @@ rules:
 """
 
 
+@pytest.mark.slow  # the stand-in's camera drawn and searched for faces through every simulated second
 def test_a_proposal_is_shown_a_second_before_a_newer_one_replaces_it_and_a_late_page_gets_the_time_left(tmp_path):
     """Two pupils' short answers end within a second: the second proposal waits until the first has been shown
     MIN_SHOWN_S (1 s), then replaces it. A page that opens 2 s later is sent the time really left (`left`), not

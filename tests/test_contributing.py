@@ -3,6 +3,7 @@ make targets, markers and harness names it gives exist."""
 
 from __future__ import annotations
 
+import json
 import re
 import tomllib
 from pathlib import Path
@@ -87,6 +88,15 @@ def test_the_commands_markers_and_harness_it_names_exist():
                           (support, ("still", "physics_ran", "Headset")), (StandIn, ("wait_camera_stopped",))):
         for name in names:
             assert f"{name}" in PAGE and hasattr(module, name), name
+
+
+def test_the_durations_file_names_only_modules_there_are():
+    """tests/durations.json orders the modules longest first (conftest.py): an entry of a module renamed or removed
+    is stale (a new module needs none to run: it goes first until it has one)."""
+    assert "`tests/durations.json`" in PAGE and "`pytest --record-durations" in PAGE
+    seconds = json.loads((ROOT / "tests" / "durations.json").read_text(encoding="utf-8"))
+    assert set(seconds) <= {f"tests/{p.name}" for p in (ROOT / "tests").glob("test_*.py")}
+    assert all(s >= 0 for s in seconds.values())
 
 
 @pytest.mark.parametrize("fixture", ["servers", "module_servers", "browser"])

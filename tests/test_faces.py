@@ -27,6 +27,7 @@ def test_the_pupils_span_the_skin_tones():
     assert all(b - a >= 0.2 for a, b in zip(luma, luma[1:])), luma
 
 
+@pytest.mark.slow  # 24 views of the classroom drawn and searched for faces
 def test_recall_on_every_skin_tone_has_a_floor(camera):
     detector = FaceDetector()
     hits: dict[str, list[bool]] = {}

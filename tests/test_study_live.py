@@ -193,6 +193,7 @@ def test_serve_refuses_a_study_it_cannot_host_naming_the_problem(tmp_path, setti
     assert not (tmp_path / "study").exists()  # nothing made
 
 
+@pytest.mark.slow  # two server processes with the stand-in, one killed mid-trial
 def test_a_kill_9_mid_trial_loses_nothing_and_a_restart_carries_on(tmp_path):
     """A real `vr-teleop serve --study` process killed with SIGKILL while a trial runs; the same folder again."""
     from testbed.processes import serve, stop
