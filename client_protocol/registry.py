@@ -473,9 +473,7 @@ class PlainCodec:
         return self.validator.validate_python({} if data is None else data)
 
     def to_json(self, plain: dict[str, Any]) -> str:
-        """ASCII JSON: every non-ASCII character as a \\u escape, which clients that decode frames as ASCII (ROS#)
-        read intact."""
-        return self.serializer.to_json(plain, by_alias=True, ensure_ascii=True).decode("ascii")
+        return self.serializer.to_json(plain, by_alias=True).decode("utf-8")
 
     def to_model(self, plain: dict[str, Any]) -> BaseModel:
         return self.model.model_validate(plain)

@@ -144,10 +144,12 @@ def message_json(published: Published) -> str:
     text = published.encoded.get("msg_json")
     if text is None:
         if published.plain is not None:
-            text = published.codec.to_json(published.plain)  # ASCII already
+            text = published.codec.to_json(published.plain)
         else:
             value = published.value
-            text = ascii_json(value.model_dump_json(by_alias=True) if published.known else dumps(value))
+            text = value.model_dump_json(by_alias=True) if published.known else dumps(value)
+        # (the serializer's ensure_ascii would spare this pass, but is slower: 2.0 against 1.5 µs a pose)
+        text = ascii_json(text)
         published.encoded["msg_json"] = text
     return text
 
