@@ -481,7 +481,7 @@ class PlainCodec:
 
 def _as_typed_dicts(node: Any, times_in_rust: bool = False) -> Any:
     """A copy of a core schema with 'model' nodes replaced by equivalent 'typed-dict' nodes. `times_in_rust`: a
-    time's two spellings are read without calling its model's before-validator (a Python call per stamp, half of
+    time's two spellings are read without calling its model's before-validator (a Python call per stamp, most of
     a header's validation), which stays for what they do not cover; for validation only (the union it makes
     would slow the serializer down)."""
     if isinstance(node, list):
