@@ -13,7 +13,7 @@ import re
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import cbor2
 from simclock import WALL, Clock
@@ -166,6 +166,8 @@ def _make_time_model(kind: str, style: TimeStyle) -> type[BaseModel]:
 
     class _Time(BaseModel):
         model_config = _MODEL_CONFIG
+        # the ROS 2 spelling of each field, which PlainCodec reads without calling _accept_both_styles
+        ROS2_NAMES: ClassVar[dict[str, str]] = {"secs": "sec", "nsecs": "nanosec"}
         secs: Annotated[StrictInt, Field(ge=lower, le=2**32 - 1, serialization_alias=sec_alias)] = 0
         nsecs: Annotated[StrictInt, Field(ge=0, le=999_999_999, serialization_alias=nsec_alias)] = 0
 
@@ -462,9 +464,8 @@ class PlainCodec:
 
     def __init__(self, model: type[BaseModel]) -> None:
         self.model = model
-        schema = _as_typed_dicts(model.__pydantic_core_schema__)
-        self.validator = SchemaValidator(schema)
-        self.serializer = SchemaSerializer(schema)
+        self.validator = SchemaValidator(_as_typed_dicts(model.__pydantic_core_schema__, times_in_rust=True))
+        self.serializer = SchemaSerializer(_as_typed_dicts(model.__pydantic_core_schema__))
 
     def validate(self, data: Any) -> dict[str, Any]:
         """Raises ValidationError wherever the model's validation would on JSON data (tests/test_hot_path.py),
@@ -478,15 +479,18 @@ class PlainCodec:
         return self.model.model_validate(plain)
 
 
-def _as_typed_dicts(node: Any) -> Any:
-    """A copy of a core schema with 'model' nodes replaced by equivalent 'typed-dict' nodes."""
+def _as_typed_dicts(node: Any, times_in_rust: bool = False) -> Any:
+    """A copy of a core schema with 'model' nodes replaced by equivalent 'typed-dict' nodes. `times_in_rust`: a
+    time's two spellings are read without calling its model's before-validator (a Python call per stamp, most of
+    a header's validation), which stays for what they do not cover; for validation only (the union it makes
+    would slow the serializer down)."""
     if isinstance(node, list):
-        return [_as_typed_dicts(item) for item in node]
+        return [_as_typed_dicts(item, times_in_rust) for item in node]
     if not isinstance(node, dict):
         return node
     kind = node.get("type")
     if kind == "model":
-        inner = _as_typed_dicts(node["schema"])
+        inner = _as_typed_dicts(node["schema"], times_in_rust)
         config = node.get("config", {})
         target = inner
         while target.get("type") != "typed-dict":  # a model validator wraps the fields (ROS time's two spellings)
@@ -494,16 +498,23 @@ def _as_typed_dicts(node: Any) -> Any:
         target["config"] = config
         target["extra_behavior"] = config.get("extra_fields_behavior", "ignore")
         target["strict"] = config.get("strict", False)
+        names = getattr(node["cls"], "ROS2_NAMES", None) if times_in_rust else None
+        if names is not None:  # {secs, nsecs} or {sec, nanosec}; the model's rule for both mixed
+            inner = {"type": "union", "mode": "left_to_right", "choices": [
+                target, {**target, "config": {**config, "validate_by_name": False},
+                         "fields": {name: {**f, "validation_alias": names[name]}
+                                    for name, f in target["fields"].items()}},
+                inner]}
         if "ref" in node:
             inner["ref"] = node["ref"]
         return inner
     if kind == "model-fields":
         return {"type": "typed-dict", "fields": {
-            name: {"type": "typed-dict-field", "schema": _as_typed_dicts(field["schema"]),
+            name: {"type": "typed-dict-field", "schema": _as_typed_dicts(field["schema"], times_in_rust),
                    "required": field["schema"].get("type") != "default",
                    **{k: field[k] for k in ("validation_alias", "serialization_alias") if k in field}}
             for name, field in node["fields"].items()}}
-    out = {key: (_as_typed_dicts(value) if key != "cls" else value) for key, value in node.items()}
+    out = {key: (_as_typed_dicts(value, times_in_rust) if key != "cls" else value) for key, value in node.items()}
     if kind == "default" and "default_factory" in out:  # model defaults become their plain form
         factory = out["default_factory"]
         if isinstance(factory, _Zero) and factory.constant:  # made once, copied for each message: a model built

@@ -7,6 +7,7 @@ It holds no protocol logic, so sessions are testable without sockets.
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 import logging
 import mimetypes
@@ -118,7 +119,9 @@ class WebSocketTransport:
         self._open.add(ws)
         try:
             async for frame in ws:
-                await session.handle_frame(frame)
+                pending = session.receive(frame)  # handle_frame, without a coroutine when nothing waits
+                if pending is not None:
+                    await pending
         except ConnectionClosed:
             pass
         finally:
@@ -139,7 +142,7 @@ class WebSocketTransport:
 
     @staticmethod
     async def _write(ws: ServerConnection, session: Session) -> None:
-        session.outbox.write_now = lambda frame: _write_now(ws, frame)
+        session.outbox.write_now = functools.partial(_write_now, ws)
         try:
             while True:
                 frames = await session.next_frames()

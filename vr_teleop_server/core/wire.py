@@ -4,6 +4,7 @@ cbor-raw, fragments)."""
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import math
 import re
@@ -26,7 +27,11 @@ class FrameError(ValueError):
 def decode_frame(frame: str | bytes) -> dict[str, Any]:
     """TEXT frames carry JSON. BINARY frames carry UTF-8 JSON (as ROS# sends it) or CBOR."""
     if isinstance(frame, str):
-        return _check_envelope(_loads_json(frame))
+        try:
+            value = from_json(frame)  # _loads_json's first step, spared a call on the hot path
+        except (ValueError, TypeError):
+            value = _loads_json(frame)
+        return _check_envelope(value)
     stripped = frame.lstrip()
     if stripped[:1] in (b"{", b"["):
         try:
@@ -143,6 +148,7 @@ def message_json(published: Published) -> str:
         else:
             value = published.value
             text = value.model_dump_json(by_alias=True) if published.known else dumps(value)
+        # (the serializer's ensure_ascii would spare this pass, but is slower: 2.0 against 1.5 µs a pose)
         text = ascii_json(text)
         published.encoded["msg_json"] = text
     return text
@@ -151,10 +157,15 @@ def message_json(published: Published) -> str:
 def publish_text(published: Published) -> str:
     text = published.encoded.get("none")
     if text is None:
-        # json.dumps of a lone string with default arguments takes its fast path, a fifth of dumps()'s time
-        text = f'{{"op":"publish","topic":{json.dumps(published.topic)},"msg":{message_json(published)}}}'
+        text = f'{{"op":"publish","topic":{_quoted(published.topic)},"msg":{message_json(published)}}}'
         published.encoded["none"] = text
     return text
+
+
+@functools.lru_cache(maxsize=1024)
+def _quoted(topic: str) -> str:
+    """A topic's name as a JSON string, made once per topic rather than once per message."""
+    return json.dumps(topic)
 
 
 def publish_text_in_style(published: Published, style: str) -> str:

@@ -107,20 +107,27 @@ class Session(TopicOps, ServiceOps, ActionOps):
 
     # ---- incoming -----------------------------------------------------------------------------------------------
     async def handle_frame(self, frame: Frame, *, reassembled: bool = False) -> None:
+        pending = self.receive(frame, reassembled=reassembled)
+        if pending is not None:
+            await pending
+
+    def receive(self, frame: Frame, *, reassembled: bool = False) -> Awaitable[None] | None:
+        """handle_frame without a coroutine of its own: what the frame's op does at once is done here, and what it
+        must wait for is returned to be awaited before the next frame (None: nothing). A publish, the hot path, is
+        done at once, without the two coroutines (this method's and _dispatch's) it used to make."""
         self.counters["frames_in"] += 1
         if len(frame) > self.settings.max_message_size:
             self.status("error", f"a frame of {len(frame)} bytes is over this server's limit of "
                                  f"{self.settings.max_message_size} bytes: send it in pieces with the 'fragment' op, "
                                  f"or start the server with a larger --max-message-size")
-            return
+            return None
         if isinstance(frame, bytes) and frame[:2] == pose_frame.MAGIC:  # CBOR's 22-byte string: never an op
-            await self._pose_frame(frame)
-            return
+            return self._pose_frame(frame)
         try:
             raw = decode_frame(frame)
         except FrameError as exc:
             self.status("error", str(exc))
-            return
+            return None
         raw_id = raw.get("id")
         msg_id = raw_id if isinstance(raw_id, (str, int)) and not isinstance(raw_id, bool) else None
         name = raw["op"]
@@ -131,18 +138,18 @@ class Session(TopicOps, ServiceOps, ActionOps):
         if model is None:
             self.status("error", f"unknown op '{name[:60]}'; this server understands: "
                                  f"{', '.join(sorted(ops.CLIENT_OP_MODELS))}", msg_id)
-            return
+            return None
         if reassembled and name == "fragment":
             self.status("error", "a reassembled message is itself a fragment; fragments do not nest", msg_id)
-            return
+            return None
         try:
             op = _well_formed_publish(raw) if name == "publish" else None
             if op is None:
                 op = model.model_validate(raw)
         except ValidationError as exc:
             self.status("error", f"{name}: {describe_validation_error(exc)}", msg_id)
-            return
-        await self._dispatch(name, op, msg_id, learn_style=True)
+            return None
+        return self._dispatch(name, op, msg_id, learn_style=True)
 
     async def _pose_frame(self, frame: bytes) -> None:
         """A binary pose frame (client_protocol/pose_frame.py, as the poses data channel takes them): each of its
@@ -154,10 +161,13 @@ class Session(TopicOps, ServiceOps, ActionOps):
             self.status("error", f"{exc}; a binary frame is a pose frame, CBOR or UTF-8 JSON")
             return
         for topic, msg in messages:
-            await self._dispatch("publish", _PublishOp(topic, msg, False, None), None, learn_style=False)
+            pending = self._dispatch("publish", _PublishOp(topic, msg, False, None), None, learn_style=False)
+            if pending is not None:
+                await pending
 
-    async def _dispatch(self, name: str, op: Any, msg_id: Any, *, learn_style: bool) -> None:
-        """An op whose envelope is valid: the access policy, then its handler; errors become status replies."""
+    def _dispatch(self, name: str, op: Any, msg_id: Any, *, learn_style: bool) -> Awaitable[None] | None:
+        """An op whose envelope is valid: the access policy, then its handler; errors become status replies. An
+        async handler's coroutine is returned, wrapped to report its errors likewise."""
         try:
             if not self.policy.open or self.role == "participant":  # getattr on a model that lacks the field
                 # raises inside pydantic: costly
@@ -167,19 +177,29 @@ class Session(TopicOps, ServiceOps, ActionOps):
             self.status("error", f"{name}: refused: {exc}", msg_id)
             if name == "call_service":  # answered too, so that a client that ignores status (ROS#) can read it
                 self._answer_refused_call(op, f"refused: {exc}")
-            return
+            return None
         if learn_style and not self._style_learned and name == "publish":
             self._learn_time_style(op.msg)
         try:
             result = _HANDLERS_BY_NAME[name](self, op)
-            if result is not None:
-                await result
-        except (ProtocolError, BusError) as exc:
-            self.status(getattr(exc, "level", "error"), f"{name}: {exc}", msg_id)
         except Exception as exc:
-            log.exception("%s: %s (id %r) failed", self.name, name, msg_id)
-            self.status("error", f"{name}: internal error ({type(exc).__name__}: {exc}); the server logged it",
-                        msg_id)
+            self._failed(name, msg_id, exc)
+            return None
+        return None if result is None else self._finish(name, msg_id, result)
+
+    async def _finish(self, name: str, msg_id: Any, handling: Awaitable[None]) -> None:
+        try:
+            await handling
+        except Exception as exc:
+            self._failed(name, msg_id, exc)
+
+    def _failed(self, name: str, msg_id: Any, exc: Exception) -> None:
+        """An op's handler raised: a refusal is the client's status reply; anything else is logged, and said."""
+        if isinstance(exc, (ProtocolError, BusError)):
+            self.status(getattr(exc, "level", "error"), f"{name}: {exc}", msg_id)
+            return
+        log.error("%s: %s (id %r) failed", self.name, name, msg_id, exc_info=exc)
+        self.status("error", f"{name}: internal error ({type(exc).__name__}: {exc}); the server logged it", msg_id)
 
     def _answer_refused_call(self, op: ops.CallService, reason: str) -> None:
         refused = self.bus.refusal_response(op.service, reason)

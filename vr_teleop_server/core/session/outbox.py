@@ -95,7 +95,7 @@ class Outbox:
         """A message published on a topic the client subscribed to (the bus calls this for every subscriber)."""
         if self.write_now is not None and not self.control and not self.pending and sub.throttle_s == 0 \
                 and not sub.fragment_size:
-            frames = self._encode_or_drop(sub, published)
+            frames = self._encode(sub, published)
             if not frames or (len(frames) == 1 and self.write_now(frames[0])):
                 return
         if len(sub.queue) == sub.queue.maxlen:
@@ -129,11 +129,11 @@ class Outbox:
                 if now < due:
                     wake_at = min(wake_at, due)
                     continue
-                frames.extend(self._encode_or_drop(sub, sub.queue.popleft()))
+                frames.extend(self._encode(sub, sub.queue.popleft()))
                 sub.last_sent = now
             else:
                 while sub.queue:
-                    frames.extend(self._encode_or_drop(sub, sub.queue.popleft()))
+                    frames.extend(self._encode(sub, sub.queue.popleft()))
             if not sub.queue:
                 del pending[topic]
             elif sub.throttle_s > 0:
@@ -141,29 +141,27 @@ class Outbox:
         return frames, wake_at
 
     def _encode(self, sub: TopicSubscription, published: Published) -> list[Frame]:
-        if sub.compression in ("cbor", "cbor-raw"):
-            return [publish_cbor(published, self.registry, raw=sub.compression == "cbor-raw")]
-        style = self.time_style
-        text = publish_text(published) if style is None else publish_text_in_style(published, style)
-        if sub.compression == "png":
-            packed = published.encoded.get("png")
-            if packed is None:
-                packed = published.encoded["png"] = png_pack(text)
-            if sub.fragment_size and len(packed) > sub.fragment_size:
-                return list(split_fragments("png", packed, sub.fragment_size, self._fragment_id(published)))
-            return [dumps({"op": "png", "data": packed})]
-        if sub.fragment_size and len(text) > sub.fragment_size:
-            return split_fragments("fragment", text, sub.fragment_size, self._fragment_id(published))
-        return [text]
-
-    def _fragment_id(self, published: Published) -> str:
-        return f"{published.topic}:{next(self.ids)}"
-
-    def _encode_or_drop(self, sub: TopicSubscription, published: Published) -> list[Frame]:
-        """A message that cannot be encoded is dropped and logged: it must not stop this client's stream."""
+        """The frames of one message as `sub` asks. One that cannot be encoded is dropped and logged: it must not
+        stop this client's stream."""
         try:
-            return self._encode(sub, published)
+            if sub.compression in ("cbor", "cbor-raw"):
+                return [publish_cbor(published, self.registry, raw=sub.compression == "cbor-raw")]
+            style = self.time_style
+            text = publish_text(published) if style is None else publish_text_in_style(published, style)
+            if sub.compression == "png":
+                packed = published.encoded.get("png")
+                if packed is None:
+                    packed = published.encoded["png"] = png_pack(text)
+                if sub.fragment_size and len(packed) > sub.fragment_size:
+                    return list(split_fragments("png", packed, sub.fragment_size, self._fragment_id(published)))
+                return [dumps({"op": "png", "data": packed})]
+            if sub.fragment_size and len(text) > sub.fragment_size:
+                return split_fragments("fragment", text, sub.fragment_size, self._fragment_id(published))
+            return [text]
         except Exception:
             log.exception("%s: a message on %s could not be encoded and was dropped", self.name, sub.topic)
             self.counters["dropped"] += 1
             return []
+
+    def _fragment_id(self, published: Published) -> str:
+        return f"{published.topic}:{next(self.ids)}"

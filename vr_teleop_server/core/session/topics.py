@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from typing import Any
 
@@ -94,8 +95,7 @@ class TopicOps:
             sub.update()
             self.subscriptions[op.topic] = sub
             if source == op.topic:
-                sub.token = self.bus.subscribe(self.name, op.topic, None,
-                                               lambda p, s=sub, deliver=self.outbox.deliver: deliver(s, p))
+                sub.token = self.bus.subscribe(self.name, op.topic, None, functools.partial(self.outbox.deliver, sub))
             else:  # served from its blurred view, under the name the client asked for
                 sub.token = self.bus.subscribe(self.name, source, None, lambda p, s=sub, deliver=self.outbox.deliver:
                                                deliver(s, p.renamed(s.topic)))
