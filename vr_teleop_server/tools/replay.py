@@ -440,12 +440,15 @@ def _control_action(step: Step, got: Collected, cid: str) -> tuple[str, bool] | 
 
 
 def expected_commands(steps: list[Step], got: Collected, settings: TeleopSettings | None = None,
-                      engage_lag: int = 0) -> dict[int, dict[str, list[float]]]:
+                      engage_lag: int = 0, head_only: bool = False) -> dict[int, dict[str, list[float]]]:
     """What TeleopMapper gives for each head pose, computed offline from the same messages at the replay's send
     times. Control calls act where they were sent, except that an engage takes hold `engage_lag` head poses later
     (the server runs service calls as tasks, so a pose or two may overtake one), from the joints measured then.
-    Where velocity caps bind, the server's own step times (its load) show in the difference."""
+    Where velocity caps bind, the server's own step times (its load) show in the difference. `head_only`: the arms
+    held (their IK is most of the mapping's cost, and the head's commands do not depend on them)."""
     mapper = TeleopMapper(load_qtrobot(), settings)
+    for part in ARMS if head_only else ():
+        mapper.set_part_enabled(part, False)
     send_time = {index: sent for sent, index in got.sent_head}
     expected: dict[int, dict[str, list[float]]] = {}
     last_t = 0.0
@@ -461,7 +464,7 @@ def expected_commands(steps: list[Step], got: Collected, settings: TeleopSetting
                     mapper.release()
                 else:
                     mapper.estop()
-            elif action is not None:
+            elif action is not None and not (head_only and action[0] != "head"):
                 for part in (Part.HEAD,) if action[0] == "head" else ARMS:
                     mapper.set_part_enabled(part, action[1])
             continue
@@ -508,7 +511,7 @@ def _engage_lag(steps: list[Step], got: Collected, poses: int = 180, settings: T
     head = steps[:after[min(poses, len(after)) - 1] + 1] if after else steps
 
     def miss(lag: int) -> float:
-        expected = expected_commands(head, got, settings, engage_lag=lag)
+        expected = expected_commands(head, got, settings, engage_lag=lag, head_only=True)
         firsts = [e["head"] for _i, e in sorted(expected.items()) if "head" in e][: len(received)]
         if not firsts:
             return np.inf
