@@ -63,7 +63,8 @@ async def pilot(study_file: Path, folder: Path, participants: int, *, clock: Clo
         settings = ServerSettings(port=0, backend="sim", study=study_file, study_dir=folder, record_camera_fps=0.0,
                                   autonomy="teleoperated", bystander_interval=0, gesture_dir=Path(tmp) / "g",
                                   audio_dir=Path(tmp) / "a",
-                                  camera_fps=getattr(study, "camera_fps", None) or 30.0)
+                                  camera_fps=getattr(study, "camera_fps", None) or 30.0,
+                                  perception=study.perception if study.kind == "classroom" else "rendered")
         server = TeleopServer(settings, clock)
         await server.start()
 
@@ -119,6 +120,7 @@ async def _trial(server: TeleopServer, experimenter: Client, trial_state: Any, s
     outcome = "completed"
     if study.kind == "classroom":
         level = study.conditions[condition].autonomy
+        server.faces.perception.reseed(seed)
         pupils_client = Client(opener()) if opener else await connect(server.url, id_prefix="pupils")
         teacher_client = Client(opener()) if opener else await connect(server.url, id_prefix="teacher")
         pupils = Pupils(pupils_client, study, seed)
