@@ -233,7 +233,8 @@ class TeleopServer:
         if s.perception == "modelled":  # the stand-in's faces from its scene (the settings allow it on sim only)
             from .features.modelled_faces import ModelledFaces
 
-            perception = ModelledFaces(robot.standin, self.clock, rate_hz=min(s.camera_fps, 5.0))
+            perception = ModelledFaces(robot.standin, self.clock, rate_hz=min(s.camera_fps, 5.0),
+                                       seed=s.perception_seed)
         else:
             perception = RenderedFaces(robot)
         self.faces = FacePublisher(self.bus, perception)

@@ -64,6 +64,7 @@ class ServerSettings(CoreSettings):
                                 "camera's frames searched by the face detector (about 0.4 CPU s a frame); "
                                 "'modelled', each pupil's head projected from the scene and found with the recall "
                                 "the detector measured (bench/faces.py --calibrate), no frame drawn: for studies")
+    perception_seed: int = Field(0, description="the seed of modelled perception's draws (a study run's seed)")
     autonomy: Annotated[Literal["teleoperated", "supervised", "autonomous"], Cli("autonomy")] = Field(
         "supervised", description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
                                   "'teleoperated', nothing moves unless someone moves it; 'supervised', the robot "

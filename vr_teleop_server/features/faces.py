@@ -222,9 +222,6 @@ class Perception:
         """The faces of each look, for as long as the iteration lasts (iterate inside contextlib.aclosing())."""
         raise NotImplementedError
 
-    def reseed(self, seed: int) -> None:
-        """Seed what it draws at random (a modelled detector's misses; a real detector draws nothing)."""
-
     def close(self) -> None:
         """Release what it holds (threads); called once, when the server stops."""
 

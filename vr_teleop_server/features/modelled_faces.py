@@ -168,9 +168,6 @@ class ModelledDetector:
     def __init__(self, model: mujoco.MjModel, width: int, height: int, *, seed: int = 0,
                  table: RecallTable | None = None) -> None:
         self.scene = SceneFaces(model, width, height, table)
-        self.reseed(seed)
-
-    def reseed(self, seed: int) -> None:
         self._rng = random.Random(seed)
 
     def detect(self, qpos: np.ndarray) -> list[FaceBox]:
@@ -196,9 +193,6 @@ class ModelledFaces(Perception):
         self.name = self.detector.name
         self._period = 1.0 / rate_hz
         self._seq = 0
-
-    def reseed(self, seed: int) -> None:
-        self.detector.reseed(seed)
 
     async def found(self) -> AsyncIterator[Found]:
         while True:

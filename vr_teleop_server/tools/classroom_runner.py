@@ -68,7 +68,7 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
         record = record or Path(tmp) / "lesson.mcap"
         settings = ServerSettings(port=port, backend="sim", record=record, record_camera_fps=0.0, autonomy=level,
                                   bystander_interval=0, camera_fps=study.camera_fps, perception=study.perception,
-                                  gesture_dir=Path(tmp) / "g", audio_dir=Path(tmp) / "a")
+                                  perception_seed=seed, gesture_dir=Path(tmp) / "g", audio_dir=Path(tmp) / "a")
         server = TeleopServer(settings, clock)
         await server.start()
         if on_server is not None:
@@ -77,7 +77,6 @@ async def run_lesson(study: ClassroomStudy, condition: str, *, record: Path | No
         try:
             if server.autonomy is not None:
                 server.autonomy.attention.reseed(seed)
-            server.faces.perception.reseed(seed)
             menu_check(server, study)
             local = clock.simulated
 

@@ -64,7 +64,8 @@ async def pilot(study_file: Path, folder: Path, participants: int, *, clock: Clo
                                   autonomy="teleoperated", bystander_interval=0, gesture_dir=Path(tmp) / "g",
                                   audio_dir=Path(tmp) / "a",
                                   camera_fps=getattr(study, "camera_fps", None) or 30.0,
-                                  perception=study.perception if study.kind == "classroom" else "rendered")
+                                  perception=study.perception if study.kind == "classroom" else "rendered",
+                                  perception_seed=seed)
         server = TeleopServer(settings, clock)
         await server.start()
 
@@ -120,7 +121,6 @@ async def _trial(server: TeleopServer, experimenter: Client, trial_state: Any, s
     outcome = "completed"
     if study.kind == "classroom":
         level = study.conditions[condition].autonomy
-        server.faces.perception.reseed(seed)
         pupils_client = Client(opener()) if opener else await connect(server.url, id_prefix="pupils")
         teacher_client = Client(opener()) if opener else await connect(server.url, id_prefix="teacher")
         pupils = Pupils(pupils_client, study, seed)
