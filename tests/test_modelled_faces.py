@@ -155,3 +155,16 @@ def test_a_modelled_lesson_publishes_the_detector_s_messages_and_draws_no_frame(
     assert all(m["detector"] == "modelled:centerface" and (m["image_width"], m["image_height"]) == (640, 480)
                for m in heard)
     assert any(m["faces"] for m in heard)  # the robot faces the class: pupils in view, found
+
+
+@pytest.mark.parametrize("settings, named", [
+    ({"backend": "ros", "perception": "modelled"}, "it needs --backend sim"),
+    ({"perception": "modelled", "blur_faces": True}, "it needs --perception rendered"),
+])
+def test_modelled_perception_is_refused_where_there_is_no_scene_or_frames_are_needed(settings, named):
+    from pydantic import ValidationError
+
+    from vr_teleop_server.settings import ServerSettings
+
+    with pytest.raises(ValidationError, match=named):
+        ServerSettings(**settings)

@@ -127,6 +127,14 @@ class ServerSettings(CoreSettings):
             raise ValueError("perception 'modelled' models the stand-in's scene: it needs --backend sim")
         return perception
 
+    @field_validator("blur_faces")
+    @classmethod
+    def _blur_needs_frames(cls, blur: bool, info: ValidationInfo) -> bool:
+        if blur and info.data.get("perception") == "modelled":
+            raise ValueError("--blur-faces blurs the boxes found in the camera's own frames: it needs --perception "
+                             "rendered")
+        return blur
+
     @field_validator("turn_secret")
     @classmethod
     def _secret_with_turn(cls, secret: SecretStr | None, info: ValidationInfo) -> SecretStr | None:
