@@ -164,11 +164,14 @@ def test_a_profile_delays_both_ways_in_order_and_a_lost_frame_comes_one_time_out
 
 
 # ---- lessons on the stand-in (slow) -------------------------------------------------------------------------------
-def short_lesson(tmp_path: Path, perception: str) -> Path:
-    """The example cut to a 12-second lesson with talkative pupils and a teacher who always answers, quickly."""
+def short_lesson(tmp_path: Path) -> Path:
+    """The example cut to a 12-second lesson with talkative pupils and a teacher who always answers, quickly, on
+    modelled perception: these tests hold the table's shape, the workers and the network profiles, not what the
+    head camera sees (tests/test_modelled_faces.py holds the modelled boxes to the detector's; the pilot's lessons,
+    tests/test_study_pilot.py, are on rendered frames)."""
     doc = yaml.safe_load(EXAMPLE.read_text())
     doc["lesson_s"] = 12.0
-    doc["perception"] = perception
+    doc["perception"] = "modelled"
     doc["pupils"].update(speak_per_min=10.0, speech_s=[1.0, 2.5], look_away_per_min=0.0)
     doc["teacher"].update(respond_probability=1.0, answer_s=[0.3, 0.6], decide_s=[0.2, 0.6],
                           accept_probability=0.5, intervene_after_s=4.0)
@@ -184,10 +187,7 @@ def vr_teleop(*args: str) -> subprocess.CompletedProcess[str]:
 @pytest.mark.slow
 @pytest.mark.timeout(3600)
 def test_the_three_levels_in_this_process_and_on_two_workers_give_one_table_in_the_design_s_order(tmp_path):
-    # rendered: the lessons' faces from frames drawn and searched by the real detector. (With modelled perception
-    # the two runs' tables differed now and then on a loaded machine, a supervised lesson's first look: a race the
-    # frames' drawing hides, not found yet.)
-    study = short_lesson(tmp_path, "rendered")
+    study = short_lesson(tmp_path)
     out = {}
     for workers in ("1", "2"):
         proc = vr_teleop("study", "run", str(study), "--all", "--speed", "max", "--seed", "4", "--workers", workers,
@@ -220,9 +220,7 @@ def test_the_three_levels_in_this_process_and_on_two_workers_give_one_table_in_t
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_network_profiles_are_a_factor_of_the_conditions(tmp_path):
-    # modelled perception (tests/test_modelled_faces.py holds its boxes to the detector's): the profiles are the
-    # question here, not what the head camera sees
-    study = short_lesson(tmp_path, "modelled")
+    study = short_lesson(tmp_path)
     proc = vr_teleop("study", "run", str(study), "--condition", "supervised", "--speed", "max", "--seed", "2",
                      "--network", "lan,continent", "--record-dir", str(tmp_path / "rec"), "--json", "-")
     assert proc.returncode == 0, proc.stderr

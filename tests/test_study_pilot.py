@@ -12,11 +12,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_a_pilot_runs_the_whole_protocol_and_the_report_reads_it(tmp_path):
-    # The shipped study with a ten-second lesson and modelled perception: the protocol is the question here, not
-    # what the head camera sees (tests/test_modelled_faces.py holds the modelled boxes to the detector's).
+    # The shipped study with a ten-second lesson, on its default `perception: rendered`: the study test whose
+    # lessons' faces come from frames drawn and searched by the real detector (the others run on modelled).
     study = tmp_path / "classroom.yaml"
-    study.write_text((ROOT / "examples" / "classroom.yaml").read_text().replace("lesson_s: 180", "lesson_s: 10")
-                     + "perception: modelled\n")
+    study.write_text((ROOT / "examples" / "classroom.yaml").read_text().replace("lesson_s: 180", "lesson_s: 10"))
     folder = tmp_path / "study"
     cli = [sys.executable, "-m", "vr_teleop_server.cli", "study"]
     done = subprocess.run([*cli, "pilot", str(study), "--study-dir", str(folder), "--participants", "2",
