@@ -167,9 +167,13 @@ def test_a_profile_delays_both_ways_in_order_and_a_lost_frame_comes_one_time_out
 
 # ---- lessons on the stand-in (slow) -------------------------------------------------------------------------------
 def short_lesson(tmp_path: Path) -> Path:
-    """The example cut to a 12-second lesson with talkative pupils and a teacher who always answers, quickly."""
+    """The example cut to a 12-second lesson with talkative pupils and a teacher who always answers, quickly, on
+    modelled perception: these tests hold the table's shape, the workers and the network profiles, not what the
+    head camera sees (tests/test_modelled_faces.py holds the modelled boxes to the detector's; the pilot's lessons,
+    tests/test_study_pilot.py, are on rendered frames)."""
     doc = yaml.safe_load(EXAMPLE.read_text())
     doc["lesson_s"] = 12.0
+    doc["perception"] = "modelled"
     doc["pupils"].update(speak_per_min=10.0, speech_s=[1.0, 2.5], look_away_per_min=0.0)
     doc["teacher"].update(respond_probability=1.0, answer_s=[0.3, 0.6], decide_s=[0.2, 0.6],
                           accept_probability=0.5, intervene_after_s=4.0)

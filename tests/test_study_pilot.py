@@ -12,7 +12,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_a_pilot_runs_the_whole_protocol_and_the_report_reads_it(tmp_path):
-    study = tmp_path / "classroom.yaml"  # the shipped study with a ten-second lesson
+    # The shipped study with a ten-second lesson, on its default `perception: rendered`: the study test whose
+    # lessons' faces come from frames drawn and searched by the real detector (the others run on modelled).
+    study = tmp_path / "classroom.yaml"
     study.write_text((ROOT / "examples" / "classroom.yaml").read_text().replace("lesson_s: 180", "lesson_s: 10"))
     folder = tmp_path / "study"
     cli = [sys.executable, "-m", "vr_teleop_server.cli", "study"]

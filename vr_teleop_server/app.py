@@ -28,7 +28,7 @@ from .core.transport import Ping, WebSocketTransport
 from .features import Feature
 from .features.explicit_control import ExplicitControl
 from .features.face_blur import FaceBlur
-from .features.faces import FacePublisher
+from .features.faces import FacePublisher, Perception, RenderedFaces
 from .features.luxai_api import LuxaiApi
 from .features.menu_service import MenuService
 from .features.motivation import Motivation
@@ -94,6 +94,7 @@ class TeleopServer:
         self.access = AccessPolicy(tokens, participants=self._participant_of,
                                    blurred_views={names.CAMERA_TOPIC: names.CAMERA_BLURRED_TOPIC}
                                    if settings.blur_faces else {})
+        self.faces: FacePublisher | None = None  # /perception/faces, once the robot is open
         self.face_blur: FaceBlur | None = None  # serve --blur-faces, on a robot
         if self.access.open and not is_loopback(settings.host) and not settings.insecure:
             raise ValueError(f"refusing to serve {settings.host} without tokens: anyone on the network could drive "
@@ -230,7 +231,16 @@ class TeleopServer:
         self._start(status)
         motivation = Motivation(self.bus, self.motivation_config)
         self._start(motivation)
-        self._start(FacePublisher(self.bus, robot))
+        perception: Perception
+        if s.perception == "modelled":  # the stand-in's faces from its scene (the settings allow it on sim only)
+            from .features.modelled_faces import ModelledFaces
+
+            perception = ModelledFaces(robot.standin, self.clock, rate_hz=min(s.camera_fps, 5.0),
+                                       seed=s.perception_seed)
+        else:
+            perception = RenderedFaces(robot)
+        self.faces = FacePublisher(self.bus, perception)
+        self._start(self.faces)
         if s.blur_faces:
             self.face_blur = FaceBlur(self.bus, robot, clock=self.clock)
             self._start(self.face_blur)

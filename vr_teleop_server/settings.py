@@ -60,6 +60,12 @@ class ServerSettings(CoreSettings):
     bystander_interval: Annotated[float, Cli("sim", metavar="S")] = Field(
         20.0, ge=0, description="the stand-in's simulated pupils take turns saying a line every S seconds, heard in "
                                 "the robot's microphone and reported as voice activity; 0: never")
+    perception: Annotated[Literal["rendered", "modelled"], Cli("sim")] = Field(
+        "rendered", description="where the stand-in's face boxes (/perception/faces) come from: 'rendered', its head "
+                                "camera's frames searched by the face detector (about 0.4 CPU s a frame); "
+                                "'modelled', each pupil's head projected from the scene and found with the recall "
+                                "the detector measured (bench/faces.py --calibrate), no frame drawn: for studies")
+    perception_seed: int = Field(0, description="the seed of modelled perception's draws (a study run's seed)")
     autonomy: Annotated[AutonomyLevel, Cli("autonomy")] = Field(
         AutonomyLevel.SUPERVISED,
         description="the robot's autonomy level at start (changed live with /vr_teleop/autonomy/level): "
@@ -115,6 +121,21 @@ class ServerSettings(CoreSettings):
     @classmethod
     def _urls(cls, urls: tuple[str, ...]) -> tuple[str, ...]:
         return tuple(check_url(u) for u in urls)
+
+    @field_validator("perception")
+    @classmethod
+    def _modelled_on_sim(cls, perception: str, info: ValidationInfo) -> str:
+        if perception == "modelled" and info.data.get("backend") != "sim":
+            raise ValueError("perception 'modelled' models the stand-in's scene: it needs --backend sim")
+        return perception
+
+    @field_validator("blur_faces")
+    @classmethod
+    def _blur_needs_frames(cls, blur: bool, info: ValidationInfo) -> bool:
+        if blur and info.data.get("perception") == "modelled":
+            raise ValueError("--blur-faces blurs the boxes found in the camera's own frames: it needs --perception "
+                             "rendered")
+        return blur
 
     @field_validator("turn_secret")
     @classmethod

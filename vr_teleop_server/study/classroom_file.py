@@ -96,6 +96,9 @@ class ClassroomStudy(ProtocolFields):
     seed: int = 0
     lesson_s: float = Field(gt=0, le=3600)
     camera_fps: float = Field(default=2.0, gt=0, le=30, description="the head camera's rate (face detection)")
+    perception: Literal["rendered", "modelled"] = Field(
+        default="rendered", description="the pupils' faces searched in rendered frames, or modelled from the scene "
+                                        "(the server's --perception)")
     pupils: Pupils
     teacher: Teacher
     conditions: dict[str, Condition] = Field(min_length=1)

@@ -70,7 +70,8 @@ class ClassroomKind(StudyKind):
 
     def standin_settings(self, study: ClassroomStudy, condition: str, clock: Clock, scratch: Path) -> dict[str, Any]:
         return {"autonomy": study.conditions[condition].autonomy, "bystander_interval": 0,
-                "camera_fps": study.camera_fps, "gesture_dir": scratch / "g", "audio_dir": scratch / "a"}
+                "camera_fps": study.camera_fps, "perception": study.perception, "gesture_dir": scratch / "g",
+                "audio_dir": scratch / "a"}
 
     async def host(self, study: ClassroomStudy, condition: str, parts: ServerParts) -> HostedTrial:
         hosted = HostedLesson(study, condition, parts)

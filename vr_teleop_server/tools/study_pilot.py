@@ -59,7 +59,8 @@ async def pilot(study_file: Path, folder: Path, participants: int, *, clock: Clo
         settings = ServerSettings(port=0, backend="sim", study=study_file, study_dir=folder, record_camera_fps=0.0,
                                   autonomy=AutonomyLevel.TELEOPERATED, bystander_interval=0,
                                   gesture_dir=Path(tmp) / "g", audio_dir=Path(tmp) / "a",
-                                  camera_fps=getattr(study, "camera_fps", None) or 30.0)
+                                  camera_fps=getattr(study, "camera_fps", None) or 30.0,
+                                  perception=getattr(study, "perception", "rendered"), perception_seed=seed)
         server = TeleopServer(settings, clock)
         await server.start()
 

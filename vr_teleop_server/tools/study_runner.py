@@ -53,7 +53,7 @@ async def run_trial(study: Any, trial: str, *, record: Path | None = None, timeo
     name = trial if network is None else f"{trial}@{network}"
     with tempfile.TemporaryDirectory(prefix="vr-teleop-trial-") as tmp:
         path = record or Path(tmp) / "trial.mcap"
-        update = {"port": port, "backend": "sim", "record": path, "record_camera_fps": 0.0,
+        update = {"port": port, "backend": "sim", "record": path, "record_camera_fps": 0.0, "perception_seed": seed,
                   **kind.standin_settings(study, trial, clock, Path(tmp))}
         server = TeleopServer((settings or ServerSettings(port=0, backend="sim")).model_copy(update=update), clock)
         await server.start()

@@ -123,7 +123,10 @@ def classroom_metrics(tl: ClassroomTimeline) -> ClassroomResult:
             if held is not None and abs(yaws[held] - s.yaw) <= POINTING_DEG:
                 latencies.append(0.0)
                 continue
-            near = (times >= s.onset) & (times <= s.onset + REACH_S) & (np.abs(yaws - s.yaw) <= POINTING_DEG)
+            # a look counts in the lesson only: the recording runs on while the lesson's server stops, for a
+            # stretch of simulated time that depends on the machine (two runs of one seed differed there)
+            near = ((times >= s.onset) & (times <= min(s.onset + REACH_S, tl.lesson_s))
+                    & (np.abs(yaws - s.yaw) <= POINTING_DEG))
             if near.any():
                 latencies.append(float(times[np.argmax(near)] - s.onset))
                 continue
