@@ -21,8 +21,8 @@ from simclock import run as run_on_clock
 from testbed.faces import Head, matches
 from vr_teleop_server.features.faces import FaceDetector
 from vr_teleop_server.features.modelled_faces import ModelledDetector, RecallTable, SceneFaces
-from vr_teleop_server.study.studyfile import load_study
-from vr_teleop_server.tools.classroom_runner import run_lesson
+from vr_teleop_server.study.kinds import load_study
+from vr_teleop_server.tools.study_runner import run_trial
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "classroom.yaml"
 
@@ -146,7 +146,7 @@ def test_a_modelled_lesson_publishes_the_detector_s_messages_and_draws_no_frame(
         server.bus.subscribe("test", names.FACES_TOPIC, "vr_teleop_msgs/Faces", lambda p: heard.append(p.data))
 
     clock = SimulatedClock()
-    report = run_on_clock(run_lesson(study, "supervised", clock=clock, seed=3, on_server=on_server), clock)
+    report = run_on_clock(run_trial(study, "supervised", clock=clock, seed=3, on_server=on_server), clock)
     assert report.outcome == "completed"
     (server,) = servers
     assert server.faces.perception.name == "modelled:centerface"

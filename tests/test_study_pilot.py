@@ -12,14 +12,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_a_pilot_runs_the_whole_protocol_and_the_report_reads_it(tmp_path):
-    # The shipped study with a ten-second lesson, on its default `perception: rendered`: the study test whose
-    # lessons' faces come from frames drawn and searched by the real detector (the others run on modelled).
+    # The shipped study with a ten-second lesson, on `--perception rendered`: the study test whose lessons' faces
+    # come from frames drawn and searched by the real detector (the others run on modelled, the pilot's default).
     study = tmp_path / "classroom.yaml"
     study.write_text((ROOT / "examples" / "classroom.yaml").read_text().replace("lesson_s: 180", "lesson_s: 10"))
     folder = tmp_path / "study"
     cli = [sys.executable, "-m", "vr_teleop_server.cli", "study"]
     done = subprocess.run([*cli, "pilot", str(study), "--study-dir", str(folder), "--participants", "2",
-                           "--speed", "max", "--seed", "3"], capture_output=True, text=True, cwd=ROOT, timeout=900)
+                           "--speed", "max", "--seed", "3", "--perception", "rendered"], capture_output=True, text=True, cwd=ROOT, timeout=900)
     assert done.returncode == 0, done.stderr
     assert "2 participants (P01, P02), 6 trials (6 completed)" in done.stdout
     log = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]

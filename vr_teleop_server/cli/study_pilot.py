@@ -1,4 +1,4 @@
-"""`vr-teleop study pilot FILE --study-dir DIR --participants N [--speed max] [--seed S]`: the whole protocol of a
+"""`vr-teleop study pilot FILE --study-dir DIR --participants N [--speed max] [--seed S] [--perception P]`: the whole protocol of a
 study with people, played by simulated people through the live study's services (tools/study_pilot.py), then
 the folder's report."""
 
@@ -27,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=parse_speed, default=1.0, metavar="max",
                    help="1 (real time, the default) or max (a simulated clock, as fast as the work allows)")
     p.add_argument("--seed", type=int, default=1, help="the simulated people's and answers' seed (default 1)")
+    p.add_argument("--perception", choices=("modelled", "rendered"), default="modelled",
+                   help="where the stand-in's pupils' faces come from: 'modelled' (the default: projected from the "
+                        "scene with the detector's measured recall, no frame drawn; a dozen participants in minutes) "
+                        "or 'rendered' (the detector on drawn frames, about 6 times the CPU)")
     p.set_defaults(func=run)
 
 
@@ -44,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     clock = SimulatedClock() if math.isinf(args.speed) else WALL
     started = time.perf_counter()
     try:
-        result = run_on(pilot(args.file, args.study_dir, args.participants, clock=clock, seed=args.seed), clock)
+        result = run_on(pilot(args.file, args.study_dir, args.participants, clock=clock, seed=args.seed,
+                              perception=args.perception), clock)
     except (FolderError, StudyFileError, ValueError) as exc:
         print(f"vr-teleop study pilot: error: {exc}", file=sys.stderr)
         return 2

@@ -51,7 +51,7 @@ def answer(sheet: dict[str, Any], rng: random.Random) -> dict[str, Any]:
 
 
 async def pilot(study_file: Path, folder: Path, participants: int, *, clock: Clock = WALL, seed: int = 1,
-                timeout: float = 900.0) -> PilotResult:
+                timeout: float = 900.0, perception: str = "modelled") -> PilotResult:
     study = load_study(study_file)
     rng = random.Random(seed)
     result = PilotResult()
@@ -60,7 +60,7 @@ async def pilot(study_file: Path, folder: Path, participants: int, *, clock: Clo
                                   autonomy=AutonomyLevel.TELEOPERATED, bystander_interval=0,
                                   gesture_dir=Path(tmp) / "g", audio_dir=Path(tmp) / "a",
                                   camera_fps=getattr(study, "camera_fps", None) or 30.0,
-                                  perception=getattr(study, "perception", "rendered"), perception_seed=seed)
+                                  perception=perception, perception_seed=seed)
         server = TeleopServer(settings, clock)
         await server.start()
 
