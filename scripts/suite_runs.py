@@ -6,7 +6,8 @@ run's result and time: "green five runs in a row", shown.
 The clone is made with `git clone` into a temporary directory, so only committed work is tested. Without --python
 the clone is set up as a fresh machine is (`make` builds its .venv, the Debian packages and npm's, once, timed
 apart from the runs); with --python an interpreter that already has the dependencies runs the clone's code
-(PYTHONPATH first), and the checkout's node_modules and web/vendor (git ignores them) are linked into the clone.
+(PYTHONPATH first), and the checkout's node_modules (git ignores it) is linked into the clone, its web/vendor
+copied (the server serves no file whose real path is outside its web root).
 Exits 1 unless every run passed.
 """
 
@@ -23,7 +24,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-IGNORED_LINKS = ("node_modules", "vr_teleop_server/web/vendor")  # what `make` would build, linked instead
+IGNORED_LINKS = ("node_modules",)  # what `make` would build, linked instead...
+IGNORED_COPIES = ("vr_teleop_server/web/vendor",)  # ...or copied
 
 
 def clone(into: Path) -> Path:
@@ -49,6 +51,9 @@ def set_up(repo: Path, python: str | None) -> tuple[list[str], dict[str, str], f
         for name in IGNORED_LINKS:
             if (ROOT / name).exists() and not (repo / name).exists():
                 (repo / name).symlink_to((ROOT / name).resolve())
+        for name in IGNORED_COPIES:  # served: the server refuses a file whose real path is outside its web root
+            if (ROOT / name).exists() and not (repo / name).exists():
+                shutil.copytree(ROOT / name, repo / name)
     return [python, "-m", "pytest", "-q", "-p", "no:cacheprovider"], env, time.monotonic() - t0
 
 
