@@ -597,15 +597,17 @@ def test_the_hud_shows_gesture_recording_from_the_typed_event_whatever_the_menus
     recording without the menu at all) cannot change what the HUD shows."""
     from support import call
 
-    events = watch("/vr_teleop/events", "vr_teleop_msgs/Event")
-    menu = next(f for f in sim_server.server.features if type(f).__name__ == "MenuService")
-    toggle = menu._do_record_toggle
+    from menus import Command
+    from vr_teleop_server.features.menu_service import MENU_HANDLERS
 
-    async def reworded(args, caller):
-        await toggle(args, caller)
+    events = watch("/vr_teleop/events", "vr_teleop_msgs/Event")
+    toggle = MENU_HANDLERS[Command.RECORD_TOGGLE]
+
+    async def reworded(service, args, caller):
+        await toggle(service, args, caller)
         return "okay"  # no "recording ..." in it: a page reading sentences would miss the start
 
-    sim_server.call(lambda: setattr(menu, "_do_record_toggle", reworded))
+    sim_server.call(lambda: MENU_HANDLERS.__setitem__(Command.RECORD_TOGGLE, reworded))
     page = open_page(browser, sim_server)
     try:
         assert page.evaluate("document.getElementById('hud-recording')") is None
@@ -626,5 +628,5 @@ def test_the_hud_shows_gesture_recording_from_the_typed_event_whatever_the_menus
         assert stopped[-1] == {"recording": False, "parts": []}
         assert page.errors == []
     finally:
-        sim_server.call(lambda: setattr(menu, "_do_record_toggle", toggle))
+        sim_server.call(lambda: MENU_HANDLERS.__setitem__(Command.RECORD_TOGGLE, toggle))
         close_page(page)
