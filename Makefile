@@ -16,11 +16,11 @@ run: $(STAMP)
 # server is started once; TEST_WORKERS=0 runs it in this process.
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The quick loop while working: everything but the browser, network-namespace and slow tests (at most 5 minutes).
 check: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not slow and not browser and not netns"
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow and not browser and not netns"
 
 # The whole suite RUNS times in a row on a fresh clone of HEAD, each run's result and time reported.
 RUNS ?= 5

@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo, capture_output=True, text=True,
                               check=True).stdout.strip()
         cmd, env, setup_s = set_up(repo, args.python)
-        cmd += ["-n", args.workers, "--dist", "loadgroup", *args.pytest_args]
+        cmd += ["-n", args.workers, "--dist", "loadfile", *args.pytest_args]
         print(f"clone of {head} in {repo}; set-up {setup_s:.0f} s; each run: {' '.join(cmd[1:])}", flush=True)
         failed = 0
         for run in range(1, args.runs + 1):

@@ -121,7 +121,7 @@ def pytest_runtest_call(item: pytest.Item) -> None:
     gc.freeze()
 
 
-# Modules run longest first. With `--dist loadgroup` pytest-xdist hands a free worker the next whole group in the
+# Modules run longest first. With `--dist loadfile` pytest-xdist hands a free worker the next whole module in the
 # collection's order, so a long module collected last keeps one worker busy while the other has nothing left: longest
 # first (LPT) ends both workers at about the same time. DURATIONS holds each module's seconds (its tests' set-up, call
 # and tear-down, from a run of it; `pytest --record-durations` rewrites the entries of the modules a run ran); a
@@ -157,26 +157,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.browser)
             item.add_marker(pytest.mark.slow)
     seconds = json.loads(DURATIONS.read_text())
-    group_s: defaultdict[str, float] = defaultdict(float)
-    for module in {_module(item.nodeid) for item in items}:
-        group_s[_group(items, module)] += seconds.get(module, float("inf"))
-    for item in items:
-        item.add_marker(pytest.mark.xdist_group(_group(items, _module(item.nodeid))))
-    items.sort(key=lambda item: -group_s[_group(items, _module(item.nodeid))])  # stable: groups stay whole
-
-
-_groups: dict[str, str] = {}
-
-
-def _group(items: list[pytest.Item], module: str) -> str:
-    """The work unit a module runs in (`--dist loadgroup`): the module itself, but the network-namespace modules
-    share one, run one at a time on one worker. Each emulates a link in real time beside a relay, a TURN server and
-    often Chromium; two at once on two cores starve each other's links (holds that are the machine's, not the
-    link's)."""
-    if module not in _groups:
-        netns = any(item.get_closest_marker("netns") for item in items if _module(item.nodeid) == module)
-        _groups[module] = "netns" if netns else module
-    return _groups[module]
+    items.sort(key=lambda item: -seconds.get(_module(item.nodeid), float("inf")))  # stable: modules stay whole
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
