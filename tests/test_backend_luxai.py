@@ -39,6 +39,7 @@ from support import (
 from client_protocol import names
 from vr_teleop_server.robot.interface import VoiceActivity
 
+WAIT = 30.0  # a failure bound on a loaded machine, never a measure
 pytestmark = pytest.mark.slow  # a fake QTrobot v3 hub, over ZeroMQ and MQTT
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -84,8 +85,8 @@ def test_head_and_arms_reach_their_targets_within_the_robots_own_limits(zmq_robo
                         < 0.5, 10), hub.positions
         assert wait_for(lambda: abs(hub.positions["RightShoulderPitch"] + 60) < 0.5
                         and abs(hub.positions["RightElbowRoll"] + 50) < 0.5, 10), hub.positions
-        assert wait_for(lambda: abs(joints(js)["HeadYaw"] - 45.0) < 0.5, 5)  # the robot's state, relayed
-        assert wait_for(lambda: clamps.any(lambda m: "HeadYaw" in m["joints"] and m["applied"][0] == 45.0), 5)
+        assert wait_for(lambda: abs(joints(js)["HeadYaw"] - 45.0) < 0.5, WAIT)  # the robot's state, relayed
+        assert wait_for(lambda: clamps.any(lambda m: "HeadYaw" in m["joints"] and m["applied"][0] == 45.0), WAIT)
         assert max(c["HeadYaw"]["position"] for c in hub.commands if "HeadYaw" in c) == 45.0  # never sent beyond
         # each joint moves at its velocity cap, the smaller of the model's and the robot's
         elbow = [c["RightElbowRoll"]["velocity"] for c in hub.commands if "RightElbowRoll" in c]
@@ -104,7 +105,7 @@ def test_head_and_arms_reach_their_targets_within_the_robots_own_limits(zmq_robo
 def test_emotions_speech_with_stop_and_voice_config(zmq_robot):
     hub, server, ros = zmq_robot
     assert call(ros, names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": "QT/happy"})["status"]
-    assert wait_for(lambda: "QT/happy" in hub.emotions, 5)
+    assert wait_for(lambda: "QT/happy" in hub.emotions, WAIT)
     refused(call(ros, names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": "QT/nope"}))
     assert "QT/nope" not in hub.emotions
 
@@ -161,16 +162,16 @@ def test_motors_off_ignore_commands_and_home_uses_the_robots_own(zmq_robot):
     try:
         assert call(ros, names.MOTORS_CONTROL_MODE_SERVICE, "qt_motors_controller/set_control_mode",
                     {"parts": ["head"], "mode": 1})["status"]
-        assert wait_for(lambda: not hub.torque["HeadYaw"] and not hub.torque["HeadPitch"], 5)
+        assert wait_for(lambda: not hub.torque["HeadYaw"] and not hub.torque["HeadPitch"], WAIT)
         sent = len(hub.commands)
         head.publish(roslibpy.Message({"data": [-20.0, 0.0]}))
-        assert wait_for(lambda: clamps.any(lambda m: "HeadYaw" in m["ignored"]), 5)
+        assert wait_for(lambda: clamps.any(lambda m: "HeadYaw" in m["ignored"]), WAIT)
         assert not any("HeadYaw" in c for c in hub.commands[sent:])  # never sent to the robot
         assert call(ros, names.MOTORS_CONTROL_MODE_SERVICE, "qt_motors_controller/set_control_mode",
                     {"parts": ["head"], "mode": 0})["status"]
-        assert wait_for(lambda: hub.torque["HeadYaw"], 5)
+        assert wait_for(lambda: hub.torque["HeadYaw"], WAIT)
         assert call(ros, names.MOTORS_HOME_SERVICE, "qt_motors_controller/home", {"parts": ["head"]})["status"]
-        assert wait_for(lambda: {"HeadYaw", "HeadPitch"} <= set(hub.homed), 5)
+        assert wait_for(lambda: {"HeadYaw", "HeadPitch"} <= set(hub.homed), WAIT)
         assert wait_for(lambda: abs(hub.positions["HeadYaw"]) < 0.5, 10)
     finally:
         clamps.close()
@@ -363,8 +364,8 @@ def test_the_robot_lost_and_back(zmq_robot):
         hub.stop()
         assert wait_for(lambda: teleop.latest.get("state") == "robot_lost" and not teleop.latest["robot_connected"],
                         10), teleop.latest
-        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), 5)
-        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"), 5)
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost" and e["level"] == "danger"), WAIT)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "disconnected"), WAIT)
         assert wait_for(lambda: answers, 10) and answers[0]["status"] is False  # ended with the robot, not completed
         refused(call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": True}), "disconnected")
         refused(call(ros, names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": "QT/sad"}))
@@ -373,8 +374,8 @@ def test_the_robot_lost_and_back(zmq_robot):
         hub.commands.clear()
         hub.start()  # back, on the same ports
         assert wait_for(lambda: teleop.latest.get("robot_connected"), 20), teleop.latest
-        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), 5)
-        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), 5)
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), WAIT)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "backend" and e["kind"] == "reconnected"), WAIT)
         assert not any("HeadPitch" in c and c["HeadPitch"]["position"] == 12.0 for c in hub.commands)
         assert "QT/sad" not in hub.emotions  # the refused emotion did not burst out later
         engage(ros)  # the headset's orientation now (20 deg left) is the head's new zero...
@@ -484,13 +485,13 @@ def test_through_mosquitto_joints_face_speech_and_camera(mqtt_robot):
     assert wait_for(lambda: abs(hub.positions["HeadYaw"] + 40) < 0.5 and abs(hub.positions["HeadPitch"] - 5) < 0.5,
                     10), hub.positions
     assert call(ros, names.EMOTION_SHOW_SERVICE, "qt_robot_interface/emotion_show", {"name": "QT/surprise"})["status"]
-    assert wait_for(lambda: "QT/surprise" in hub.emotions, 5)
+    assert wait_for(lambda: "QT/surprise" in hub.emotions, WAIT)
     assert call(ros, names.SPEECH_SAY_SERVICE, "qt_robot_interface/speech_say", {"message": "hi"})["status"]
     assert hub.spoken[-1] == "hi"
     # the operator's voice, written on the stream's bare topic (SDK 0.6.9), reaches the gateway
     start = len(hub.audio)
     server.call(lambda: server.server.robot.play_voice(b"\x00\x10" * 1600, 16000, 1))
-    assert wait_for(lambda: len(hub.audio) - start >= 1280, 5)
+    assert wait_for(lambda: len(hub.audio) - start >= 1280, WAIT)
     camera = Watch(ros, names.CAMERA_TOPIC, "sensor_msgs/CompressedImage")  # the plugin under its node id
     try:
         assert wait_for(lambda: len(camera.messages) >= 3, 15)
@@ -507,13 +508,13 @@ def test_a_broker_restart_is_the_robot_lost_and_back(mqtt_robot):
     try:
         broker.stop()
         assert wait_for(lambda: not backend.connected, 10)
-        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost"), 5)
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_lost"), WAIT)
         report = server.call(lambda: backend.set_joint_targets({"HeadYaw": 10.0}))
         assert report.ignored == ("HeadYaw",)
         hub.commands.clear()
         broker.start()  # the same port; both clients reconnect with their back-off
         assert wait_for(lambda: backend.connected, 30)
-        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), 5)
+        assert wait_for(lambda: events.any(lambda e: e["kind"] == "robot_back"), WAIT)
         roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
             roslibpy.Message({"data": [30.0, 0.0]}))
         assert wait_for(lambda: abs(hub.positions["HeadYaw"] - 30) < 0.5, 10), hub.positions

@@ -61,9 +61,9 @@ def test_commands_camera_and_services_reach_the_robot(robot_and_server):
             roslibpy.Message({"data": [25.0, 5.0]}))
         standin = robot.server.robot.standin
         assert wait_for(lambda: abs(standin.joint_positions()["HeadYaw"] - 25.0) < 1.5, 10)
-        assert wait_for(lambda: abs(joints(js)["HeadYaw"] - 25.0) < 1.5, 5)
+        assert wait_for(lambda: abs(joints(js)["HeadYaw"] - 25.0) < 1.5, WAIT)
         assert call(ros, "/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": "QT/happy"})["status"]
-        assert wait_for(lambda: standin.emotion == "happy", 5)
+        assert wait_for(lambda: standin.emotion == "happy", WAIT)
         camera = Watch(ros, "/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage")
         assert wait_for(lambda: len(camera.messages) >= 5, 15)
         assert camera.latest["format"] == "jpeg"
