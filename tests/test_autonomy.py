@@ -145,7 +145,7 @@ def test_the_pupils_are_listed_and_speak_from_their_places(ros):
     pupils = Watch(ros, names.SIM_BYSTANDERS_TOPIC, "vr_teleop_msgs/Bystanders")
     assert wait_for(lambda: pupils.latest, WAIT)
     listed = {b["name"]: b for b in pupils.latest["bystanders"]}
-    assert set(listed) == {"child_left", "adult_centre", "child_right"}
+    assert set(listed) == set(PUPILS)
     assert listed["child_left"]["yaw"] == pytest.approx(pupil("child_left").yaw_deg, abs=1e-3)
     assert listed["child_left"]["yaw"] > 0 > listed["child_right"]["yaw"]
     refused(call(ros, names.SIM_BYSTANDERS_SPEAK_SERVICE, "vr_teleop_msgs/BystanderSpeak",
@@ -228,7 +228,7 @@ def test_a_pupil_keeps_one_name_and_a_rename_reaches_every_message(server, ros):
     the next attention and state messages, for the face and the voice alike; bad renames are refused."""
     attention = Watch(ros, names.AUTONOMY_ATTENTION_TOPIC, "vr_teleop_msgs/AttentionTarget")
     state = Watch(ros, names.AUTONOMY_STATE_TOPIC, "vr_teleop_msgs/AutonomyState")
-    pupils = {"child_left", "adult_centre", "child_right"}
+    pupils = set(PUPILS)
     try:
         speak(ros, "child_left", "I know the answer, it is the biggest planet, Jupiter, and it has many moons.")
         assert wait_for(lambda: attention.any(lambda m: m["who"] == "child_left" and m["has_face"]), WAIT)
