@@ -362,7 +362,10 @@ class MediaPeer:
     async def wait_video(self, count: int, timeout: float = 30.0) -> None:
         target = self.video_count + count
         if not await until(lambda: self.video_count >= target, timeout):
-            raise TimeoutError(f"{self.video_count} video frames, waited for {target}")
+            raise TimeoutError(f"{self.video_count} video frames, waited for {target}; connection "
+                               f"{self.pc.connectionState}, ICE {self.pc.iceConnectionState}, "
+                               f"{self.video_bytes} bytes of video RTP (payload types "
+                               f"{sorted(self.video_payload_types)})")
 
     async def close(self) -> None:
         await self.pc.close()

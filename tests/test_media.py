@@ -63,6 +63,16 @@ async def telemetry_of(ros: Rosbridge, predicate, timeout: float = 30.0, webrtc:
     raise AssertionError(f"no telemetry entry matched; last: {last}")
 
 
+def video_state(media_server: RunningServer) -> dict:
+    """What the server's video side holds (on its loop), for a failure's message."""
+    media = media_server.server.media
+    hub = media.video
+    return {"encoded": dict(hub.encoded), "watching": hub.watching, "encoder_pid": hub.encoder_pid,
+            "pump": None if hub._task is None else ("done" if hub._task.done() else "running"),
+            "peers": {name: {"codec": p.video.codec, "sent": p.video.frames_sent, "dropped": p.video.frames_dropped}
+                      for name, p in media.peers.items() if p.video is not None}}
+
+
 def gray(frame) -> np.ndarray:
     return frame.to_ndarray(format="gray").astype(np.float32)
 
@@ -127,7 +137,10 @@ async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer)
     hub = media_server.server.media.video
     try:
         for _, peer in clients:
-            await peer.wait_video(5)
+            try:
+                await peer.wait_video(5)
+            except TimeoutError as exc:
+                raise AssertionError(f"{exc}; the server: {media_server.call(lambda: video_state(media_server))}")
         entries = {}
         for ros, _ in clients:
             entry = await telemetry_of(ros, lambda c: c["rtc_frames_sent"] > 0 and c["client"] not in entries)
