@@ -168,6 +168,38 @@ async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer)
             await ros.close()
 
 
+async def test_a_keyframe_lost_on_its_way_is_asked_for_again(media_server: RunningServer,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """A peer's video starts at a keyframe. When the frame the keyframe was granted for never comes out of the
+    encoder (its ring slot already held a newer frame: a loaded machine), the grant is not spent: the next frame is
+    the keyframe, and the peer's video starts (CI once saw a peer get no frame at all for 30 s)."""
+    from vr_teleop_server.media.encoder_process import EncoderProcess
+
+    encode, lost = EncoderProcess.encode, []
+
+    def lose_the_first_keyframe(self, frame, pts, jobs, blur=None):
+        out = encode(self, frame, pts, jobs, blur)
+        if not lost and any(key for key, _ in jobs.values()):
+            lost.append(frame)
+            return {}  # encoded, but lost on its way (the worker answers so for a frame overwritten in the ring)
+        return out
+
+    ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")  # the VP8 encoder running:
+    await peer.wait_video(3)  # a new one would start with a keyframe of its own
+    await peer.close()
+    await ros.close()
+    monkeypatch.setattr(EncoderProcess, "encode", lose_the_first_keyframe)
+    ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")
+    try:
+        await peer.wait_video(3)
+        assert lost, "no keyframe was asked for"
+    finally:
+        await peer.close()
+        await ros.close()
+        monkeypatch.undo()
+    assert await until(lambda: not media_server.server.media.peers, 10, blocking=True)
+
+
 async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -> None:
     ros, peer = await connected(media_server.url, video=False)
     try:

@@ -172,6 +172,15 @@ class VideoHub:
         self._keyframe_at[codec] = now
         return True
 
+    def _regrant_lost_keyframes(self, jobs: dict[str, tuple[bool, int]], out: dict[str, EncodedFrame]) -> None:
+        """A keyframe granted for a frame that never came out (its ring slot already held a newer frame, or the
+        codec failed) is not spent: the next frame is one. A peer waiting for its first keyframe would otherwise
+        wait for another peer's request (CI saw one get no frame in 30 s)."""
+        for codec, (keyframe, _) in jobs.items():
+            if keyframe and not (codec in out and out[codec].keyframe):
+                self._keyframe.add(codec)
+                self._keyframe_at.pop(codec, None)
+
     def bitrate(self, codec: str) -> int:
         """The shared encoder's target: the lowest estimate of the peers that share it."""
         estimates = [t.estimate for t in self._tracks[codec] if t.estimate]
@@ -192,12 +201,13 @@ class VideoHub:
                     targets = {codec: tuple(self._tracks[codec]) for codec in jobs}
                     regions = None if self.blur is None else self.blur.plan(frame.seq).regions
                     try:
-                        await loop.run_in_executor(self._executor, self._encode, frame, jobs, targets, regions)
+                        out = await loop.run_in_executor(self._executor, self._encode, frame, jobs, targets, regions)
                     except EncoderProcessError as exc:
                         log.warning("%s; another starts in %g s", exc, RESTART_DELAY_S)
                         self._keyframe.update(jobs)  # a new encoder starts with one anyway; the peers need it
                         await asyncio.sleep(RESTART_DELAY_S)
                         continue
+                    self._regrant_lost_keyframes(jobs, out)
         except asyncio.CancelledError:
             raise
         except Exception:
