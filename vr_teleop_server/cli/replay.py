@@ -56,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     r.set_defaults(func=run_replay)
 
 
-SIMULATED_SPEED = {True: 1.7, False: 6.5}  # --speed max without a server, camera or not (2-core machine, loaded)
+SIMULATED_SPEED = {True: 1.7, False: 20.0}  # --speed max without a server, camera or not (2-core machine, loaded)
 
 
 def run_replay(args: argparse.Namespace) -> int:
