@@ -31,11 +31,22 @@ def operator_in_namespace(playwright, origin: str, camera: str, viewport: dict, 
     try:
         page = browser.new_context(viewport=viewport).new_page()
         errors: list[str] = []
+        console: list[str] = []
         page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.on("console", lambda msg: console.append(f"{msg.type}: {msg.text}"))
+        page.on("requestfailed", lambda request: console.append(f"request failed: {request.url} "
+                                                                f"({request.failure})"))
         page.add_init_script(path=str(IWER))
         page.add_init_script(script=INSTALL_HEADSET)
         page.goto(f"{origin}/operator#camera={camera}")
-        page.wait_for_function(READY, timeout=timeout_ms)
+        try:
+            page.wait_for_function(READY, timeout=timeout_ms)
+        except Exception as exc:  # what the page had come to, for the failure's message
+            state = page.evaluate("({operator: !!window.operator, connected: window.operator?.ros?.connected ?? null,"
+                                  " teleop: !!window.operator?.state?.teleop,"
+                                  " hud: document.getElementById('hud-message')?.textContent ?? null})")
+            raise AssertionError(f"the operator page at {origin} was not ready: {state}; errors {errors}; "
+                                 f"console {console[-20:]}") from exc
         yield page, errors
     finally:
         browser.close()
