@@ -40,7 +40,7 @@ def prepared(server: RunningServer, study: Study, trial: str) -> TrialRuntime:
     def home() -> bool:
         here = robot.joint_state().as_dict()
         return all(abs(here[n] - robot.model.joint(n).home) < 2 for n in robot.model.names)
-    assert wait_for(home, 10)
+    assert wait_for(home, 30)
 
     async def make() -> TrialRuntime:
         runtime = TrialRuntime(server.server.bus, robot, study, trial, server.server.luxai.gestures,

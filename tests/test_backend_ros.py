@@ -56,16 +56,16 @@ def test_commands_camera_and_services_reach_the_robot(robot_and_server):
     ros.run(timeout=10)
     try:
         js = Watch(ros, "/qt_robot/joints/state", "sensor_msgs/JointState")  # relayed from the robot
-        assert wait_for(lambda: "HeadYaw" in joints(js), 10)
+        assert wait_for(lambda: "HeadYaw" in joints(js), 30)
         roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
             roslibpy.Message({"data": [25.0, 5.0]}))
         standin = robot.server.robot.standin
-        assert wait_for(lambda: abs(standin.joint_positions()["HeadYaw"] - 25.0) < 1.5, 10)
+        assert wait_for(lambda: abs(standin.joint_positions()["HeadYaw"] - 25.0) < 1.5, 30)
         assert wait_for(lambda: abs(joints(js)["HeadYaw"] - 25.0) < 1.5, WAIT)
         assert call(ros, "/qt_robot/emotion/show", "qt_robot_interface/emotion_show", {"name": "QT/happy"})["status"]
         assert wait_for(lambda: standin.emotion == "happy", WAIT)
         camera = Watch(ros, "/camera/color/image_raw/compressed", "sensor_msgs/CompressedImage")
-        assert wait_for(lambda: len(camera.messages) >= 5, 15)
+        assert wait_for(lambda: len(camera.messages) >= 5, 30)
         assert camera.latest["format"] == "jpeg"
         assert server.server.robot.latest_frame().width == 640
     finally:
@@ -196,7 +196,7 @@ async def test_the_robots_microphone_reaches_a_webrtc_peer(servers):
             "the robot's microphone went quiet, its audio did not"
         await peer.close()
         peer = None
-        assert await until(lambda: not server.call(lambda: backend.microphone_read), 15)
+        assert await until(lambda: not server.call(lambda: backend.microphone_read), 30)
     finally:
         if peer is not None:
             await peer.close()

@@ -118,7 +118,7 @@ def stamp(header: dict) -> tuple[int, int]:
 def head(ros: roslibpy.Ros) -> dict[str, float]:
     watch = Watch(ros, names.JOINT_STATE_TOPIC, "sensor_msgs/JointState")
     try:
-        assert wait_for(lambda: watch.latest, 10)
+        assert wait_for(lambda: watch.latest, 30)
         return dict(zip(watch.latest["name"], watch.latest["position"]))
     finally:
         watch.close()

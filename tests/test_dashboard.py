@@ -104,13 +104,13 @@ def test_a_button_shows_an_emotion_and_escape_stops_the_robot(browser, dashboard
     try:
         page.wait_for_selector("button[data-item='emotion.sad']")
         page.click("button[data-item='emotion.sad']")
-        assert wait_for(lambda: standin.emotion == "sad", 5)
+        assert wait_for(lambda: standin.emotion == "sad", 30)
         page.wait_for_function("document.getElementById('events').textContent.includes('showing sad')")
         # A head command is on its way when the supervisor hits Esc: the robot holds where it is.
         client = RawClient(dashboard_server.url)
         client.send({"op": "auth", "mac": TOKENS["operator"]})
         client.send({"op": "publish", "topic": "/qt_robot/head_position/command", "msg": {"data": [50.0, 0.0]}})
-        assert wait_for(lambda: standin.joint_positions()["HeadYaw"] > 10, 5)
+        assert wait_for(lambda: standin.joint_positions()["HeadYaw"] > 10, 30)
         page.keyboard.press("Escape")
         page.wait_for_function("document.getElementById('teleop-state').textContent.startsWith('estopped')",
                                timeout=5_000)

@@ -82,7 +82,7 @@ def test_the_experimenter_labels_overrides_and_preempts_a_trial_from_the_page(br
         on_loop(study_server, runtime.close())
     # Everything is in the session recording: the labels as pressed, the state updates they made, the interventions.
     assert wait_for(lambda: any(u["action"] == "take_bottom" and u["finished"] and u["source"] == "label"
-                                for u in recorded(study_server, "/study/state_updates")), 5)
+                                for u in recorded(study_server, "/study/state_updates")), 30)
     kinds = [e["kind"] for e in recorded(study_server, "/study/labels")]
     assert kinds[:2] == ["human_action_start", "human_action_stop"], kinds
     assert [i["kind"] for i in recorded(study_server, "/study/interventions")] == ["override", "preempt"]

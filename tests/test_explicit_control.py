@@ -24,7 +24,7 @@ MODEL = load_qtrobot()
 @pytest.fixture(autouse=True)
 def control_is_free_after_each_test(sim_server):
     yield
-    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 5)
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 30)
 
 
 @pytest.fixture
@@ -47,19 +47,19 @@ def joint_states(watch):
 def test_looking_left_turns_the_head_and_beyond_the_limit_clamps(ros, headset, state, joint_states):
     engage(ros)
     assert wait_for(lambda: state.latest.get("engaged") and state.latest.get("state") == "active"
-                    and state.latest["head_following"], 5), state.latest
+                    and state.latest["head_following"], 30), state.latest
     assert state.latest["holder"]
     headset.head_orientation = unity_yaw_pitch(30.0)
-    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 30.0) < 2.0, 10), joints(joint_states)
+    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 30.0) < 2.0, 30), joints(joint_states)
     headset.head_orientation = unity_yaw_pitch(80.0)
-    assert wait_for(lambda: "HeadYaw" in state.latest.get("clamped", []), 10), state.latest
-    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] - 60.0) < 2.0, 10), joints(joint_states)
+    assert wait_for(lambda: "HeadYaw" in state.latest.get("clamped", []), 30), state.latest
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] - 60.0) < 2.0, 30), joints(joint_states)
     headset.head_orientation = unity_yaw_pitch(0.0, 10.0)  # looking up: QTrobot's pitch is positive down
-    assert wait_for(lambda: abs(joints(joint_states)["HeadPitch"] + 10.0) < 2.0, 10), joints(joint_states)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadPitch"] + 10.0) < 2.0, 30), joints(joint_states)
     headset.head_orientation = unity_yaw_pitch(0.0, 30.0)  # beyond the -15 limit
-    assert wait_for(lambda: abs(joints(joint_states)["HeadPitch"] - MODEL.joint("HeadPitch").lower) < 2.0, 10)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadPitch"] - MODEL.joint("HeadPitch").lower) < 2.0, 30)
     call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
-    assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 5)
+    assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 30)
 
 
 def expected_arm(hand_unity: tuple[float, float, float]) -> dict[str, float]:
@@ -89,16 +89,16 @@ def test_right_controller_moves_the_right_arm_only_while_the_grip_is_held(ros, h
     before = joints(joint_states)
     assert still(lambda: not state.latest["right_arm_following"], state)  # no grip yet: the arm holds
     headset.grips["right"] = 1.0
-    assert wait_for(lambda: state.latest.get("right_arm_following"), 5)
+    assert wait_for(lambda: state.latest.get("right_arm_following"), 30)
     want = expected_arm(forward)
     right = MODEL.part_joints("right_arm")
     assert max(abs(want[n] - before[n]) for n in right) > 20  # the pose is far from where the arm hung
-    assert wait_for(lambda: all(abs(joints(joint_states)[n] - want[n]) < 3.0 for n in right), 15), \
+    assert wait_for(lambda: all(abs(joints(joint_states)[n] - want[n]) < 3.0 for n in right), 30), \
         (joints(joint_states), want)
     assert not state.latest["left_arm_following"]
     # Release the grip: the arm holds where it is even as the hand moves away.
     headset.grips["right"] = 0.0
-    assert wait_for(lambda: not state.latest.get("right_arm_following"), 5)
+    assert wait_for(lambda: not state.latest.get("right_arm_following"), 30)
     held = joints(joint_states)
     headset.hand_positions["right"] = (0.5, EYE_HEIGHT - 0.2, 0.0)
     headset.send_head_poses(90)  # a second of the headset's frames with the hand away
@@ -109,17 +109,17 @@ def test_watchdog_holds_on_a_stalled_stream_and_fresh_poses_resume(ros, headset,
     events = Watch(ros, "/vr_teleop/events", "vr_teleop_msgs/Event")
     engage(ros)
     headset.head_orientation = unity_yaw_pitch(20.0)
-    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 20.0) < 2.0, 10)
+    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 20.0) < 2.0, 30)
     headset.stop()
-    assert wait_for(lambda: state.latest.get("state") == "stalled", 3), state.latest
+    assert wait_for(lambda: state.latest.get("state") == "stalled", 30), state.latest
     assert state.latest["pose_age"] > 0.2 and not state.latest["head_following"]
-    assert wait_for(lambda: events.any(lambda e: e["kind"] == "watchdog_stalled"), 3)
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "watchdog_stalled"), 30)
     held = joints(joint_states)["HeadYaw"]
     assert still(lambda: abs(joints(joint_states)["HeadYaw"] - held) < 0.5, joint_states)
     headset.head_orientation = unity_yaw_pitch(-20.0)
     headset.start()
-    assert wait_for(lambda: state.latest.get("state") == "active", 3)
-    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] + 20.0) < 2.0, 10)
+    assert wait_for(lambda: state.latest.get("state") == "active", 30)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] + 20.0) < 2.0, 30)
     events.close()
 
 
@@ -130,10 +130,10 @@ def test_dropped_operator_holds_the_robot_and_frees_control(sim_server, ros):
     h = Headset(operator).start()
     h.head_orientation = unity_yaw_pitch(-25.0)
     engage(operator)
-    assert wait_for(lambda: watcher.latest.get("state") == "active", 5)
+    assert wait_for(lambda: watcher.latest.get("state") == "active", 30)
     h.stop()
     operator.close()  # the connection drops mid-motion
-    assert wait_for(lambda: watcher.latest.get("state") == "disconnected" and watcher.latest["holder"] == "", 3)
+    assert wait_for(lambda: watcher.latest.get("state") == "disconnected" and watcher.latest["holder"] == "", 30)
     assert not watcher.latest["engaged"]
     watcher.close()
 
@@ -198,10 +198,10 @@ def test_bad_poses_get_a_status_error_and_never_reach_the_robot(sim_server, orie
 def test_estop_holds_and_releases_control(ros, headset, state, joint_states):
     engage(ros)
     headset.head_orientation = unity_yaw_pitch(40.0)
-    assert wait_for(lambda: joints(joint_states).get("HeadYaw", 0) > 10, 10)
+    assert wait_for(lambda: joints(joint_states).get("HeadYaw", 0) > 10, 30)
     reply = call(ros, "/vr_teleop/control/estop", "std_srvs/Trigger")
     assert reply["success"]
-    assert wait_for(lambda: state.latest.get("state") == "estopped" and state.latest["holder"] == "", 3)
+    assert wait_for(lambda: state.latest.get("state") == "estopped" and state.latest["holder"] == "", 30)
     still(lambda: True, joint_states, 10)  # a command already on its way lands (what the servo does with it)
     held = joints(joint_states)["HeadYaw"]
     # the robot holds although the head still turns, over the robot's own joint states (30 Hz), not a time window
@@ -230,24 +230,24 @@ def test_the_telemetry_tells_the_holder_how_good_its_link_is(ros, headset, state
         return next((c for c in telemetry.latest.get("clients", []) if c["client"] == me), {})
 
     # its round trip measured and its poses flowing, but no control: there is no link to judge yet
-    assert wait_for(lambda: mine().get("ws_rtt", -1) >= 0 and mine()["pose_rate"] > 0, 10), mine()
+    assert wait_for(lambda: mine().get("ws_rtt", -1) >= 0 and mine()["pose_rate"] > 0, 30), mine()
     assert (mine()["link_quality"], mine()["link_warning"]) == ("", ""), mine()
     engage(ros)
-    assert wait_for(lambda: mine().get("watchdog_threshold", -1) > 0 and mine()["link_quality"], 10), mine()
+    assert wait_for(lambda: mine().get("watchdog_threshold", -1) > 0 and mine()["link_quality"], 30), mine()
     entry = mine()
     assert 0.2 <= entry["watchdog_threshold"] <= 0.5 and entry["watchdog_holds"] == 0
     assert entry["link_quality"] in ("good", "degraded") and entry["pose_jitter"] >= 0  # loopback, busy or not
     headset.stop()
-    assert wait_for(lambda: state.latest.get("state") == "stalled", 3), state.latest
-    assert wait_for(lambda: mine().get("link_quality") == "poor", 5), mine()
+    assert wait_for(lambda: state.latest.get("state") == "stalled", 30), state.latest
+    assert wait_for(lambda: mine().get("link_quality") == "poor", 30), mine()
     assert "not arriving" in mine()["link_warning"] and mine()["watchdog_holds"] == 1
     headset.start()
-    assert wait_for(lambda: state.latest.get("state") == "active", 3)
-    assert wait_for(lambda: "not arriving" not in mine()["link_warning"], 5), mine()
+    assert wait_for(lambda: state.latest.get("state") == "active", 30)
+    assert wait_for(lambda: "not arriving" not in mine()["link_warning"], 30), mine()
     assert mine()["link_quality"] in ("degraded", "poor") and "held 1 time in the last minute" in mine()["link_warning"]
     call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})
     # not holding: no watchdog figures
-    assert wait_for(lambda: mine().get("watchdog_threshold") == -1.0 and mine()["watchdog_holds"] == 0, 5), mine()
+    assert wait_for(lambda: mine().get("watchdog_threshold") == -1.0 and mine()["watchdog_holds"] == 0, 30), mine()
     assert (mine()["link_quality"], mine()["link_warning"]) == ("", ""), mine()  # nor a verdict
 
 
@@ -258,7 +258,7 @@ def test_recenter_makes_the_current_head_direction_straight_ahead_for_the_holder
     assert refused_before["success"] is False and "engage first" in refused_before["message"], refused_before
     engage(ros)
     headset.head_orientation = unity_yaw_pitch(35.0)
-    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 35.0) < 2.0, 10), joints(joint_states)
+    assert wait_for(lambda: abs(joints(joint_states).get("HeadYaw", 0) - 35.0) < 2.0, 30), joints(joint_states)
     intruder = roslibpy.Ros(host="127.0.0.1", port=sim_server.port)
     intruder.run(timeout=10)
     try:
@@ -269,9 +269,9 @@ def test_recenter_makes_the_current_head_direction_straight_ahead_for_the_holder
     reply = call(ros, "/vr_teleop/control/recenter", "std_srvs/Trigger")
     assert reply["success"] and "recentered" in reply["message"], reply
     # looking 35 degrees left is now straight ahead: the robot's head comes back to the centre, then follows
-    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"]) < 2.0, 10), joints(joint_states)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"]) < 2.0, 30), joints(joint_states)
     headset.head_orientation = unity_yaw_pitch(50.0)
-    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] - 15.0) < 2.0, 10), joints(joint_states)
-    assert wait_for(lambda: events.any(lambda e: e["kind"] == "recenter"), 5)
+    assert wait_for(lambda: abs(joints(joint_states)["HeadYaw"] - 15.0) < 2.0, 30), joints(joint_states)
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "recenter"), 30)
     assert state.latest["state"] == "active"
     call(ros, "/vr_teleop/control/engage", "std_srvs/SetBool", {"data": False})

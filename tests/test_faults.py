@@ -64,7 +64,7 @@ def test_incomplete_fragment_sets_are_collected_and_memory_does_not_grow(servers
         for i in range(sets):  # two pieces of three, never the third
             for num in (0, 1):
                 client.send({"op": "fragment", "id": f"r{n}-{i}", "data": piece, "num": num, "total": 3})
-        assert wait_for(lambda: fragment_sets(server) == sets, 10), "the server did not hold every set"
+        assert wait_for(lambda: fragment_sets(server) == sets, 30), "the server did not hold every set"
         held = traced_now() - before
         expired = []
         while len(expired) < sets:
@@ -160,12 +160,12 @@ def test_clients_coming_and_going_leak_nothing(server):
     # The warm-up's visitors are gone once the server holds for clients what it held before them (topics, services
     # and descriptors aside: those may be the lazily created ones).
     left = ("sessions", "subscriptions", "publishers", "actions", "tasks")
-    assert wait_for(lambda: all(settled()[k] == idle[k] for k in left), 20), (idle, settled())
+    assert wait_for(lambda: all(settled()[k] == idle[k] for k in left), 30), (idle, settled())
     before = settled()
     stats = asyncio.run(visits(CHURN_SECONDS))
     def same(after: dict[str, int]) -> bool:  # descriptors may only be fewer: the warm-up's may still be closing
         return {**after, "fds": 0} == {**before, "fds": 0} and after["fds"] <= before["fds"]
-    assert wait_for(lambda: same(settled()), 20), f"before {before}, after {settled()}"
+    assert wait_for(lambda: same(settled()), 30), f"before {before}, after {settled()}"
     assert stats["visits"] >= 2 * CHURN_SECONDS and stats["aborted"] > 0, stats
     print(f"{stats['visits']} visits by 20 clients in {CHURN_SECONDS:g} s ({stats['aborted']} dropped without "
           f"closing); after them: {settled()}")

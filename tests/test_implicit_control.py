@@ -28,7 +28,7 @@ def select(ros: roslibpy.Ros, item: str, args: dict | None = None) -> dict:
 @pytest.fixture
 def menus(watch):
     w = watch("/vr_teleop/menus", "vr_teleop_msgs/Menus")
-    assert wait_for(lambda: w.latest, 5)
+    assert wait_for(lambda: w.latest, 30)
     return w
 
 
@@ -62,14 +62,14 @@ def test_selected_emotion_changes_the_face(sim_server, ros):
     np.testing.assert_array_equal(face, draw_face("happy", face.shape[1], face.shape[0]))
     topic = roslibpy.Topic(ros, "/vr_teleop/menu/selection", "std_msgs/String")
     topic.publish(roslibpy.Message({"data": "emotion.all.with_a_cold"}))  # one that says nothing: the module's
-    assert wait_for(lambda: standin.emotion == "with_a_cold", 5)  # speech test measures the robot's audio
+    assert wait_for(lambda: standin.emotion == "with_a_cold", 30)  # speech test measures the robot's audio
 
 
 def test_unknown_items_and_bad_args_get_clear_errors(sim_server, ros, events):
     refused(select(ros, "motion.fly"), "unknown menu item 'motion.fly'")
     refused(select(ros, "motion.play.list.wave", {"speed": 99}), "bad args for play_gesture: speed")
     refused(select(ros, "motion.play.list.wave", {"name": "moonwalk"}), "unknown gesture")
-    assert wait_for(lambda: events.any(lambda e: e["kind"] == "menu_failed" and "moonwalk" in e["detail"]), 5)
+    assert wait_for(lambda: events.any(lambda e: e["kind"] == "menu_failed" and "moonwalk" in e["detail"]), 30)
     raw = RawClient(sim_server.url)
     try:
         raw.send({"op": "publish", "topic": "/vr_teleop/menu/selection", "msg": {"data": "no.such.item"}})
@@ -99,7 +99,7 @@ def test_speech_sends_audio_whose_duration_matches_the_wav(sim_server, ros):
     watcher.join()
     assert reply["success"] and talked == [True]
     assert elapsed >= expected * 0.9  # the reply comes once the robot has finished saying it
-    assert wait_for(lambda: info.latest, 5)
+    assert wait_for(lambda: info.latest, 30)
     rate, width = info.latest["sample_rate"], int(info.latest["sample_format"][1:3]) // 8
     assert info.latest["sample_format"] == "S16LE" and info.latest["channels"] == 1
     def total() -> int:
@@ -109,7 +109,7 @@ def test_speech_sends_audio_whose_duration_matches_the_wav(sim_server, ros):
     with wave.open(str(sorted(said.glob("robot-*Well_done.wav"))[-1])) as w:  # the WAV the robot said
         pcm, wav_rate = w.readframes(w.getnframes()), w.getframerate()
     assert wav_rate == rate
-    assert wait_for(lambda: total() == len(pcm), 5), (total(), len(pcm))
+    assert wait_for(lambda: total() == len(pcm), 30), (total(), len(pcm))
     with chunks.lock:
         assert b"".join(base64.b64decode(c["data"]) for c in chunks.messages) == pcm
     assert abs(len(pcm) / (rate * width) - expected) < 0.005  # espeak varies by a few samples between renders
@@ -124,10 +124,10 @@ def test_speech_can_be_stopped_and_configured(sim_server, ros):
     say.publish(roslibpy.Message({"data": "This is a rather long sentence that the teacher will cut short, "
                                           "because the class already knows the answer to the question."}))
     standin = sim_server.server.robot.standin
-    assert wait_for(standin.is_talking, 10)
-    assert wait_for(lambda: len(chunks.messages) >= 3, 10)  # it has begun to speak
+    assert wait_for(standin.is_talking, 30)
+    assert wait_for(lambda: len(chunks.messages) >= 3, 30)  # it has begun to speak
     assert select(ros, "speech.stop")["success"]
-    assert wait_for(lambda: not standin.is_talking(), 2)
+    assert wait_for(lambda: not standin.is_talking(), 30)
     still(lambda: True, js, 10)  # a chunk already on its way lands
     count = len(chunks.messages)
     # no audio after the stop, over a second of the robot's joint states (its steady stream), not a time window
@@ -166,11 +166,11 @@ def test_recorded_motion_saves_as_luxai_xml_and_replays_the_trajectory(sim_serve
     gesture = parse_gesture_xml(path, sim_server.server.model)  # LuxAI's format, read back
     recorded = np.array([[wp.time_s, wp.targets["HeadYaw"]] for wp in gesture.waypoints])
     assert recorded[:, 1].max() > 20 and recorded[:, 1].min() < -20
-    assert wait_for(lambda: any(i["id"] == "motion.play.list.look_around" for i in menus.latest["items"]), 5)
+    assert wait_for(lambda: any(i["id"] == "motion.play.list.look_around" for i in menus.latest["items"]), 30)
     # Play it back from where the recording started, and compare the trajectory the robot follows.
     roslibpy.Topic(ros, "/qt_robot/head_position/command", "std_msgs/Float64MultiArray").publish(
         roslibpy.Message({"data": [float(recorded[0, 1]), 0.0]}))
-    assert wait_for(lambda: abs(joints(js).get("HeadYaw", 99) - recorded[0, 1]) < 1.0, 10)
+    assert wait_for(lambda: abs(joints(js).get("HeadYaw", 99) - recorded[0, 1]) < 1.0, 30)
     # The joint states' own stamps (when the server sampled them), not their arrival: a loaded machine delays
     # the client, not the robot.
     with js.lock:
@@ -214,20 +214,20 @@ def test_motivation_crossing_its_limit_sends_the_event(ros, events):
         return [e for e in events.messages if e["source"] == "motivation" and e["kind"] == kind
                 and json.loads(e["detail"])["variable"] == "frustration" and level in (None, e["level"])]
 
-    assert wait_for(lambda: frustration("frustration_high", "warning"), 5)
+    assert wait_for(lambda: frustration("frustration_high", "warning"), 30)
     detail = json.loads(frustration("frustration_high")[0]["detail"])
     assert detail["limit"] == 80 and detail["value"] >= 80 and detail["side"] == "high"
     assert wait_for(lambda: dict(zip(state.latest.get("name", []), state.latest.get("level", []))).get(
-        "frustration") == "high", 5)
+        "frustration") == "high", 30)
     reply = call(ros, "/vr_teleop/motivation/increment", "vr_teleop_msgs/MotivationChange",
                  {"name": "frustration", "value": 100})
     assert reply["value"] == 90 and "clamped" in reply["message"]
-    assert wait_for(lambda: frustration("frustration_high", "danger"), 5)
+    assert wait_for(lambda: frustration("frustration_high", "danger"), 30)
     refused(call(ros, "/vr_teleop/motivation/set", "vr_teleop_msgs/MotivationChange",
                  {"name": "boredom", "value": 1}),
             "unknown motivation variable 'boredom'")
     call(ros, "/vr_teleop/motivation/reset", "vr_teleop_msgs/MotivationChange", {"name": "frustration"})
-    assert wait_for(lambda: frustration("frustration_ok"), 5)
+    assert wait_for(lambda: frustration("frustration_ok"), 30)
     state.close()
 
 
@@ -251,7 +251,7 @@ def test_status_panels_at_2_hz(sim_server, ros):
     roslibpy.Topic(ros, "/vr_teleop/dialog/update", "vr_teleop_msgs/DialogState").publish(roslibpy.Message({
         "question": "What colour is the sky?", "mode": "quiz", "answer": "blue", "candidates": ["blue", "green"],
         "optionals": [], "chosen": "blue"}))
-    assert wait_for(lambda: dialog.latest.get("question") == "What colour is the sky?", 3)
+    assert wait_for(lambda: dialog.latest.get("question") == "What colour is the sky?", 30)
     assert json.loads(select(ros, "status.dialog")["message"])["chosen"] == "blue"
     for w in (motors, hardware, dialog):
         w.close()
@@ -281,18 +281,18 @@ def test_head_and_arms_control_switches(ros):
     headset = Headset(ros).start()
     try:
         engage(ros)
-        assert wait_for(lambda: state.latest.get("head_following"), 5)
+        assert wait_for(lambda: state.latest.get("head_following"), 30)
         assert select(ros, "motion.head")["message"] == "head control off"
-        assert wait_for(lambda: state.latest.get("engaged") and not state.latest.get("head_following"), 5)
+        assert wait_for(lambda: state.latest.get("engaged") and not state.latest.get("head_following"), 30)
         assert select(ros, "motion.head")["message"] == "head control on"
-        assert wait_for(lambda: state.latest.get("head_following"), 5)
+        assert wait_for(lambda: state.latest.get("head_following"), 30)
         assert select(ros, "motion.arms", {"enable": False})["message"] == "arms control off"
         headset.grips["right"] = 1.0
         headset.send_head_poses(45)  # half a second of the headset's frames with the grip held
         assert still(lambda: not state.latest["right_arm_following"], state)
         select(ros, "motion.arms", {"enable": True})
         assert select(ros, "motion.robot.release")["success"]
-        assert wait_for(lambda: not state.latest.get("engaged"), 5)
+        assert wait_for(lambda: not state.latest.get("engaged"), 30)
     finally:
         headset.stop()
         state.close()

@@ -43,7 +43,7 @@ def select(ros: roslibpy.Ros, item: str, args: str = "") -> dict:
 def speech_items(ros: roslibpy.Ros) -> dict[str, dict]:
     watch = Watch(ros, names.MENUS_TOPIC, "vr_teleop_msgs/Menus")
     try:
-        assert wait_for(lambda: watch.latest, 10)
+        assert wait_for(lambda: watch.latest, 30)
         return {i["id"]: i for i in watch.latest["items"] if i["menu"] == "speech"}
     finally:
         watch.close()
@@ -85,13 +85,13 @@ def heard_saying(server, ros: roslibpy.Ros, text: str) -> np.ndarray:
 def test_a_switch_to_german_is_heard_and_the_sentences_follow(sim):
     server, ros = sim
     language = Watch(ros, names.SPEECH_LANGUAGE_TOPIC, "std_msgs/String")
-    assert wait_for(lambda: language.latest.get("data") == "en", 10)
+    assert wait_for(lambda: language.latest.get("data") == "en", 30)
     english = heard_saying(server, ros, TEXT)
     assert np.array_equal(english, espeak("gmw/en", TEXT))
 
     reply = select(ros, "speech.language.de")
     assert reply == {"success": True, "message": "speaking Deutsch"}, reply
-    assert wait_for(lambda: language.latest.get("data") == "de", 10)
+    assert wait_for(lambda: language.latest.get("data") == "de", 30)
     german = heard_saying(server, ros, TEXT)
     assert np.array_equal(german, espeak("gmw/de", TEXT))  # espeak-ng's German voice, not its English one
     assert german.size != english.size or not np.array_equal(german, english)
@@ -123,7 +123,7 @@ def test_a_missing_sentence_list_refuses_the_switch_naming_the_file(servers, tmp
                         r"cannot switch to Français: no sentence list for 'fr': .*sentences\.fr\.txt is missing")
         assert str(menus / "sentences.fr.txt") in reply["message"]
         language = Watch(ros, names.SPEECH_LANGUAGE_TOPIC, "std_msgs/String")
-        assert wait_for(lambda: language.latest.get("data") == "en", 10)  # nothing changed
+        assert wait_for(lambda: language.latest.get("data") == "en", 30)  # nothing changed
         assert speech_items(ros)["speech.sentences.well_done"]["label"] == "Well done!"
         (menus / "sentences.fr.txt").write_text("Bravo !\n")
         english = len(read_sentences(menus / "sentences.en.txt"))
@@ -136,7 +136,7 @@ def test_a_missing_sentence_list_refuses_the_switch_naming_the_file(servers, tmp
 def menu_items(ros: roslibpy.Ros, menu: str) -> dict[str, dict]:
     watch = Watch(ros, names.MENUS_TOPIC, "vr_teleop_msgs/Menus")
     try:
-        assert wait_for(lambda: watch.latest, 10)
+        assert wait_for(lambda: watch.latest, 30)
         return {i["id"]: i for i in watch.latest["items"] if i["menu"] == menu}
     finally:
         watch.close()

@@ -128,7 +128,7 @@ async def test_the_server_sends_the_first_codec_of_the_offer_it_shares(media_ser
         finally:
             await peer.close()
             await ros.close()
-        assert await until(lambda: not media_server.server.media.peers, 10, blocking=True)
+        assert await until(lambda: not media_server.server.media.peers, 30, blocking=True)
 
 
 async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer) -> None:
@@ -197,7 +197,7 @@ async def test_a_keyframe_lost_on_its_way_is_asked_for_again(media_server: Runni
         await peer.close()
         await ros.close()
         monkeypatch.undo()
-    assert await until(lambda: not media_server.server.media.peers, 10, blocking=True)
+    assert await until(lambda: not media_server.server.media.peers, 30, blocking=True)
 
 
 async def test_the_robots_speech_arrives_as_audio(media_server: RunningServer) -> None:
@@ -389,8 +389,8 @@ async def test_a_peer_that_vanishes_is_torn_down(media_server: RunningServer) ->
     media = media_server.server.media
     assert media_server.call(lambda: len(media.peers)) == 1
     ros.ws.transport.abort()  # no close frame, no RTCP BYE, no DTLS close: the client is simply gone
-    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10, blocking=True)
-    assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5, blocking=True)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30, blocking=True)
+    assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 30, blocking=True)
     await peer.close()
 
 
@@ -410,7 +410,7 @@ async def test_a_peer_whose_packets_stop_is_torn_down_and_the_connection_may_off
         for protocol in list(ice._connection._protocols):  # the client's UDP sockets close: it is gone
             protocol.transport.close()
         assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30, blocking=True)
-        assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 5, blocking=True)
+        assert await until(lambda: media_server.call(lambda: media.video.watching) == 0, 30, blocking=True)
         # The next peer gets aioice's own consent checks again: at 0.2 s x 2, both ends (the server's peer is in
         # this process too) tore it down whenever a loaded machine held a check up for 0.4 s.
         monkeypatch.undo()
@@ -485,14 +485,14 @@ async def test_fifty_negotiate_close_cycles_leave_nothing_behind(media_server: R
     for _ in range(2):  # warm-up: the executors' threads, the TTS, the camera's first start
         await cycle(True)
     media = media_server.server.media
-    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10, blocking=True)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30, blocking=True)
     baseline = _resources(media_server)
     for i in range(50):
         await cycle(i % 10 == 0)
-    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 10, blocking=True)
+    assert await until(lambda: media_server.call(lambda: len(media.peers)) == 0, 30, blocking=True)
     created = media_server.call(lambda: media.peers_created)
     assert created >= 52
-    assert await until(lambda: _resources(media_server)["tasks"] <= baseline["tasks"], 10, blocking=True)
+    assert await until(lambda: _resources(media_server)["tasks"] <= baseline["tasks"], 30, blocking=True)
     after = _resources(media_server)
     assert after["peers"] == 0 and after["peer_objects"] <= baseline["peer_objects"], (baseline, after)
     assert after["threads"] <= baseline["threads"], (baseline, after)
@@ -516,7 +516,7 @@ async def test_the_encoder_runs_in_a_process_of_its_own_and_another_starts_when_
         # One compression per frame: the encoder reads the renderer's raw frames, and no JPEG is made for it.
         assert holds_ring(pid) and server.call(lambda: server.server.robot.latest_frame().jpeg) == b""
         encoder.kill()
-        assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 20, blocking=True)
+        assert await until(lambda: server.call(lambda: hub.encoder_pid) not in (None, pid), 30, blocking=True)
         count = peer.video_count
         await peer.wait_video(10)
         assert peer.video_count >= count + 10
@@ -544,7 +544,7 @@ async def test_the_encoder_follows_the_peers_bandwidth_estimate(media_server: Ru
         await receiver._send_rtcp(RtcpPsfbPacket(fmt=RTCP_PSFB_APP, ssrc=1, media_ssrc=0,
                                                  fci=pack_remb_fci(300_000, [ssrc])))
         low = await telemetry_of(ros, lambda c: c["client"] == entry["client"] and c["rtc_target_bitrate"] == 300_000)
-        assert await until(lambda: media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000, 10,
+        assert await until(lambda: media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000, 30,
                            blocking=True)
         assert media_server.call(lambda: media.video.encoder_bitrate["VP8"]) == 300_000
         count = peer.video_count

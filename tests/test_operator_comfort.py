@@ -104,7 +104,7 @@ def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_wher
         page.wait_for_function(f"!{COMFORT}.enabled", timeout=SLOW)
         page.wait_for_function(f"!{COMFORT}.vignetteVisible && !{COMFORT}.reticleVisible", timeout=SLOW)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "menu" and e["kind"] == "select" and json.loads(
-            e["detail"]).get("result") == "comfort vignette off"), 10)
+            e["detail"]).get("result") == "comfort vignette off"), 30)
         press(page, "left", "x-button")  # the menu closed: the pixels are the view's alone
         page.wait_for_function("document.getElementById('menu-title').textContent === ''", timeout=SLOW)
         frames(page, 5)
@@ -121,7 +121,7 @@ def test_the_vignette_grows_as_the_robots_head_trails_and_the_reticle_shows_wher
         select_vignette(page)
         page.wait_for_function(f"{COMFORT}.enabled && {COMFORT}.strength > 0.95", timeout=SLOW)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "menu" and e["kind"] == "select" and json.loads(
-            e["detail"]).get("result") == "comfort vignette on"), 10)
+            e["detail"]).get("result") == "comfort vignette on"), 30)
         press(page, "left", "x-button")
 
         # Back within the limit: the robot's head catches up, the vignette goes.

@@ -181,7 +181,7 @@ def test_the_head_follows_the_headset_and_the_panel_shows_the_robots_view(browse
     finally:
         close_page(page)
     # Closing the page holds the robot: the server's watchdog sees the holder go.
-    assert wait_for(lambda: state.latest.get("state") == "disconnected" and not state.latest["engaged"], 10)
+    assert wait_for(lambda: state.latest.get("state") == "disconnected" and not state.latest["engaged"], 30)
     held = standin.joint_positions()["HeadYaw"]
     assert physics_ran(standin, 0.5)  # what the head would have moved in, had a command come after the hold
     assert abs(standin.joint_positions()["HeadYaw"] - held) < 1.0
@@ -217,7 +217,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         press(page, "right", "trigger")  # again: release
         page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('no one in control')",
                                timeout=SLOW)
-        assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 10)
+        assert wait_for(lambda: state.latest.get("state") == "released" and not state.latest["engaged"], 30)
 
         take_control(page)
         standin = sim_server.server.robot.standin
@@ -230,8 +230,8 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
         page.wait_for_function("(document.getElementById('hud-message')?.textContent ?? '').startsWith('calibrated: ')"
                                " && document.getElementById('hud-message').textContent.includes('recentered')",
                                timeout=SLOW)
-        assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "calibrate"), 10)
-        assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "recenter"), 10)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "calibrate"), 30)
+        assert wait_for(lambda: events.any(lambda e: e["source"] == "teleop" and e["kind"] == "recenter"), 30)
         # where the operator faces is straight ahead now: the robot's head comes back to the centre
         assert settles(standin, "HeadYaw", 0.0, 2.0), standin.joint_positions()
 
@@ -242,7 +242,7 @@ def test_release_calibrate_and_estop_from_the_controllers(browser, iwer, sim_ser
                       "xrDevice.controllers.right.updateButtonValue('thumbstick', 0)")
         page.wait_for_function("(document.getElementById('hud-control')?.textContent ?? '').startsWith('E-STOPPED')",
                                timeout=SLOW)
-        assert wait_for(lambda: state.latest.get("state") == "estopped" and not state.latest["engaged"], 10)
+        assert wait_for(lambda: state.latest.get("state") == "estopped" and not state.latest["engaged"], 30)
         frames(page, 30)  # the right stick's release, part of the e-stop, did not calibrate as well
         assert sum(1 for e in events.messages if e["source"] == "teleop" and e["kind"] == "calibrate") == 1
         assert page.errors == []
@@ -288,7 +288,7 @@ def test_the_emotion_menu_shows_happy_on_the_robots_face(browser, iwer, sim_serv
     if standin.emotion == "happy":
         other = RawClient(sim_server.url)
         other.send({"op": "publish", "topic": "/qt_robot/emotion/show", "msg": {"data": "sad"}})
-        assert wait_for(lambda: standin.emotion == "sad", 10)
+        assert wait_for(lambda: standin.emotion == "sad", 30)
         other.close()
     # A spy on the server's /qt_robot/emotion/show service (the menu command calls it on the bus), restored after.
     calls: list[tuple[str, str]] = []
@@ -314,9 +314,9 @@ def test_the_emotion_menu_shows_happy_on_the_robots_face(browser, iwer, sim_serv
         page.evaluate("xrDevice.controllers.right.updateAxes('thumbstick', 0, 0)")
         screenshot(page, "operator_vr_menu.png")
         press(page, "right", "trigger")
-        assert wait_for(lambda: standin.emotion == "happy", 15)
+        assert wait_for(lambda: standin.emotion == "happy", 30)
         assert wait_for(lambda: events.any(lambda e: e["source"] == "menu" and e["kind"] == "select" and json.loads(
-            e["detail"]).get("result") == "showing happy"), 10)  # /qt_robot/emotion/show ran for the menu
+            e["detail"]).get("result") == "showing happy"), 30)  # /qt_robot/emotion/show ran for the menu
         page.wait_for_function("window.operator.state.footer?.text === 'Happy: showing happy'", timeout=SLOW)
         assert [name for name, _caller in calls] == ["happy"]  # /qt_robot/emotion/show carried it, once
         assert calls[0][1].startswith("/rosbridge_websocket/client_")  # on behalf of the page's session
@@ -331,7 +331,7 @@ def test_another_holder_is_shown_and_the_refused_engage_is_said(browser, iwer, s
     headset = Headset(ros).start()
     try:
         engage(ros)
-        assert wait_for(lambda: state.latest.get("engaged") and state.latest.get("holder"), 10)
+        assert wait_for(lambda: state.latest.get("engaged") and state.latest.get("holder"), 30)
         holder = state.latest["holder"]
         page = open_page(browser, sim_server, headset=iwer)
         try:
@@ -411,7 +411,7 @@ def test_the_hud_shows_the_links_quality_and_warns_after_a_hold(browser, sim_ser
         assert page.errors == []
     finally:
         close_page(page)
-    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 10)
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 30)
 
 
 # Every state the HUD shows, as it shows it: its lines (id -> text) and whether the view had a camera frame then.
@@ -456,7 +456,7 @@ def test_the_hud_never_contradicts_itself(browser, iwer, sim_server):
         assert page.errors == []
     finally:
         close_page(page)
-    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 10)
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 30)
 
 
 def test_an_undrawable_menu_message_is_said_and_the_last_menus_stay(browser, sim_server):
@@ -573,7 +573,7 @@ def test_push_to_talk_streams_the_microphone(browser_type_with_fake_microphone, 
         sent = page.evaluate("window.operator.audio.sentChunks")
         frames(page, 20)
         assert page.evaluate("window.operator.audio.sentChunks") == sent  # released: silence
-        assert wait_for(lambda: any(p.stat().st_size > 44 for p in set(audio_dir.glob("*.wav")) - before), 10)
+        assert wait_for(lambda: any(p.stat().st_size > 44 for p in set(audio_dir.glob("*.wav")) - before), 30)
         assert page.errors == []
     finally:
         close_page(page)

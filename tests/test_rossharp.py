@@ -49,7 +49,7 @@ def rig(sim_server) -> Iterator[list]:
         (component.stop if hasattr(component, "stop") else component.close)()
         if hasattr(component, "connection"):
             component.connection.close()
-    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 10)
+    assert wait_for(lambda: sim_server.call(lambda: sim_server.server.control.holder) is None, 30)
 
 
 def _joints(sub: Subscriber) -> dict[str, float]:
@@ -58,7 +58,7 @@ def _joints(sub: Subscriber) -> dict[str, float]:
 
 def _settle_head_ahead(joints: Subscriber) -> None:
     """With the operator looking straight ahead, the robot's head comes to HeadYaw 0 (from wherever it was)."""
-    assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 99.0)) < 2.0, 15), _joints(joints)
+    assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 99.0)) < 2.0, 30), _joints(joints)
 
 
 def _engage(connection: RosSharpConnection, on: bool = True) -> dict:
@@ -70,7 +70,7 @@ def _engage(connection: RosSharpConnection, on: bool = True) -> dict:
 def test_joint_states_arrive_on_a_ros2_typed_subscription(sim_server, rig):
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
     rig.append(joints)
-    assert wait_for(lambda: len(joints.messages) >= 3, 10)
+    assert wait_for(lambda: len(joints.messages) >= 3, 30)
     assert set(joints.latest["name"]) == set(MODEL.names)
     assert len(joints.latest["position"]) == len(MODEL.names)
     assert joints.connection.broken is None
@@ -89,7 +89,7 @@ def test_a_service_call_with_a_ros2_type_name_returns_its_values(sim_server, rig
 def test_camera_frames_arrive_whole_as_jpeg(sim_server, rig):
     camera = Subscriber(sim_server.url, "/camera/color/image_raw/compressed", msg_type("sensor_msgs/CompressedImage"))
     rig.append(camera)
-    assert wait_for(lambda: camera.messages, 20)
+    assert wait_for(lambda: camera.messages, 30)
     frame = camera.latest
     image = cv2.imdecode(np.frombuffer(base64.b64decode(frame["data"]), np.uint8), cv2.IMREAD_COLOR)
     assert image is not None and image.shape[:2] == (MODEL.camera.height, MODEL.camera.width)
@@ -102,11 +102,11 @@ def test_poses_in_ros_axes_turn_the_head_when_the_frame_id_is_not_unity(sim_serv
     head = PoseStampedPublisher(sim_server.url, HEAD_TOPIC, frame_id="operator")
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
     rig.extend([joints, head])
-    assert wait_for(lambda: head.sent >= 5, 5)
+    assert wait_for(lambda: head.sent >= 5, 30)
     assert _engage(head.connection)["success"] is True
     _settle_head_ahead(joints)  # the robot holds where an earlier test left it
     head.rotation = _yaw_left(30.0)
-    assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 30.0) < 3.0, 15), _joints(joints)
+    assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 30.0) < 3.0, 30), _joints(joints)
     assert _engage(head.connection, False)["success"] is True
 
 
@@ -116,12 +116,12 @@ def test_ros_sharp_default_frame_id_unity_is_already_in_ros_axes(sim_server, rig
     head = PoseStampedPublisher(sim_server.url, HEAD_TOPIC)  # frame_id "Unity", 50 Hz, ROS axes
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
     rig.extend([joints, head])
-    assert wait_for(lambda: head.sent >= 5, 5)
+    assert wait_for(lambda: head.sent >= 5, 30)
     assert _engage(head.connection)["success"] is True
     try:
         _settle_head_ahead(joints)  # looking ahead reads the same in either axes
         head.rotation = _yaw_left(-25.0)  # to the right
-        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) + 25.0) < 3.0, 10), _joints(joints)
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) + 25.0) < 3.0, 30), _joints(joints)
     finally:
         _engage(head.connection, False)
 
@@ -133,19 +133,19 @@ def test_take_control_pressed_twice_changes_nothing(sim_server, rig):
     head = PoseStampedPublisher(sim_server.url, HEAD_TOPIC)
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
     rig.extend([joints, head])
-    assert wait_for(lambda: head.sent >= 5, 5)
+    assert wait_for(lambda: head.sent >= 5, 30)
     assert _engage(head.connection)["success"] is True
     try:
         _settle_head_ahead(joints)
         head.rotation = _yaw_left(30.0)
-        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 30.0) < 3.0, 15), _joints(joints)
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 30.0) < 3.0, 30), _joints(joints)
         again = _engage(head.connection)
         assert again["success"] is True and "already held" in again["message"], again
         head.rotation = _yaw_left(40.0)  # re-zeroed at 30 this would be 10
-        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 40.0) < 3.0, 15), _joints(joints)
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 40.0) < 3.0, 30), _joints(joints)
         recentered = head.connection.call_service("/vr_teleop/control/recenter", srv_type("std_srvs/Trigger"))
         assert recentered["success"] is True, recentered
-        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 99.0)) < 3.0, 15), _joints(joints)
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 99.0)) < 3.0, 30), _joints(joints)
     finally:
         _engage(head.connection, False)
 
@@ -168,24 +168,24 @@ def test_text_reaches_an_ascii_decoding_client_intact(sim_server, rig):
     rig.extend([listener, talker])
     talker.advertise("/rossharp_test/text", msg_type("std_msgs/String"))
     assert wait_for(lambda: (talker.publish("/rossharp_test/text", {"data": "Très bien, ça marche"}),
-                             listener.messages)[1], 10)
+                             listener.messages)[1], 30)
     assert listener.latest["data"] == "Très bien, ça marche"
 
 
 def test_the_time_style_is_learned_from_the_first_stamp_a_connection_sends(sim_server, rig):
     head = PoseStampedPublisher(sim_server.url, "/rossharp_test/pose", frame_id="operator")  # ROS 2 stamps
     rig.append(head)
-    assert wait_for(lambda: head.sent >= 3, 5)
+    assert wait_for(lambda: head.sent >= 3, 30)
     seen: list[dict] = []
     head.connection.subscribe(JOINTS, msg_type("sensor_msgs/JointState"), seen.append)
-    assert wait_for(lambda: seen, 10)
+    assert wait_for(lambda: seen, 30)
     assert read_ros2_time(seen[-1]["header"]["stamp"])[0] > 0, seen[-1]["header"]
 
 
 def test_the_time_style_can_be_set_in_the_url(sim_server, rig):
     joints = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"), time="ros2")
     rig.append(joints)
-    assert wait_for(lambda: joints.messages, 10)
+    assert wait_for(lambda: joints.messages, 30)
     assert read_ros2_time(joints.latest["header"]["stamp"])[0] > 0, joints.latest["header"]
 
 
@@ -211,7 +211,7 @@ def test_joint_states_in_radians_for_the_joint_state_patcher(sim_server, rig):
     radians = Subscriber(sim_server.url, "/joint_states", msg_type("sensor_msgs/JointState"))
     degrees = Subscriber(sim_server.url, JOINTS, msg_type("sensor_msgs/JointState"))
     rig.extend([radians, degrees])
-    assert wait_for(lambda: radians.messages and degrees.messages, 10)
+    assert wait_for(lambda: radians.messages and degrees.messages, 30)
     rad, deg = dict(zip(radians.latest["name"], radians.latest["position"])), _joints(degrees)
     assert set(rad) == set(MODEL.names)
     for name in MODEL.names:  # the stand-in rests at home: compare loosely, both are live readings
@@ -254,17 +254,17 @@ def test_one_operator_on_several_connections_engages_from_any(token_sim_server):
         joints = Subscriber(url, JOINTS, msg_type("sensor_msgs/JointState"), token=TOKEN)
         buttons = RosSharpConnection(url, token=TOKEN)  # the menu/engage button's own RosConnector
         components += [head, right, joy, joints, buttons]
-        assert wait_for(lambda: head.sent >= 5, 5)
+        assert wait_for(lambda: head.sent >= 5, 30)
         assert _engage(buttons)["success"] is True
         _settle_head_ahead(joints)
         head.rotation = _yaw_left(20.0)
-        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 20.0) < 3.0, 15), _joints(joints)
+        assert wait_for(lambda: abs(_joints(joints).get("HeadYaw", 0.0) - 20.0) < 3.0, 30), _joints(joints)
         # the right hand forward with the grip held (the scene's readers give the grip as the fourth axis)
         before = _joints(joints)
         right.position = (0.19, 1.4, 0.55)
         joy.axes[3] = 1.0
         arm = MODEL.part_joints("right_arm")
-        assert wait_for(lambda: max(abs(_joints(joints)[n] - before[n]) for n in arm) > 20.0, 15), _joints(joints)
+        assert wait_for(lambda: max(abs(_joints(joints)[n] - before[n]) for n in arm) > 20.0, 30), _joints(joints)
         assert _engage(buttons, False)["success"] is True
     finally:
         for component in reversed(components):

@@ -139,14 +139,14 @@ def test_a_client_provided_service_answering_result_false_passes_its_values_on(s
     provider = RawClient(sim_server.url)
     try:
         provider.send({"op": "advertise_service", "service": "/core_test/add", "type": "rospy_tutorials/AddTwoInts"})
-        assert wait_for(lambda: "/core_test/add" in sim_server.call(lambda: set(sim_server.server.bus.services)), 5)
+        assert wait_for(lambda: "/core_test/add" in sim_server.call(lambda: set(sim_server.server.bus.services)), 30)
         service = roslibpy.Service(ros, "/core_test/add", "rospy_tutorials/AddTwoInts")
         answers: list = []
         service.call(roslibpy.ServiceRequest({"a": 1, "b": 2}), answers.append, answers.append)
         request = provider.expect("call_service", timeout=5)
         provider.send({"op": "service_response", "id": request["id"], "service": "/core_test/add",
                        "values": {}, "result": False})
-        assert wait_for(lambda: answers, 5)
+        assert wait_for(lambda: answers, 30)
         assert answers[0] == {"sum": 0}  # filled with defaults, as rosbridge does
     finally:
         provider.close()
@@ -159,7 +159,7 @@ def test_connections_with_one_operator_key_share_control_and_another_operator_is
     alice = RosSharpConnection(sim_server.url, operator="alice")
     bob = RosSharpConnection(sim_server.url, operator="bob")
     try:
-        assert wait_for(lambda: head.sent >= 5, 5)
+        assert wait_for(lambda: head.sent >= 5, 30)
         setbool = srv_type("std_srvs/SetBool")
         assert alice.call_service(ENGAGE, setbool, {"data": True})["success"] is True
         who = alice.call_service(WHOAMI, srv_type("vr_teleop_msgs/WhoAmI"))
