@@ -60,7 +60,7 @@ ATTENTION = ("onset_to_look_mean_s", "onset_to_look_p95_s", "share_attended", "e
 
 def sim_per_cpu(done: dict[str, TrialDone], jobs: list[TrialJob], trial: str) -> str:
     mine = [done[j.key] for j in jobs if j.trial == trial]
-    return f"x{sum(d.report.live.t1 for d in mine) / sum(d.cpu_s for d in mine):.1f}"
+    return f"x{sum(d.report.live.duration_s for d in mine) / sum(d.cpu_s for d in mine):.1f}"
 
 
 def _show(x: dict) -> str:
