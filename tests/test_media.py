@@ -170,24 +170,29 @@ async def test_each_frame_is_encoded_once_per_codec(media_server: RunningServer)
 
 async def test_a_keyframe_lost_on_its_way_is_asked_for_again(media_server: RunningServer,
                                                              monkeypatch: pytest.MonkeyPatch) -> None:
-    """A peer's video starts at a keyframe. When the frame the keyframe was granted for never comes out of the
-    encoder (its ring slot already held a newer frame: a loaded machine), the grant is not spent: the next frame is
-    the keyframe, and the peer's video starts (CI once saw a peer get no frame at all for 30 s)."""
+    """A peer's video starts at a keyframe. When the frame the keyframe was granted for never reaches the encoder
+    (its ring slot already held a newer frame: a loaded machine), the grant is not spent: the next frame is the
+    keyframe, and the peer's video starts (CI once saw a peer get no frame at all for 30 s). The encoder runs, at
+    one bitrate throughout, so that no keyframe comes unasked (a new encoder, or one reopened at a new bitrate,
+    starts with one)."""
     from vr_teleop_server.media.encoder_process import EncoderProcess
+    from vr_teleop_server.media.video import START_BITRATE, VideoHub
 
     encode, lost = EncoderProcess.encode, []
 
     def lose_the_first_keyframe(self, frame, pts, jobs, blur=None):
-        out = encode(self, frame, pts, jobs, blur)
         if not lost and any(key for key, _ in jobs.values()):
             lost.append(frame)
-            return {}  # encoded, but lost on its way (the worker answers so for a frame overwritten in the ring)
-        return out
+            return {}  # what the worker answers for a frame its ring slot no longer holds
+        return encode(self, frame, pts, jobs, blur)
 
-    ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")  # the VP8 encoder running:
-    await peer.wait_video(3)  # a new one would start with a keyframe of its own
+    monkeypatch.setattr(VideoHub, "bitrate", lambda self, codec: START_BITRATE)
+    ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")  # the VP8 encoder running
+    await peer.wait_video(3)
     await peer.close()
     await ros.close()
+    hub = media_server.server.media.video
+    assert await until(lambda: media_server.call(lambda: hub.watching) == 0, 30, blocking=True)
     monkeypatch.setattr(EncoderProcess, "encode", lose_the_first_keyframe)
     ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")
     try:
