@@ -187,11 +187,13 @@ async def test_a_keyframe_lost_on_its_way_is_asked_for_again(media_server: Runni
         return encode(self, frame, pts, jobs, blur)
 
     monkeypatch.setattr(VideoHub, "bitrate", lambda self, codec: START_BITRATE)
-    ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")  # the VP8 encoder running
-    await peer.wait_video(3)
+    hub = media_server.server.media.video
+    ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")  # the VP8 encoder running,
+    await peer.wait_video(3)  # at that bitrate (it reopens at a new one when its interval allows)
+    assert await until(lambda: media_server.call(lambda: hub.encoder_bitrate["VP8"]) == START_BITRATE, 30,
+                       blocking=True)
     await peer.close()
     await ros.close()
-    hub = media_server.server.media.video
     assert await until(lambda: media_server.call(lambda: hub.watching) == 0, 30, blocking=True)
     monkeypatch.setattr(EncoderProcess, "encode", lose_the_first_keyframe)
     ros, peer = await connected(media_server.url, audio=False, video_codec="VP8")
