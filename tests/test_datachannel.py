@@ -133,9 +133,12 @@ async def test_head_poses_over_the_channel_move_the_robot_and_stale_ones_are_dro
             assert entry["pose_rate"] > 10, entry  # the channel's poses are this client's poses
         finally:
             mover.cancel()
-        # An older pose after newer ones (unordered delivery): dropped, never on the bus, the robot stays.
+        # An older pose after newer ones (unordered delivery): dropped, never on the bus, the robot stays. Its stamp
+        # is older than every pose sent from here on, and it goes after some of them (stamped 0.5 s before its own
+        # send, it was newer than the mover's last pose when the telemetry wait above took longer than that).
         old = time.time() - 0.5
         drain(on_bus)
+        await stream(client, 30.0, 0.3)
         client.poses.send(HEAD_POSE, head_pose(-30.0, old))
         await stream(client, 30.0, 0.5)
         entry = await my_telemetry(ros, name, lambda e: e["dc_stale_dropped"] >= 1)
