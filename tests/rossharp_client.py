@@ -92,7 +92,7 @@ class RosSharpConnection:
         self.url = with_query(url, token=token, time=time, **query)
         # no permessage-deflate (ROS#'s sockets do not offer it); the socket lives as long as its RosConnector,
         # not a `with` block, hence __enter__ by hand
-        self.ws: ClientConnection = connect(self.url, compression=None, max_size=None, open_timeout=10).__enter__()
+        self.ws: ClientConnection = connect(self.url, compression=None, max_size=None, open_timeout=30).__enter__()
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         self._subscribers: dict[str, list[Callable[[dict[str, Any]], None]]] = {}

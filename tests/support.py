@@ -32,7 +32,7 @@ class RawClient:
     """A plain WebSocket client speaking rosbridge JSON by hand, to assert exact replies."""
 
     def __init__(self, url: str) -> None:
-        self.ws: ClientConnection = connect(url, compression=None, max_size=None, open_timeout=10).__enter__()
+        self.ws: ClientConnection = connect(url, compression=None, max_size=None, open_timeout=30).__enter__()
 
     def send(self, message: dict[str, Any]) -> None:
         self.ws.send(json.dumps(message))

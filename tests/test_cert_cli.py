@@ -41,7 +41,8 @@ def test_cert_names_the_machine_and_serve_speaks_https_and_wss(servers, tmp_path
         with urllib.request.urlopen(f"https://localhost:{server.port}/vendor/three/three.module.js",
                                     context=trust) as r:
             assert "javascript" in r.headers["Content-Type"]
-        with connect(f"wss://127.0.0.1:{server.port}/", ssl=trust) as ws:
+        # TLS and the WebSocket handshake within the 30 s failure bound (websockets' default 10 s failed a loaded run)
+        with connect(f"wss://127.0.0.1:{server.port}/", ssl=trust, open_timeout=30) as ws:
             ws.send(json.dumps({"op": "call_service", "id": "t", "service": "/rosapi/get_time", "args": {}}))
             reply = json.loads(ws.recv(timeout=10))
             assert reply["op"] == "service_response" and reply["result"] is True
