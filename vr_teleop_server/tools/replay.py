@@ -355,9 +355,8 @@ def run_simulated(steps: list[Step], camera: bool = True, progress: bool = True,
     """The replay at `--speed max` without a server: a server of its own on the stand-in and a simulated clock,
     reached through an in-process connection to its transport. Returns what run_replay returns.
 
-    Without `camera` nobody watches the head camera, so its frames are not drawn for the faces either: the pupils'
-    faces are modelled (`perception: modelled`), which found them in the drawn frames at 43% of a menu tour's
-    replay CPU."""
+    Without `camera` nobody watches the head camera, so no frame is drawn for the faces either: the pupils' faces
+    are modelled (`perception: modelled`). Searching drawn frames for them was 43% of a menu tour's replay CPU."""
     base = settings or ServerSettings(port=0, backend="sim")
     perception = "modelled" if not camera and not base.blur_faces else base.perception
     clock = SimulatedClock()
