@@ -6,6 +6,7 @@ or by picking the item again."""
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 from pathlib import Path
@@ -297,17 +298,18 @@ def test_the_hardware_panel_shows_the_robots_figures_and_the_servers_as_their_to
         # one figure a row: what the rows say is what the topics say
         assert wait_for(lambda: server_hw.any(lambda m: m["header"] == server["header"]), 30)
         motor_row = rows[row_named(rows, f"Hottest motor ({shown['hottest_motor']})")]
-        assert motor_row["value"] == f"{shown['motor_temperature_c']:.0f} °C"
+        assert motor_row["value"] == f"{as_shown(shown['motor_temperature_c'])} °C"
         assert rows[row_named(rows, "Battery")] == {"kind": "missing", "label": "Battery", "value": "not simulated",
                                                     "fraction": None, "level": "muted"}
         memory = rows[row_named(rows, "Memory")]
-        assert memory["value"] == f"{server['memory_percent']:.0f} %"
+        assert memory["value"] == f"{as_shown(server['memory_percent'])} %"
         assert rows[row_named(rows, "This server")]["kind"] == "heading"
         assert row_named(rows, "This server") > row_named(rows, "Robot's computer temperature")  # a section apart
         frames(page, 5)
         for row in (row_named(rows, "Memory"), row_named(rows, "Hottest motor")):
             fraction = rows[row]["fraction"]
-            assert 0.05 < fraction < 0.95, rows[row]
+            # room for a filled and an empty pixel (an idle 24 GiB machine uses 4 % of its memory)
+            assert 0.02 < fraction < 0.98, rows[row]
             place = page.evaluate(f"window.operator.statusPanels.hardwareRow(1024, {len(rows)}, {row})")
             (fx, fy), (ex, ey) = bar_points(place["bar"], fraction)
             assert is_fill(canvas_pixel(page, fx, fy)) and is_empty(canvas_pixel(page, ex, ey)), rows[row]
@@ -321,6 +323,12 @@ def test_the_hardware_panel_shows_the_robots_figures_and_the_servers_as_their_to
         assert page.errors == []
     finally:
         close_page(page)
+
+
+def as_shown(value: float) -> str:
+    """A figure as the panels write it (JavaScript's toFixed(0)): a half rounds up, where Python's format rounds it
+    to even (a memory of 14.5 % is "15 %" on the panel and "14" by f"{x:.0f}": a full run failed on it)."""
+    return f"{math.floor(value + 0.5):.0f}"
 
 
 def spy_on(sim_server, service_name: str, field: str) -> tuple[list[tuple[str, str]], list[object], object]:
@@ -432,7 +440,7 @@ def test_the_dashboard_shows_the_hardware_and_dialog_panels_and_says_with_a_face
         })()""")
         server = rows["server"]
         memory = rows["rows"][rows["i"]]
-        assert memory["value"] == f"{server['memory_percent']:.0f} %"
+        assert memory["value"] == f"{as_shown(server['memory_percent'])} %"
         assert wait_for(lambda: server_hw.any(lambda m: m["header"] == server["header"]), 30)  # one of the topic's
         (fx, fy), (ex, ey) = bar_points(rows["place"]["bar"], memory["fraction"])
         pixel = "Array.from(document.getElementById('hardware-panel').getContext('2d').getImageData(%d, %d, 1, 1).data)"
